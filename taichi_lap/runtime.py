@@ -1,0 +1,66 @@
+"""Backend selection: one ``init`` for the whole process.
+
+``auto`` tries CUDA, then Metal, then the CPU, and logs which one it got. Vulkan
+is used only when asked for: on a machine without a GPU it is a software driver,
+several times slower than the CPU backend. Kernels use f32 and i32 only.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+
+import taichi as ti
+
+log = logging.getLogger("taichi_lap")
+
+ARCH_CHOICES = ("auto", "cpu", "cuda", "vulkan", "metal")
+_AUTO_ORDER = ("cuda", "metal", "cpu")
+
+_current_arch: str | None = None
+
+
+def _is_supported(arch_name: str) -> bool:
+    arch = getattr(ti, arch_name, None)
+    return arch is not None and bool(ti.lang.misc.is_arch_supported(arch))
+
+
+def init(arch: str = "auto", *, debug: bool = False, threads: int | None = None,
+         random_seed: int = 0) -> str:
+    """Initialise Taichi once and return the backend name actually used.
+
+    ``arch`` is one of ``auto``, ``cpu``, ``cuda``, ``vulkan``, ``metal``.
+    ``threads`` fixes the CPU thread count (for bit-identical runs). Calling it
+    again with the same arch is a no-op; with another arch it re-initialises.
+    """
+    global _current_arch
+    if arch not in ARCH_CHOICES:
+        raise ValueError(f"arch must be one of {', '.join(ARCH_CHOICES)}, got {arch!r}")
+    if _current_arch is not None and arch in (_current_arch, "auto"):
+        return _current_arch
+    kwargs = dict(default_fp=ti.f32, default_ip=ti.i32, debug=debug,
+                  random_seed=random_seed, offline_cache=True,
+                  log_level=os.environ.get("TAICHI_LAP_TI_LOG", "warn"))
+    if threads:
+        kwargs["cpu_max_num_threads"] = int(threads)
+    if arch == "auto":
+        name = next(n for n in _AUTO_ORDER if _is_supported(n))
+    elif not _is_supported(arch):
+        raise RuntimeError(f"backend {arch!r} is not available on this machine")
+    else:
+        name = arch
+    ti.init(arch=getattr(ti, name), **kwargs)
+    _current_arch = name
+    log.info("taichi backend: %s", name)
+    return name
+
+
+def current_arch() -> str | None:
+    """The backend chosen by :func:`init`, or ``None`` before it was called."""
+    return _current_arch
+
+
+def available_backends() -> list[str]:
+    """Backends this Taichi build can start here (OpenGL is not probed: its probe
+    crashes the process on machines without a display)."""
+    return [name for name in ("cpu", "cuda", "vulkan", "metal") if _is_supported(name)]
