@@ -1,0 +1,1 @@
+"""Model building: geometry, tetrahedralization, clusters, struts, anchors (NumPy, run once)."""
