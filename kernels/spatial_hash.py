@@ -1,0 +1,236 @@
+"""Spatial hash broad phase, rebuilt every step by a counting sort (seed 000 §4.1).
+
+Seed 000 §4.1 localises potentially colliding pairs with a spatial hash before its
+bounding-sphere and circumsphere narrow phases. Points [m] are binned into cubic
+cells of edge ``cell_size`` [m]; cell (i, j, k) = floor(x / cell_size) goes to
+bucket ``(i*73856093 ^ j*19349663 ^ k*83492791) mod table_size`` (Teschner et al.
+2003, "Optimized Spatial Hashing for Collision Detection of Deformable Objects"),
+evaluated in u32 so CPU and Vulkan agree bit for bit.
+
+``build(points, count)`` reads ``points[0:count]`` and writes, in one kernel launch:
+``point_bucket[p]`` (bucket of point p), ``bucket_start[b]`` (exclusive prefix sum of
+bucket sizes, ``table_size + 1`` entries) and ``sorted_index`` (point indices grouped
+by bucket, ascending inside each bucket, so the result does not depend on the order
+the atomics ran in). Buckets hold several cells (hash collisions): callers check
+candidates by distance. Fields are allocated once; only f32/i32/u32, no float atomics.
+
+Query from another kernel (radius <= cell_size)::
+
+    grid = SpatialHash(capacity=n, table_size=1 << 16, cell_size=0.004)
+
+    @ti.kernel
+    def touch(x: ti.template(), n: ti.i32, r: ti.f32):
+        for i in range(n):
+            buckets, n_buckets = grid.neighbour_buckets(x[i], r)
+            for k in range(n_buckets):  # each bucket once, even if two cells share it
+                start, end = grid.bucket_range(buckets[k])
+                for s in range(start, end):
+                    j = grid.sorted_index[s]
+                    if j != i and (x[i] - x[j]).norm_sqr() <= r * r:
+                        ...  # neighbour pair (i, j)
+
+On Vulkan (seen with Mesa lavapipe 22.3) an atomic inside such candidate loops, even
+one never executed, corrupts results: count first, then reserve slots per point.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+_PRIMES = (73856093, 19349663, 83492791)
+
+
+@ti.data_oriented
+class SpatialHash:
+    """Counting-sort spatial hash over at most ``capacity`` points.
+
+    ``table_size`` buckets, cells of ``cell_size`` [m]; ``find_pairs`` writes up to
+    ``pair_capacity`` pairs (i < j) into ``pairs`` and the true count into ``pair_count``.
+    """
+
+    def __init__(self, capacity: int, table_size: int, cell_size: float,
+                 pair_capacity: int | None = None):
+        if capacity < 1 or table_size < 1 or not cell_size > 0:
+            raise ValueError("capacity and table_size must be >= 1, cell_size > 0")
+        self.capacity, self.table_size, self.cell_size = capacity, table_size, float(cell_size)
+        self.inv_cell = float(np.float32(1.0 / cell_size))  # x * inv_cell: exact on every backend
+        self.block = max(64, math.isqrt(table_size - 1) + 1)  # prefix-sum block of buckets
+        self.n_blocks = (table_size + self.block - 1) // self.block
+        self.pair_capacity = pair_capacity if pair_capacity is not None else 8 * capacity
+        self.point_bucket = ti.field(ti.i32, capacity)
+        self.sorted_index = ti.field(ti.i32, capacity)
+        self.bucket_count = ti.field(ti.i32, table_size)  # counts, then scatter cursors
+        self.bucket_start = ti.field(ti.i32, table_size + 1)
+        self.block_start = ti.field(ti.i32, self.n_blocks)
+        self.pairs = ti.Vector.field(2, ti.i32, max(self.pair_capacity, 1))
+        self.pair_count = ti.field(ti.i32, ())
+        self.count = 0  # points in the last build
+        self.neighbour_count = ti.field(ti.i32, capacity)
+        # Vulkan: no atomic inside the candidate loops (see the module docstring).
+        self.reserve_per_point = ti.lang.impl.current_cfg().arch == ti.vulkan
+
+    # ---- ti.func query helpers -------------------------------------------------
+    @ti.func
+    def cell_of(self, x):
+        """Integer cell (ivec3) of position ``x`` [m]: floor(x * f32(1 / cell_size))."""
+        return ti.cast(ti.floor(x * self.inv_cell), ti.i32)
+
+    @ti.func
+    def bucket_of_cell(self, cell):
+        """Teschner 2003 hash of an integer cell, in [0, table_size)."""
+        c = ti.cast(cell, ti.u32)
+        h = (c[0] * ti.u32(_PRIMES[0])) ^ (c[1] * ti.u32(_PRIMES[1])) ^ (c[2] * ti.u32(_PRIMES[2]))
+        return ti.cast(h % ti.u32(self.table_size), ti.i32)
+
+    @ti.func
+    def bucket_range(self, bucket):
+        """(start, end) of ``bucket``'s slice of ``sorted_index``."""
+        return self.bucket_start[bucket], self.bucket_start[bucket + 1]
+
+    @ti.func
+    def neighbour_buckets(self, x, radius):
+        """Distinct non-empty buckets of the cells (among the 27 around ``x``) that a ball
+        of ``radius`` [m] <= cell_size may touch: (vector of 27 i32, how many are valid)."""
+        y = x * self.inv_cell
+        c = ti.cast(ti.floor(y), ti.i32)
+        t = y - ti.cast(c, ti.f32)  # position inside the cell, in cell units
+        reach = radius * self.inv_cell + 1e-3  # margin covers f32 rounding up to ~1e4 cells
+        lo = ti.select(t < reach, -1, 0)
+        hi = ti.select(t > 1.0 - reach, 1, 0)
+        out = ti.Vector([0] * 27, ti.i32)
+        n_out = 0
+        for n in range(27):
+            d = ti.Vector([n % 3 - 1, n // 3 % 3 - 1, n // 9 - 1])
+            if (d >= lo).all() and (d <= hi).all():
+                b = self.bucket_of_cell(c + d)
+                if self.bucket_start[b] < self.bucket_start[b + 1]:
+                    for m in range(n_out):
+                        if out[m] == b:
+                            b = -1
+                    if b >= 0:
+                        out[n_out] = b
+                        n_out += 1
+        return out, n_out
+
+    # ---- build -----------------------------------------------------------------
+    def build(self, points, count: int | None = None):
+        """Rebuild from ``points[0:count]`` (a 3-vector f32 field [m]); one kernel launch."""
+        count = self.capacity if count is None else int(count)
+        if not 0 <= count <= self.capacity or count > points.shape[0]:
+            raise ValueError(f"count {count} exceeds capacity {self.capacity} or points")
+        self.count = count
+        self._build(points, count)
+
+    @ti.kernel
+    def _build(self, points: ti.template(), count: ti.i32):
+        T, B = ti.static(self.table_size, self.block)
+        for b in range(T):
+            self.bucket_count[b] = 0
+        for p in range(count):  # bucket of each point, counted with i32 atomics
+            b = self.bucket_of_cell(self.cell_of(points[p]))
+            self.point_bucket[p] = b
+            ti.atomic_add(self.bucket_count[b], 1)
+        for blk in range(self.n_blocks):  # block totals, in parallel
+            total = 0
+            for b in range(blk * B, ti.min(blk * B + B, T)):
+                total += self.bucket_count[b]
+            self.block_start[blk] = total
+        for _ in range(1):  # short serial scan over the block totals
+            running = 0
+            for blk in range(self.n_blocks):
+                total = self.block_start[blk]
+                self.block_start[blk] = running
+                running += total
+            self.bucket_start[T] = running
+        for blk in range(self.n_blocks):  # offsets inside each block; counts -> cursors
+            running = self.block_start[blk]
+            for b in range(blk * B, ti.min(blk * B + B, T)):
+                self.bucket_start[b] = running
+                running += self.bucket_count[b]
+                self.bucket_count[b] = 0
+        for p in range(count):  # scatter
+            b = self.point_bucket[p]
+            self.sorted_index[self.bucket_start[b] + ti.atomic_add(self.bucket_count[b], 1)] = p
+        for b in range(T):  # shell sort each bucket by point index (deterministic)
+            lo, hi = self.bucket_start[b], self.bucket_start[b + 1]
+            gap = 1
+            while gap < (hi - lo) // 3:
+                gap = 3 * gap + 1
+            while gap >= 1:
+                for a in range(lo + gap, hi):
+                    v, c = self.sorted_index[a], a
+                    while c - gap >= lo:
+                        if self.sorted_index[c - gap] <= v:
+                            break
+                        self.sorted_index[c] = self.sorted_index[c - gap]
+                        c -= gap
+                    self.sorted_index[c] = v
+                gap //= 3
+
+    # ---- neighbour queries -----------------------------------------------------
+    def find_pairs(self, points, radius: float) -> int:
+        """All pairs i < j of the last build with |x_i - x_j| <= radius [m] into ``pairs``.
+
+        Returns the number of pairs found; more than ``pair_capacity`` means overflow
+        (only the first ``pair_capacity``, in no fixed order, were written).
+        """
+        self._check_radius(radius)
+        self._find_pairs(points, self.count, radius)
+        return int(self.pair_count[None])
+
+    def overflowed(self) -> bool:
+        """True when the last ``find_pairs`` found more pairs than ``pair_capacity``."""
+        return int(self.pair_count[None]) > self.pair_capacity
+
+    def pairs_numpy(self) -> np.ndarray:
+        """Found pairs as an (m, 2) i32 array sorted lexicographically."""
+        n = min(int(self.pair_count[None]), self.pair_capacity)
+        p = self.pairs.to_numpy()[:n]
+        return p[np.lexsort((p[:, 1], p[:, 0]))]
+
+    def count_neighbours(self, points, radius: float) -> None:
+        """``neighbour_count[i]`` = number of j != i with |x_i - x_j| <= radius [m]."""
+        self._check_radius(radius)
+        self._count_neighbours(points, self.count, radius)
+
+    def _check_radius(self, radius: float) -> None:
+        if not 0 <= radius <= self.cell_size:
+            raise ValueError(f"radius {radius} must lie in [0, cell_size={self.cell_size}]")
+
+    @ti.func
+    def _visit(self, points: ti.template(), i, radius, upper: ti.template(), write: ti.template(), base):
+        """Count neighbours j of point i (only j > i if ``upper``); ``write`` pairs (i, j):
+        0 no, 1 from slot ``base`` on, 2 to slots taken by one atomic per pair."""
+        x = points[i]
+        buckets, n_buckets = self.neighbour_buckets(x, radius)
+        r2, found = radius * radius, 0
+        for k in range(n_buckets):
+            start, end = self.bucket_range(buckets[k])
+            for s in range(start, end):
+                j = self.sorted_index[s]
+                near = (points[j] - x).norm_sqr() <= r2
+                if (j > i if ti.static(upper) else j != i) and near:
+                    if ti.static(write):
+                        slot = base + found
+                        if ti.static(write == 2):
+                            slot = ti.atomic_add(self.pair_count[None], 1)
+                        if slot < self.pair_capacity:
+                            self.pairs[slot] = ti.Vector([i, j])
+                    found += 1
+        return found
+
+    @ti.kernel
+    def _find_pairs(self, points: ti.template(), count: ti.i32, radius: ti.f32):
+        self.pair_count[None] = 0
+        for i in range(count):
+            if ti.static(self.reserve_per_point):  # count, reserve the slots, write
+                found = self._visit(points, i, radius, True, 0, 0)
+                self._visit(points, i, radius, True, 1, ti.atomic_add(self.pair_count[None], found))
+            else:
+                self._visit(points, i, radius, True, 2, 0)
+
+    @ti.kernel
+    def _count_neighbours(self, points: ti.template(), count: ti.i32, radius: ti.f32):
+        for i in range(count):
+            self.neighbour_count[i] = self._visit(points, i, radius, False, 0, 0)
