@@ -1,0 +1,87 @@
+"""The built model as plain NumPy arrays: what the builder produces, the cache
+stores and :class:`taichi_lap.sim.model.Model` uploads to the device.
+
+All organs are concatenated: particle, cluster, constraint, tet and surface
+indices are global. Per-organ ranges are kept in :class:`OrganRecord` for
+statistics and drawing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+PARTICLE_MATERIAL = ("stiffness", "recover_rate", "eta_on_contact", "damping", "lra_relaxation")
+"""Per-particle material channels copied from each organ's material table."""
+
+
+@dataclass
+class OrganRecord:
+    """Where one organ lives in the global arrays (half-open index ranges)."""
+
+    name: str
+    model: str
+    color: tuple[float, float, float]
+    particles: tuple[int, int]
+    triangles: tuple[int, int]
+    surface_vertices: tuple[int, int]
+    tets: tuple[int, int]
+    clusters: tuple[int, int]
+    struts: int = 0
+    springs: int = 0
+    row_length: int = 0  # spring sheets: masses per row (row 0 is the intestine)
+
+
+@dataclass
+class ModelData:
+    """Static model: rest shape, masses, materials, clusters, constraints, surfaces.
+
+    Shapes: ``N`` particles, ``C`` clusters, ``K`` cluster memberships, ``D``
+    distance constraints, ``L`` long-range attachments, ``S`` springs, ``T`` tets,
+    ``V`` surface vertices, ``F`` surface triangles. Units: metres, kilograms.
+    """
+
+    rest_position: np.ndarray                 # (N, 3) [m]
+    mass: np.ndarray                          # (N,) [kg]; pinned particles keep their mass
+    pinned: np.ndarray                        # (N,) bool: fixed at the rest position
+    radius: np.ndarray                        # (N,) contact radius [m]
+    organ: np.ndarray                         # (N,) organ index
+    material: dict[str, np.ndarray]           # PARTICLE_MATERIAL name -> (N,)
+    cluster_start: np.ndarray                 # (C + 1,)
+    cluster_member: np.ndarray                # (K,)
+    cluster_radius: np.ndarray                # (C,) [m]
+    distance_pair: np.ndarray                 # (D, 2) struts, sheet edges
+    distance_rest: np.ndarray                 # (D,) [m]
+    distance_stiffness: np.ndarray            # (D,) PBD stiffness in [0, 1] (seed 000 Alg. 2)
+    lra_particle: np.ndarray                  # (L,) constrained particle
+    lra_anchor: np.ndarray                    # (L,) attached (pinned) particle
+    lra_rest: np.ndarray                      # (L,) d_LRA' [m] (seed 000 Eq. 3)
+    spring_pair: np.ndarray                   # (S, 2)
+    spring_rest: np.ndarray                   # (S,) [m]
+    spring_stiffness: np.ndarray              # (S,) [N/m]
+    spring_damping: np.ndarray                # (S,) [N s/m]
+    tets: np.ndarray                          # (T, 4)
+    surface_index: np.ndarray                 # (V, 4) particles each surface vertex follows
+    surface_weight: np.ndarray                # (V, 4) barycentric / direct weights
+    surface_triangles: np.ndarray             # (F, 3) into surface vertices
+    organs: list[OrganRecord] = field(default_factory=list)
+
+    @property
+    def particle_count(self) -> int:
+        return len(self.rest_position)
+
+    @property
+    def cluster_count(self) -> int:
+        return len(self.cluster_start) - 1
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Flat name -> array mapping (for the cache)."""
+        out = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, np.ndarray):
+                out[f.name] = value
+        for name, value in self.material.items():
+            out[f"material.{name}"] = value
+        return out

@@ -1,0 +1,228 @@
+"""One organ from its validated spec: geometry, then the tissue model's particles,
+clusters, constraints and surface binding, in the organ's own (local) indices.
+
+| model            | geometry          | particles                | constraints                    |
+|------------------|-------------------|--------------------------|--------------------------------|
+| `tet_clusters`   | solid/closed mesh | BCC tet vertices         | overlapping clusters (seed 002)|
+| `shape_matching` | surface           | surface vertices         | clusters (seed 000 Alg. 1)     |
+| `fascia_lra`     | surface (sheet)   | surface vertices         | edges, bending, LRA (Eq. 3)    |
+| `truss`          | closed surface    | surface vertices         | edges, struts (Alg. 2)         |
+| `mass_spring`    | spring sheet      | rows of masses           | damped springs (seed 001 §3.2) |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from taichi_lap.build import clusters as clustering
+from taichi_lap.build.geometry import Geometry, Solid, SpringSheet, TriangleMesh
+from taichi_lap.build.meshfile import load_surface_mesh
+from taichi_lap.build.sheets import (Attachments, bending_pairs, long_range_attachments,
+                                     mesh_edges, sheet_springs, sheet_triangles)
+from taichi_lap.build.tetrahedralize import tetrahedralize
+from taichi_lap.build.transform import place
+from taichi_lap.build.truss import generate_truss
+from taichi_lap.errors import InputError
+from taichi_lap.scene import OrganSpec
+
+SURFACE_CLUSTER_EDGES = 4.0
+"""Default cluster radius of a surface organ, in mean edge lengths."""
+
+Progress = Callable[[float], None]
+
+
+@dataclass
+class OrganParts:
+    """Everything the builder concatenates for one organ (local indices)."""
+
+    positions: np.ndarray
+    mass: np.ndarray
+    radius: np.ndarray
+    pinned: np.ndarray
+    clusters: clustering.Clusters | None = None
+    distance_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    distance_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    distance_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lra: Attachments | None = None
+    spring_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    spring_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    spring_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    tets: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    surface_index: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    surface_weight: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    surface_triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    struts: int = 0
+    row_length: int = 0
+
+
+def make_geometry(organ: OrganSpec, source: str) -> Geometry:
+    """The organ's geometry in scene coordinates (generator or mesh file, placed)."""
+    from taichi_lap.scenes.anatomy import GENERATORS
+
+    spec = organ.geometry
+    if spec.mesh is not None:
+        closed = organ.model in ("tet_clusters", "truss")
+        geometry = load_surface_mesh(spec.mesh, scene_file=source, key=f"{organ.key}.geometry.mesh",
+                                     scale=spec.units, watertight=closed)
+    else:
+        geometry = GENERATORS[spec.generator].build(dict(spec.params))
+    return place(geometry, spec.rotate, spec.translate)
+
+
+def _direct_binding(count: int) -> tuple[np.ndarray, np.ndarray]:
+    index = np.repeat(np.arange(count)[:, None], 4, axis=1)
+    weight = np.zeros((count, 4))
+    weight[:, 0] = 1.0
+    return index, weight
+
+
+def _uniform(count: int, total: float) -> np.ndarray:
+    return np.full(count, total / max(count, 1))
+
+
+def _mean_edge(mesh: TriangleMesh) -> float:
+    e = mesh_edges(mesh.triangles)
+    return float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean())
+
+
+def _surface_parts(mesh: TriangleMesh, mass: float) -> OrganParts:
+    """Particles at the vertices of ``mesh``, surface bound directly."""
+    n = len(mesh.vertices)
+    index, weight = _direct_binding(n)
+    return OrganParts(positions=mesh.vertices.copy(), mass=_uniform(n, mass),
+                      radius=np.full(n, 0.5 * _mean_edge(mesh)), pinned=np.zeros(n, bool),
+                      surface_index=index, surface_weight=weight,
+                      surface_triangles=mesh.triangles.copy())
+
+
+def _edge_constraints(parts: OrganParts, pairs: np.ndarray, stiffness: float | np.ndarray):
+    rest = np.linalg.norm(parts.positions[pairs[:, 0]] - parts.positions[pairs[:, 1]], axis=1)
+    parts.distance_pairs = np.concatenate([parts.distance_pairs, pairs])
+    parts.distance_rest = np.concatenate([parts.distance_rest, rest])
+    parts.distance_stiffness = np.concatenate(
+        [parts.distance_stiffness, np.broadcast_to(stiffness, (len(pairs),))])
+
+
+def build_tet_clusters(organ: OrganSpec, geometry: Geometry, detail: float,
+                       progress: Progress | None) -> OrganParts:
+    """Seed 002 §3.2: BCC tets fill the solid, tet vertices are the particles,
+    overlapping lattice clusters; the surface is bound to the tets."""
+    material = organ.material
+    solid = geometry
+    if isinstance(geometry, TriangleMesh):
+        solid = Solid(bounds=(geometry.vertices.min(0), geometry.vertices.max(0)), surface=geometry)
+    shrink = detail ** (-1.0 / 3.0)
+    spacing = material["particle_spacing"] * shrink
+    tet = tetrahedralize(solid, spacing, progress=progress)
+    n = len(tet.particles)
+    radius = material["cluster_radius"]
+    radius = clustering.auto_cluster_radius(spacing) if radius is None else radius * shrink
+    return OrganParts(positions=tet.particles, mass=_uniform(n, material["mass"]),
+                      radius=np.full(n, 0.5 * spacing), pinned=np.zeros(n, bool),
+                      clusters=clustering.lattice_clusters(tet.particles, radius), tets=tet.tets,
+                      surface_index=tet.binding_index, surface_weight=tet.binding_weight,
+                      surface_triangles=tet.surface.triangles)
+
+
+def build_shape_matching(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
+    """Seed 000 §3.1: the surface vertices are the particles, grouped in clusters."""
+    parts = _surface_parts(mesh, organ.material["mass"])
+    radius = organ.material["cluster_radius"] or SURFACE_CLUSTER_EDGES * _mean_edge(mesh)
+    parts.clusters = clustering.lattice_clusters(parts.positions, radius)
+    return parts
+
+
+def build_fascia(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
+    """Seed 000 §3.2: edge and bending distance constraints; the LRAs are added once
+    the anchors are known (:func:`add_long_range_attachments`)."""
+    material = organ.material
+    parts = _surface_parts(mesh, material["mass"])
+    _edge_constraints(parts, mesh_edges(mesh.triangles), material["edge_stiffness"])
+    _edge_constraints(parts, bending_pairs(mesh.triangles), material["bending_stiffness"])
+    return parts
+
+
+def add_long_range_attachments(organ: OrganSpec, parts: OrganParts, anchors: np.ndarray):
+    """Attach every free vertex to its nearest ``lra_anchors`` anchors (seed 000 Eq. 3)."""
+    mesh = TriangleMesh(parts.positions, parts.surface_triangles)
+    parts.lra = long_range_attachments(mesh, anchors, organ.material["lra_anchors"])
+
+
+def build_truss(organ: OrganSpec, mesh: TriangleMesh, progress: Progress | None) -> OrganParts:
+    """Seed 000 §3.3: surface edges plus Alg. 2 struts, all distance constraints."""
+    material = organ.material
+    parts = _surface_parts(mesh, material["mass"])
+    _edge_constraints(parts, mesh_edges(mesh.triangles), material["edge_stiffness"])
+    truss = generate_truss(mesh, cone_angle=material["cone_angle"],
+                           bending_threshold=material["bending_threshold"],
+                           min_stiffness=material["min_stiffness"], progress=progress)
+    parts.distance_pairs = np.concatenate([parts.distance_pairs, truss.pairs])
+    parts.distance_rest = np.concatenate([parts.distance_rest, truss.rest])
+    parts.distance_stiffness = np.concatenate([parts.distance_stiffness, truss.stiffness])
+    parts.struts = len(truss.pairs)
+    return parts
+
+
+def build_mass_spring(organ: OrganSpec, sheet: SpringSheet) -> OrganParts:
+    """Seed 001 §3.2: rows of masses (row 0 the intestine) joined by damped springs."""
+    material = organ.material
+    rows, cols = sheet.rows.shape[:2]
+    mass = np.concatenate([_uniform(cols, material["intestine_mass"]),
+                           _uniform((rows - 1) * cols, material["mesentery_mass"])])
+    radius = np.repeat(sheet.row_radius if len(sheet.row_radius) == rows else np.zeros(rows), cols)
+    springs = sheet_springs(sheet, intestine=material["intestine_stiffness"],
+                            mesentery=material["mesentery_stiffness"],
+                            bending=material["bending_stiffness"])
+    index, weight = _direct_binding(rows * cols)
+    return OrganParts(positions=sheet.rows.reshape(-1, 3).copy(), mass=mass, radius=radius,
+                      pinned=np.zeros(rows * cols, bool), spring_pairs=springs.pairs,
+                      spring_rest=springs.rest, spring_stiffness=springs.stiffness,
+                      surface_index=index, surface_weight=weight,
+                      surface_triangles=sheet_triangles(rows, cols), row_length=cols)
+
+
+def build_organ(organ: OrganSpec, source: str, detail: float,
+                progress: Progress | None = None) -> OrganParts:
+    """Geometry and tissue model of one organ."""
+    geometry = make_geometry(organ, source)
+    if organ.model == "tet_clusters":
+        return build_tet_clusters(organ, geometry, detail, progress)
+    if organ.model == "mass_spring":
+        return build_mass_spring(organ, geometry)
+    mesh = geometry.surface if isinstance(geometry, Solid) else geometry
+    if organ.model == "shape_matching":
+        return build_shape_matching(organ, mesh)
+    if organ.model == "fascia_lra":
+        return build_fascia(organ, mesh)
+    return build_truss(organ, mesh, progress)
+
+
+def select_region(parts: OrganParts, region: dict, *, source: str, key: str,
+                  organ: str) -> np.ndarray:
+    """Local indices of the particles in a box, sphere or set of rows."""
+    x = parts.positions
+    if "rows" in region:
+        if not parts.row_length:
+            raise InputError(source, f"{key}.rows", f"rows select spring-sheet rows; organ "
+                                                    f"{organ!r} has none")
+        rows = len(x) // parts.row_length
+        picked = []
+        for r in region["rows"]:
+            if not -rows <= r < rows:
+                raise InputError(source, f"{key}.rows", f"a row in [{-rows}, {rows - 1}] was "
+                                                        f"expected, found {r}")
+            picked.append(np.arange(parts.row_length) + (r % rows) * parts.row_length)
+        selected = np.concatenate(picked)
+    elif "center" in region:
+        selected = np.flatnonzero(np.linalg.norm(x - np.asarray(region["center"]), axis=1)
+                                  <= region["radius"])
+    else:
+        lo, hi = np.asarray(region["box_min"]), np.asarray(region["box_max"])
+        selected = np.flatnonzero(np.all((x >= lo) & (x <= hi), axis=1))
+    if len(selected) == 0:
+        raise InputError(source, key, f"a region holding particles of organ {organ!r} was "
+                                      f"expected, it holds none")
+    return np.unique(selected)

@@ -1,0 +1,100 @@
+"""Constraint topology of surfaces: edges, bending pairs, long-range attachments
+(seed 000 §3.2) and the spring network of seed 001 §3.2."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from taichi_lap.build.geometry import SpringSheet, TriangleMesh
+
+
+def mesh_edges(triangles: np.ndarray) -> np.ndarray:
+    """Unique undirected edges (E, 2) of a triangle mesh, each sorted."""
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def bending_pairs(triangles: np.ndarray) -> np.ndarray:
+    """For every edge shared by two triangles, the two vertices opposite it (a distance
+    constraint between them resists folding, Müller et al. 2007 §4.2)."""
+    t = np.asarray(triangles)
+    directed = np.concatenate([t[:, [0, 1, 2]], t[:, [1, 2, 0]], t[:, [2, 0, 1]]])
+    key = np.sort(directed[:, :2], axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, opposite = key[order], directed[order, 2]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    pairs = np.stack([opposite[:-1][same], opposite[1:][same]], axis=1)
+    pairs = np.sort(pairs[pairs[:, 0] != pairs[:, 1]], axis=1)
+    return np.unique(pairs, axis=0) if len(pairs) else np.zeros((0, 2), dtype=np.int64)
+
+
+@dataclass
+class Attachments:
+    """Long-range attachments: constrained ``particle``, its ``anchor`` and rest
+    distance d' [m] (geodesic along the surface, Kim et al. 2012)."""
+
+    particle: np.ndarray
+    anchor: np.ndarray
+    rest: np.ndarray
+
+
+def long_range_attachments(mesh: TriangleMesh, anchors: np.ndarray, per_vertex: int) -> Attachments:
+    """Each free vertex keeps its ``per_vertex`` geodesically nearest anchors
+    (seed 000 §3.2: "it may be constrained by different attached vertices")."""
+    anchors = np.unique(np.asarray(anchors, dtype=np.int64))
+    n = len(mesh.vertices)
+    edges = mesh_edges(mesh.triangles)
+    length = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
+    graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+    distance = dijkstra(graph, directed=False, indices=anchors)  # (A, n)
+    free = np.setdiff1d(np.arange(n), anchors)
+    count = min(per_vertex, len(anchors))
+    nearest = np.argsort(distance[:, free], axis=0, kind="stable")[:count]  # (count, F)
+    rest = np.take_along_axis(distance[:, free], nearest, axis=0)
+    reachable = np.isfinite(rest)
+    particle = np.broadcast_to(free, nearest.shape)[reachable]
+    return Attachments(particle=particle, anchor=anchors[nearest][reachable], rest=rest[reachable])
+
+
+@dataclass
+class Springs:
+    """Damped springs (seed 001 §3.2): pairs, rest lengths [m], stiffness [N/m]."""
+
+    pairs: np.ndarray
+    rest: np.ndarray
+    stiffness: np.ndarray
+
+
+def sheet_springs(sheet: SpringSheet, *, intestine: float, mesentery: float,
+                  bending: float) -> Springs:
+    """Springs of seed 001 Fig. 6 on rows (R, C): along every row (row 0, the
+    intestine, with ``intestine`` stiffness), between rows and across each quad's
+    diagonals (``mesentery``), and skipping one mass along the intestine (``bending``).
+    Particle (r, c) has index r * C + c."""
+    rows, cols = sheet.rows.shape[:2]
+    index = np.arange(rows * cols).reshape(rows, cols)
+    along = np.stack([index[:, :-1].ravel(), index[:, 1:].ravel()], axis=1)
+    across = np.stack([index[:-1].ravel(), index[1:].ravel()], axis=1)
+    diagonal = np.concatenate([
+        np.stack([index[:-1, :-1].ravel(), index[1:, 1:].ravel()], axis=1),
+        np.stack([index[:-1, 1:].ravel(), index[1:, :-1].ravel()], axis=1)])
+    skip = np.stack([index[0, :-2], index[0, 2:]], axis=1)
+    pairs = np.concatenate([along, across, diagonal, skip])
+    stiffness = np.concatenate([
+        np.where(np.arange(len(along)) < cols - 1, intestine, mesentery),
+        np.full(len(across) + len(diagonal), mesentery), np.full(len(skip), bending)])
+    points = sheet.rows.reshape(-1, 3)
+    rest = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    return Springs(pairs=pairs, rest=rest, stiffness=stiffness)
+
+
+def sheet_triangles(rows: int, cols: int) -> np.ndarray:
+    """Two triangles per quad of a (rows, cols) grid of points (the mesentery surface)."""
+    index = np.arange(rows * cols).reshape(rows, cols)
+    a, b = index[:-1, :-1].ravel(), index[:-1, 1:].ravel()
+    c, d = index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    return np.concatenate([np.stack([a, c, b], axis=1), np.stack([b, c, d], axis=1)])

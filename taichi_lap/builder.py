@@ -1,0 +1,226 @@
+"""Scene -> :class:`ModelData`: builds every organ, applies attachments, joins
+organs, concatenates, and caches the result on disk keyed by the scene's content.
+
+A second start with the same scene (same values, same mesh files, same builder
+code) loads the cached arrays instead of rebuilding. Builds that take more than a
+second show a progress bar.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+import taichi_lap
+import taichi_lap.scenes.anatomy as anatomy
+from taichi_lap.build import clusters as clustering
+from taichi_lap.build.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
+from taichi_lap.build.organs import OrganParts, add_long_range_attachments, build_organ, select_region
+from taichi_lap.scene import CLUSTER_MODELS, Scene
+
+log = logging.getLogger("taichi_lap")
+
+_MATERIAL_FOR_MODEL = {
+    "stiffness": CLUSTER_MODELS, "recover_rate": CLUSTER_MODELS,
+    "eta_on_contact": CLUSTER_MODELS, "lra_relaxation": ("fascia_lra",),
+}
+
+
+def cache_dir() -> Path:
+    """``$TAICHI_LAP_CACHE``, else ``$XDG_CACHE_HOME/taichi-lap``, else ``~/.cache/taichi-lap``."""
+    if os.environ.get("TAICHI_LAP_CACHE"):
+        return Path(os.environ["TAICHI_LAP_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "taichi-lap"
+
+
+def _code_digest() -> str:
+    """Digest of the model-building source, so a code change invalidates the cache."""
+    h = hashlib.sha256(taichi_lap.__version__.encode())
+    roots = [Path(__file__).parent / "build", Path(anatomy.__file__).parent]
+    for root in roots:
+        for path in sorted(root.glob("*.py")):
+            h.update(path.read_bytes())
+    h.update(Path(__file__).read_bytes())
+    return h.hexdigest()
+
+
+def scene_digest(scene: Scene) -> str:
+    """Content key of a scene: its values (after overrides), mesh files and builder code."""
+    h = hashlib.sha256(json.dumps(scene.raw, sort_keys=True, default=str).encode())
+    for organ in scene.organs:
+        if organ.geometry.mesh is not None:
+            h.update(Path(organ.geometry.mesh).read_bytes())
+    h.update(_code_digest().encode())
+    return h.hexdigest()[:32]
+
+
+def build_model(scene: Scene, *, use_cache: bool = True, progress: bool = True) -> ModelData:
+    """The scene's model, from the cache when possible."""
+    path = cache_dir() / f"{scene_digest(scene)}.npz"
+    if use_cache and path.is_file():
+        try:
+            data = load_model(path)
+            log.info("model loaded from cache %s", path)
+            return data
+        except (OSError, ValueError, KeyError) as exc:
+            log.warning("ignoring unreadable model cache %s: %s", path, exc)
+    data = assemble(scene, progress=progress)
+    if use_cache:
+        save_model(data, path)
+    return data
+
+
+def assemble(scene: Scene, *, progress: bool = True) -> ModelData:
+    """Build every organ and concatenate them into one :class:`ModelData`."""
+    bar = tqdm(total=len(scene.organs), desc=f"building {scene.settings['name']}", unit="organ",
+               delay=1.0, disable=None if progress else True, leave=False)
+    parts: list[OrganParts] = []
+    for organ in scene.organs:
+        bar.set_postfix_str(organ.name)
+        done = len(parts)
+
+        def report(fraction: float, done=done):
+            bar.n = done + min(max(fraction, 0.0), 1.0)
+            bar.refresh()
+
+        organ_parts = build_organ(organ, scene.source, scene.settings["detail"], report)
+        _apply_region_attachments(scene, organ, organ_parts)
+        parts.append(organ_parts)
+        bar.n = len(parts)
+        bar.refresh()
+    bar.close()
+    return _concatenate(scene, parts)
+
+
+def _apply_region_attachments(scene: Scene, organ, parts: OrganParts):
+    anchors = []
+    for k, att in enumerate(organ.attachments):
+        if att.kind == "join":
+            continue
+        chosen = select_region(parts, att.region, source=scene.source,
+                               key=f"{organ.key}.attachments[{k}]", organ=organ.name)
+        parts.pinned[chosen] = True
+        if att.kind == "lra_anchor":
+            anchors.append(chosen)
+    if organ.model == "fascia_lra" and anchors:
+        add_long_range_attachments(organ, parts, np.concatenate(anchors))
+
+
+def _concatenate(scene: Scene, parts: list[OrganParts]) -> ModelData:
+    offsets = np.concatenate([[0], np.cumsum([len(p.positions) for p in parts])])
+    surface_offsets = np.concatenate([[0], np.cumsum([len(p.surface_index) for p in parts])])
+    n = int(offsets[-1])
+    material = {name: np.zeros(n) for name in PARTICLE_MATERIAL}
+    cluster_parts, records = [], []
+    tri_start = tet_start = 0
+    for index, (organ, part) in enumerate(zip(scene.organs, parts)):
+        base = int(offsets[index])
+        for name in PARTICLE_MATERIAL:
+            if name in organ.material and organ.model in _MATERIAL_FOR_MODEL.get(name, (organ.model,)):
+                material[name][base:base + len(part.positions)] = organ.material[name]
+        cluster_start = sum(c.count for c in cluster_parts)
+        if part.clusters is not None:
+            cluster_parts.append(_shift_clusters(part.clusters, base))
+        for att in organ.attachments:
+            if att.kind == "join":
+                cluster_parts.append(_join(scene, parts, offsets, organ, att, index))
+        records.append(OrganRecord(
+            name=organ.name, model=organ.model, color=tuple(organ.color),
+            particles=(base, base + len(part.positions)),
+            triangles=(tri_start, tri_start + len(part.surface_triangles)),
+            surface_vertices=(int(surface_offsets[index]), int(surface_offsets[index + 1])),
+            tets=(tet_start, tet_start + len(part.tets)),
+            clusters=(cluster_start, sum(c.count for c in cluster_parts)),
+            struts=part.struts, springs=len(part.spring_pairs), row_length=part.row_length))
+        tri_start += len(part.surface_triangles)
+        tet_start += len(part.tets)
+    everything = clustering.concatenate(cluster_parts) if cluster_parts else None
+
+    def cat(name, width=None, shift=None):
+        arrays = []
+        for k, part in enumerate(parts):
+            value = getattr(part, name)
+            if shift == "particles":
+                value = value + offsets[k]
+            elif shift == "surface":
+                value = value + surface_offsets[k]
+            arrays.append(value)
+        out = np.concatenate(arrays) if arrays else np.zeros(0)
+        return out.reshape(-1, width) if width else out
+
+    lra = [p.lra for p in parts]
+    lra_particle = np.concatenate([a.particle + offsets[k] for k, a in enumerate(lra) if a]
+                                  or [np.zeros(0, np.int64)])
+    lra_anchor = np.concatenate([a.anchor + offsets[k] for k, a in enumerate(lra) if a]
+                                or [np.zeros(0, np.int64)])
+    lra_rest = np.concatenate([a.rest for a in lra if a] or [np.zeros(0)])
+    damping_springs = np.concatenate([np.full(len(p.spring_pairs), o.material.get("spring_damping", 0.0))
+                                      for p, o in zip(parts, scene.organs)])
+    return ModelData(
+        rest_position=cat("positions", 3), mass=cat("mass"), pinned=cat("pinned").astype(bool),
+        radius=cat("radius"), organ=np.repeat(np.arange(len(parts)), np.diff(offsets)),
+        material=material,
+        cluster_start=everything.start if everything else np.zeros(1, np.int64),
+        cluster_member=everything.members if everything else np.zeros(0, np.int64),
+        cluster_radius=everything.radius if everything else np.zeros(0),
+        distance_pair=cat("distance_pairs", 2, "particles").astype(np.int64),
+        distance_rest=cat("distance_rest"), distance_stiffness=cat("distance_stiffness"),
+        lra_particle=lra_particle, lra_anchor=lra_anchor, lra_rest=lra_rest,
+        spring_pair=cat("spring_pairs", 2, "particles").astype(np.int64),
+        spring_rest=cat("spring_rest"), spring_stiffness=cat("spring_stiffness"),
+        spring_damping=damping_springs,
+        tets=cat("tets", 4, "particles").astype(np.int64),
+        surface_index=cat("surface_index", 4, "particles").astype(np.int64),
+        surface_weight=cat("surface_weight", 4),
+        surface_triangles=cat("surface_triangles", 3, "surface").astype(np.int64),
+        organs=records)
+
+
+def _shift_clusters(c: clustering.Clusters, base: int) -> clustering.Clusters:
+    return clustering.Clusters(start=c.start, members=c.members + base, center=c.center,
+                               radius=c.radius)
+
+
+def _join(scene: Scene, parts, offsets, organ, att, index) -> clustering.Clusters:
+    """Seed 002 §3.2 clusters tying ``organ`` to ``att.organ``."""
+    other = next(k for k, o in enumerate(scene.organs) if o.name == att.organ)
+    own_clusters = parts[index].clusters
+    radius = att.radius or float(own_clusters.radius.mean())
+    positions = np.concatenate([p.positions for p in parts])
+    own = np.arange(offsets[index], offsets[index + 1])
+    theirs = np.arange(offsets[other], offsets[other + 1])
+    return clustering.joining_clusters(positions, own, theirs, own_clusters.center, radius)
+
+
+def save_model(data: ModelData, path: Path):
+    """Write the model atomically (temporary file, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = data.arrays()
+    arrays["organs_json"] = np.array(json.dumps([asdict(r) for r in data.organs]))
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_model(path: Path) -> ModelData:
+    """Read a model written by :func:`save_model`."""
+    with np.load(path, allow_pickle=False) as archive:
+        arrays = {k: archive[k] for k in archive.files}
+    organs = [OrganRecord(**{k: tuple(v) if isinstance(v, list) else v for k, v in r.items()})
+              for r in json.loads(str(arrays.pop("organs_json")))]
+    material = {k.split(".", 1)[1]: arrays.pop(k) for k in list(arrays) if k.startswith("material.")}
+    return ModelData(material=material, organs=organs, **arrays)

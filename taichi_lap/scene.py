@@ -1,0 +1,450 @@
+"""Scene files: TOML (read with the standard library's ``tomllib``; nothing in a
+scene file is ever executed), validated into :class:`Scene`.
+
+The schema is the tables of :class:`Param` below; the README's scene-file
+reference is written from them. Bad input raises :class:`InputError`
+(``error: FILE: KEY: what was expected, what was found``).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from taichi_lap.errors import InputError
+from taichi_lap.schema import REQUIRED, check_table, check_value, describe
+from taichi_lap.scenes.anatomy.params import Param
+
+MODELS = ("shape_matching", "tet_clusters", "fascia_lra", "truss", "mass_spring")
+CLUSTER_MODELS = ("shape_matching", "tet_clusters")
+ATTACHMENTS = ("fixed", "lra_anchor", "join")
+TOOL_KINDS = ("probe", "grasper", "scissors", "hook")
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+SCENE_PARAMS = {
+    "name": Param("str", REQUIRED, "scene name"),
+    "description": Param("str", "", "one line shown by `taichi-lap list`"),
+    "dt": Param("float", 1.0 / 60.0, "frame time step", lo=1e-4, hi=0.1, unit="s"),
+    "substeps": Param("int", 1, "substeps per frame", lo=1, hi=200),
+    "shape_iterations": Param("int", 5, "shape-matching passes per substep (Alg. 1 lines 7-23)",
+                              lo=1, hi=100),
+    "iterations": Param("int", 10, "distance/LRA constraint iterations per substep", lo=1, hi=500),
+    "constraint_solver": Param("str", "jacobi", "distance constraint solver",
+                               choices=("jacobi", "gauss_seidel")),
+    "over_relaxation": Param("float", 1.5, "Jacobi over-relaxation ω (Macklin et al. 2014)",
+                             lo=0.1, hi=2.0),
+    "gravity": Param("vec3", [0.0, -9.81, 0.0], "gravity", lo=-1000, hi=1000, unit="m/s²"),
+    "seed": Param("int", 0, "seed of every random source", lo=0, hi=2**31 - 1),
+    "detail": Param("float", 1.0, "particle-count multiplier (smaller scenes for tests)",
+                    lo=1e-3, hi=8.0),
+    "speed_limit": Param("float", 50.0, "particle speed reported as a simulation fault",
+                         lo=1e-3, hi=1e6, unit="m/s"),
+}
+CAMERA_PARAMS = {
+    "position": Param("vec3", [0.0, 0.1, 0.35], "endoscope tip", lo=-100, hi=100, unit="m"),
+    "target": Param("vec3", [0.0, 0.0, 0.0], "point looked at", lo=-100, hi=100, unit="m"),
+    "up": Param("vec3", [0.0, 1.0, 0.0], "up direction", lo=-1, hi=1),
+    "fov": Param("float", 60.0, "vertical field of view", lo=5.0, hi=170.0, unit="deg"),
+    "near": Param("float", 0.002, "near clipping distance", lo=1e-5, hi=10.0, unit="m"),
+    "far": Param("float", 5.0, "far clipping distance", lo=1e-3, hi=1e4, unit="m"),
+}
+PLANE_PARAMS = {
+    "point": Param("vec3", REQUIRED, "a point on the plane", lo=-100, hi=100, unit="m"),
+    "normal": Param("vec3", REQUIRED, "normal pointing to the free side", lo=-1e3, hi=1e3),
+    "friction": Param("float", 0.5, "Coulomb friction coefficient", lo=0.0, hi=10.0),
+}
+TOOL_PARAMS = {
+    "name": Param("str", REQUIRED, "tool name"),
+    "kind": Param("str", "probe", "instrument", choices=TOOL_KINDS),
+    "radius": Param("float", 0.0025, "shaft radius", lo=1e-4, hi=0.05, unit="m"),
+    "length": Param("float", 0.25, "shaft length inside the body", lo=1e-3, hi=1.0, unit="m"),
+    "tip": Param("vec3", [0.0, 0.08, 0.0], "initial tip position", lo=-100, hi=100, unit="m"),
+    "direction": Param("vec3", [0.0, 1.0, 0.0], "from the tip towards the handle", lo=-1e3,
+                       hi=1e3),
+}
+ORGAN_PARAMS = {
+    "name": Param("str", REQUIRED, "organ name, unique in the scene"),
+    "model": Param("str", REQUIRED, "tissue model", choices=MODELS),
+    "color": Param("vec3", [0.75, 0.35, 0.3], "display colour (linear RGB)", lo=0.0, hi=1.0),
+}
+GEOMETRY_COMMON = {
+    "translate": Param("vec3", [0.0, 0.0, 0.0], "offset applied after rotation", lo=-100, hi=100,
+                       unit="m"),
+    "rotate": Param("vec3", [0.0, 0.0, 0.0], "rotation about x, then y, then z", lo=-720,
+                    hi=720, unit="deg"),
+}
+MESH_PARAMS = {
+    "mesh": Param("str", REQUIRED, "OBJ/STL/PLY file, relative to the scene file"),
+    "units": Param("str", "m", "length unit of the file", choices=tuple(UNITS)),
+}
+
+_MASS = Param("float", 0.5, "total mass", lo=1e-6, hi=100.0, unit="kg")
+_DAMPING = Param("float", 1.0, "velocity damping rate", lo=0.0, hi=1000.0, unit="1/s")
+_SHAPE = {
+    "mass": _MASS,
+    "damping": _DAMPING,
+    "stiffness": Param("float", 0.4, "α, pull towards the goal per substep (Alg. 1)", lo=0.0,
+                       hi=1.0),
+    "recover_rate": Param("float", 0.01, "R_r, decrease of η per substep (Alg. 1)", lo=0.0,
+                          hi=1.0),
+    "eta_on_contact": Param("float", 0.7, "η set where a tool touches (seed 000 §7: 0.7; "
+                                          "Alg. 1: 1)", lo=0.0, hi=1.0),
+    "cluster_radius": Param("float", None, "cluster radius; default gives ≈50 particles per "
+                                           "cluster count (seed 002 Table 1)", lo=1e-4, hi=1.0,
+                            unit="m"),
+}
+_EDGES = {
+    "edge_stiffness": Param("float", 1.0, "stiffness of the surface edges", lo=0.0, hi=1.0),
+}
+MATERIAL_PARAMS = {
+    "shape_matching": _SHAPE,
+    "tet_clusters": {**_SHAPE, "particle_spacing": Param(
+        "float", 0.004, "BCC lattice cube edge (seed 002: 2.9 mm gives Table 1)", lo=2e-4,
+        hi=0.1, unit="m")},
+    "fascia_lra": {
+        "mass": _MASS, "damping": _DAMPING, **_EDGES,
+        "bending_stiffness": Param("float", 0.05, "stiffness across neighbouring triangles",
+                                   lo=0.0, hi=1.0),
+        "lra_relaxation": Param("float", 0.25, "β of Eq. 3 (seed 000 §7: 0.1-0.4)", lo=0.0,
+                                hi=1.0),
+        "lra_anchors": Param("int", 4, "nearest attached vertices each vertex keeps", lo=1,
+                             hi=64),
+    },
+    "truss": {
+        "mass": _MASS, "damping": _DAMPING, **_EDGES,
+        "cone_angle": Param("float", 0.3, "θ, half-angle of the strut cone (Alg. 2)", lo=0.01,
+                            hi=1.5, unit="rad"),
+        "bending_threshold": Param("float", math.pi / 3, "θ_threshold (seed 000 §7: π/3)",
+                                   lo=0.0, hi=math.pi, unit="rad"),
+        "min_stiffness": Param("float", 0.05, "k_min (seed 000 §7: 0.05)", lo=0.0, hi=1.0),
+    },
+    "mass_spring": {
+        "damping": Param("float", 0.2, "velocity damping rate", lo=0.0, hi=1000.0, unit="1/s"),
+        "intestine_mass": Param("float", 0.6, "mass of the intestine row", lo=1e-6, hi=100.0,
+                                unit="kg"),
+        "mesentery_mass": Param("float", 0.3, "mass of the other rows", lo=1e-6, hi=100.0,
+                                unit="kg"),
+        "intestine_stiffness": Param("float", 60.0, "springs along the intestine", lo=0.0,
+                                     hi=1e6, unit="N/m"),
+        "mesentery_stiffness": Param("float", 15.0, "springs of the mesentery", lo=0.0,
+                                     hi=1e6, unit="N/m"),
+        "bending_stiffness": Param("float", 5.0, "springs skipping one intestine mass", lo=0.0,
+                                   hi=1e6, unit="N/m"),
+        "spring_damping": Param("float", 0.05, "damping of every spring", lo=0.0, hi=1e4,
+                                unit="N s/m"),
+    },
+}
+ATTACHMENT_PARAMS = {
+    "kind": Param("str", REQUIRED, "what the attachment does", choices=ATTACHMENTS),
+    "box_min": Param("vec3", None, "region: lower corner of a box", lo=-100, hi=100, unit="m"),
+    "box_max": Param("vec3", None, "region: upper corner of a box", lo=-100, hi=100, unit="m"),
+    "center": Param("vec3", None, "region: centre of a sphere", lo=-100, hi=100, unit="m"),
+    "radius": Param("float", None, "region: sphere radius; join: reach", lo=1e-5, hi=100,
+                    unit="m"),
+    "rows": Param("intlist", None, "region: rows of a spring sheet (0 = intestine)", lo=-1000,
+                  hi=1000),
+    "organ": Param("str", None, "join: the organ to tie to"),
+}
+
+
+@dataclass
+class GeometrySpec:
+    """A generator name and its complete params, or a mesh path; plus a transform."""
+
+    generator: str | None
+    params: dict[str, Any]
+    mesh: Path | None
+    units: float
+    translate: list[float]
+    rotate: list[float]
+
+
+@dataclass
+class AttachmentSpec:
+    kind: str
+    region: dict[str, Any]
+    organ: str | None = None
+    radius: float | None = None
+
+
+@dataclass
+class OrganSpec:
+    name: str
+    model: str
+    color: list[float]
+    geometry: GeometrySpec
+    material: dict[str, Any]
+    attachments: list[AttachmentSpec] = field(default_factory=list)
+    key: str = ""  # dotted key of the organ in the file, for errors
+
+
+@dataclass
+class Scene:
+    """A validated scene. ``source`` names the file (or built-in scene) for errors;
+    ``raw`` is the parsed TOML after overrides (hashed for the model cache)."""
+
+    source: str
+    directory: Path
+    settings: dict[str, Any]
+    camera: dict[str, Any]
+    planes: list[dict[str, Any]]
+    tools: list[dict[str, Any]]
+    organs: list[OrganSpec]
+    raw: dict[str, Any]
+
+
+def builtin_names() -> list[str]:
+    """Names of the scenes shipped with the package."""
+    return sorted(p.name[:-5] for p in resources.files("taichi_lap.scenes").iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def resolve(name_or_path: str) -> Path:
+    """The file of a built-in scene name or of a path to a ``.toml`` file."""
+    if name_or_path in builtin_names():
+        return Path(str(resources.files("taichi_lap.scenes") / f"{name_or_path}.toml"))
+    path = Path(name_or_path)
+    if path.suffix == ".toml" and path.is_file():
+        return path
+    if path.suffix == ".toml":
+        raise InputError(name_or_path, "", "a readable scene file was expected, it does not exist")
+    raise InputError(name_or_path, "", f"a built-in scene ({', '.join(builtin_names())}) or a "
+                                       f"path to a .toml file was expected, found neither")
+
+
+def load(name_or_path: str, overrides: dict[str, Any] | None = None) -> Scene:
+    """Read, override (``{"scene.detail": 0.1, "organs.liver.material.stiffness": 0.5}``)
+    and validate a scene."""
+    path = resolve(name_or_path)
+    source = name_or_path if name_or_path in builtin_names() else str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(source, "", f"a readable UTF-8 text file was expected: {exc}") from None
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(source, "", f"valid TOML was expected: {exc}") from None
+    for key, value in (overrides or {}).items():
+        _override(raw, key, value, source)
+    return validate(raw, source, path.parent)
+
+
+def from_tables(organs: list[dict], *, tools: list[dict] | None = None,
+                planes: list[dict] | None = None, **settings) -> Scene:
+    """A scene from Python tables (as they would be read from TOML), for scripts,
+    benchmarks and tests: ``from_tables([{"name": ..., "model": ...}], substeps=2)``."""
+    raw: dict[str, Any] = {"scene": {"name": "scripted", **settings},
+                           "organs": copy.deepcopy(organs)}
+    if tools:
+        raw["tools"] = copy.deepcopy(tools)
+    if planes:
+        raw["environment"] = {"planes": copy.deepcopy(planes)}
+    return validate(raw, "<tables>", Path("."))
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``"scene.detail=0.1"`` -> ``("scene.detail", 0.1)``; the value is read as TOML
+    (numbers, booleans, arrays, quoted strings), else kept as a bare string."""
+    if "=" not in text:
+        raise InputError("--set", text, "KEY=VALUE was expected")
+    key, value = text.split("=", 1)
+    try:
+        return key.strip(), tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        return key.strip(), value
+
+
+def _override(raw: dict, dotted: str, value: Any, source: str):
+    node: Any = raw
+    parts = dotted.split(".")
+    for depth, part in enumerate(parts[:-1]):
+        if isinstance(node, list):
+            named = [item for item in node if isinstance(item, dict) and item.get("name") == part]
+            if not named:
+                raise InputError(source, ".".join(parts[:depth + 1]), "no entry with that name")
+            node = named[0]
+        else:
+            node = node.setdefault(part, {})
+    if not isinstance(node, dict):
+        raise InputError(source, dotted, "a table to set the key in was expected")
+    node[parts[-1]] = value
+
+
+def _list_of_tables(source: str, key: str, value: Any) -> list[dict]:
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise InputError(source, key, f"an array of tables ([[{key}]]) was expected, "
+                                      f"found {describe(value)}")
+    return value
+
+
+def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
+    """Check a parsed scene; return the :class:`Scene` with every default filled in."""
+    known = {"scene", "camera", "environment", "tools", "organs"}
+    for key in raw:
+        if key not in known:
+            raise InputError(source, key, f"unknown top-level key; expected one of: "
+                                          f"{', '.join(sorted(known))}")
+    if "scene" not in raw:
+        raise InputError(source, "scene", "a [scene] table was expected, it is missing")
+    settings = check_table(source, "scene", raw["scene"], SCENE_PARAMS)
+    camera = check_table(source, "camera", raw.get("camera", {}), CAMERA_PARAMS)
+    environment = raw.get("environment", {})
+    check_table(source, "environment", environment, {}, ignore=("planes",))
+    planes = []
+    for k, table in enumerate(_list_of_tables(source, "environment.planes",
+                                              environment.get("planes", []))):
+        plane = check_table(source, f"environment.planes[{k}]", table, PLANE_PARAMS)
+        if sum(c * c for c in plane["normal"]) < 1e-12:
+            raise InputError(source, f"environment.planes[{k}].normal",
+                             "a non-zero vector was expected, found [0, 0, 0]")
+        planes.append(plane)
+    tools = _tools(source, _list_of_tables(source, "tools", raw.get("tools", [])))
+    organ_tables = _list_of_tables(source, "organs", raw.get("organs", []))
+    if not organ_tables:
+        raise InputError(source, "organs", "at least one [[organs]] table was expected, found none")
+    organs = [_organ(source, directory, f"organs[{k}]", t) for k, t in enumerate(organ_tables)]
+    _check_names(source, organs, tools)
+    return Scene(source=source, directory=directory, settings=settings, camera=camera,
+                 planes=planes, tools=tools, organs=organs, raw=copy.deepcopy(raw))
+
+
+def _tools(source: str, tables: list[dict]) -> list[dict]:
+    """Tool tables; an inline ``script`` (keyframes, as in a script file) drives the
+    tool in headless runs."""
+    from taichi_lap.devices import ScriptedDevice
+    from taichi_lap.sim.control import MAX_TOOLS
+
+    if len(tables) > MAX_TOOLS:
+        raise InputError(source, "tools", f"at most {MAX_TOOLS} tools were expected, "
+                                          f"found {len(tables)}")
+    tools = []
+    for k, table in enumerate(tables):
+        tool = check_table(source, f"tools[{k}]", table, TOOL_PARAMS, ignore=("script",))
+        tool["script"] = _list_of_tables(source, f"tools[{k}].script", table.get("script", []))
+        tools.append(tool)
+    for k, tool in enumerate(tools):
+        frames = [dict(frame, tool=tool["name"]) for frame in tool["script"]]
+        if frames:
+            ScriptedDevice.from_tables(f"{source} (tools[{k}].script)", frames, tools)
+    return tools
+
+
+def _organ(source: str, directory: Path, key: str, table: dict) -> OrganSpec:
+    head = check_table(source, key, table, ORGAN_PARAMS,
+                       ignore=("geometry", "material", "attachments"))
+    if "geometry" not in table:
+        raise InputError(source, f"{key}.geometry", "a geometry table was expected, it is missing")
+    geometry = _geometry(source, directory, f"{key}.geometry", table["geometry"], head["model"])
+    material = check_table(source, f"{key}.material", table.get("material", {}),
+                           MATERIAL_PARAMS[head["model"]])
+    attachments = [_attachment(source, f"{key}.attachments[{k}]", t, head["model"])
+                   for k, t in enumerate(_list_of_tables(source, f"{key}.attachments",
+                                                         table.get("attachments", [])))]
+    return OrganSpec(name=head["name"], model=head["model"], color=head["color"],
+                     geometry=geometry, material=material, attachments=attachments, key=key)
+
+
+def _geometry(source: str, directory: Path, key: str, table: Any, model: str) -> GeometrySpec:
+    from taichi_lap.scenes.anatomy import GENERATORS
+
+    if not isinstance(table, dict):
+        raise InputError(source, key, f"a table was expected, found {describe(table)}")
+    if ("generator" in table) == ("mesh" in table):
+        raise InputError(source, key, "exactly one of 'generator' or 'mesh' was expected")
+    if "mesh" in table:
+        spec = check_table(source, key, table, {**MESH_PARAMS, **GEOMETRY_COMMON})
+        if model == "mass_spring":
+            raise InputError(source, f"{key}.mesh", "model mass_spring takes the 'intestine' "
+                                                    "generator, found a mesh file")
+        mesh = directory / spec["mesh"]
+        if not mesh.is_file():
+            raise InputError(source, f"{key}.mesh", f"mesh file {mesh} was expected, it does not "
+                                                    f"exist")
+        return GeometrySpec(generator=None, params={}, mesh=mesh,
+                            units=UNITS[spec["units"]], translate=spec["translate"],
+                            rotate=spec["rotate"])
+    name = check_value(source, f"{key}.generator", table["generator"],
+                       Param("str", REQUIRED, "generator", choices=tuple(sorted(GENERATORS))))
+    generator = GENERATORS[name]
+    wanted = _PRODUCES_FOR_MODEL[model]
+    if generator.produces not in wanted:
+        raise InputError(source, f"{key}.generator", f"a generator making {' or '.join(wanted)} "
+                                                     f"was expected for model {model}, found "
+                                                     f"{name!r} (makes {generator.produces})")
+    spec = check_table(source, key, table, {**generator.params, **GEOMETRY_COMMON},
+                       ignore=("generator",))
+    params = {k: spec[k] for k in generator.params}
+    return GeometrySpec(generator=name, params=params, mesh=None, units=1.0,
+                        translate=spec["translate"], rotate=spec["rotate"])
+
+
+_PRODUCES_FOR_MODEL = {
+    "tet_clusters": ("solid", "surface"),
+    "shape_matching": ("surface",),
+    "truss": ("surface",),
+    "fascia_lra": ("surface",),
+    "mass_spring": ("spring_sheet",),
+}
+
+
+def _attachment(source: str, key: str, table: dict, model: str) -> AttachmentSpec:
+    spec = check_table(source, key, table, ATTACHMENT_PARAMS)
+    kind = spec["kind"]
+    region = {k: spec[k] for k in ("box_min", "box_max", "center", "radius", "rows")
+              if spec[k] is not None}
+    if kind == "join":
+        if model not in CLUSTER_MODELS:
+            raise InputError(source, f"{key}.kind", f"join needs a cluster model "
+                                                    f"({', '.join(CLUSTER_MODELS)}), found {model}")
+        if spec["organ"] is None:
+            raise InputError(source, f"{key}.organ", "the organ to join was expected, it is missing")
+        return AttachmentSpec(kind=kind, region={}, organ=spec["organ"], radius=spec["radius"])
+    if spec["organ"] is not None:
+        raise InputError(source, f"{key}.organ", f"'organ' applies to join only, found it on {kind}")
+    if kind == "lra_anchor" and model != "fascia_lra":
+        raise InputError(source, f"{key}.kind", f"lra_anchor needs model fascia_lra, found {model}")
+    has_box = "box_min" in region or "box_max" in region
+    has_sphere = "center" in region or "radius" in region
+    has_rows = "rows" in region
+    if has_box + has_sphere + has_rows != 1:
+        raise InputError(source, key, "one region was expected: box_min and box_max, center and "
+                                      "radius, or rows")
+    if has_box and not ("box_min" in region and "box_max" in region):
+        raise InputError(source, key, "a box region needs both box_min and box_max")
+    if has_sphere and not ("center" in region and "radius" in region):
+        raise InputError(source, key, "a sphere region needs both center and radius")
+    if has_rows and model != "mass_spring":
+        raise InputError(source, f"{key}.rows", f"rows select spring-sheet rows (model "
+                                                f"mass_spring), found model {model}")
+    return AttachmentSpec(kind=kind, region=region)
+
+
+def _check_names(source: str, organs: list[OrganSpec], tools: list[dict]):
+    seen: dict[str, str] = {}
+    for organ in organs:
+        if organ.name in seen:
+            raise InputError(source, f"{organ.key}.name", f"a unique organ name was expected, "
+                                                          f"{organ.name!r} is also {seen[organ.name]}")
+        seen[organ.name] = organ.key
+    by_name = {o.name: o for o in organs}
+    for organ in organs:
+        for k, att in enumerate(organ.attachments):
+            if att.kind != "join":
+                continue
+            other = by_name.get(att.organ)
+            key = f"{organ.key}.attachments[{k}].organ"
+            if other is None:
+                raise InputError(source, key, f"the name of an organ in this scene was expected, "
+                                              f"found {att.organ!r}")
+            if other is organ or other.model not in CLUSTER_MODELS:
+                raise InputError(source, key, f"another organ with a cluster model was expected, "
+                                              f"found {att.organ!r} ({other.model})")
+    names = [t["name"] for t in tools]
+    if len(set(names)) != len(names):
+        raise InputError(source, "tools", "unique tool names were expected")
