@@ -1,0 +1,76 @@
+"""Particle contact with kinematic tools (capsules) and environment planes.
+
+Position-level projection in the PBD manner (Müller et al. 2007, §3.4): a particle
+of radius r inside a tool capsule is moved to its surface and flagged as collided,
+which holds its shape-matching goal (seed 000 Alg. 1, lines 13-14). Planes (the
+abdominal wall, the table) push particles out with Coulomb friction on the
+displacement of the substep (Macklin et al. 2014, §6.1); they do not flag
+collisions, so tissue resting on them keeps recovering its shape.
+"""
+
+import taichi as ti
+
+MAX_TOOLS = 4
+"""Tool capsules a Control holds (the tool loop is unrolled over them)."""
+
+
+@ti.func
+def closest_on_segment(a, b, q):
+    """Closest point to ``q`` on the segment ``a``-``b``."""
+    ab = b - a
+    t = 0.0
+    denom = ab.dot(ab)
+    if denom > 1e-12:
+        t = ti.math.clamp((q - a).dot(ab) / denom, 0.0, 1.0)
+    return a + t * ab
+
+
+@ti.func
+def push_out_of_tools(control: ti.template(), p, r):
+    """Move a particle at ``p`` [m] of radius ``r`` [m] out of every active tool
+    capsule. Returns the new position and 1 when a tool touched it."""
+    hit = 0
+    for k in ti.static(range(MAX_TOOLS)):
+        if control.tool_active[k]:
+            a, b = control.tool_a[k], control.tool_b[k]
+            c = closest_on_segment(a, b, p)
+            reach = control.tool_radius[k] + r
+            d = p - c
+            dist = d.norm()
+            if dist < reach:
+                normal = ti.Vector([0.0, 1.0, 0.0])
+                if dist > 1e-9:
+                    normal = d / dist
+                p = c + normal * reach
+                hit = 1
+    return p, hit
+
+
+@ti.func
+def push_out_of_planes(model: ti.template(), p, x, r):
+    """Keep a particle of radius ``r`` [m] above every environment plane; friction
+    removes (static) or shortens (kinetic) the tangential part of ``p - x``."""
+    for k in range(model.plane_count):
+        n = model.plane_normal[k]
+        depth = r - (p - model.plane_point[k]).dot(n)
+        if depth > 0:
+            p += depth * n
+            move = p - x
+            tangential = move - move.dot(n) * n
+            length = tangential.norm()
+            limit = model.plane_friction[k] * depth
+            if length <= limit:
+                p -= tangential
+            else:
+                p -= tangential * (limit / length)
+    return p
+
+
+@ti.func
+def resolve_contacts(model: ti.template(), control: ti.template(), i, p, x):
+    """All contacts of particle ``i`` at predicted ``p`` (previous position ``x``).
+    Returns the projected position and the collided flag."""
+    r = model.radius[i]
+    p, hit = push_out_of_tools(control, p, r)
+    p = push_out_of_planes(model, p, x, r)
+    return p, hit

@@ -1,0 +1,134 @@
+"""Goal-limiting cluster shape matching: seed 000 Algorithm 1, and the integration
+every particle shares.
+
+Per substep of length h:
+
+* :func:`predict` — Alg. 1 lines 3-6: v += α (g - x)/h + h f_ext/m, p = x + h v,
+  then contacts (which set the collided flag). α is the stiffness factor; particles
+  outside any cluster have α = 0 and integrate as plain PBD. External forces are
+  gravity and, for mass-spring particles, seed 001's damped springs.
+* :func:`match_clusters` — lines 7-11: per cluster the mass centre p_cm of the
+  predicted positions, A = Σ m_i (p_i - p_cm)(x_i^0 - x_cm^0)^T (Eq. 1) and its
+  rotation R by polar decomposition (Müller et al. 2005). R comes from the SVD
+  A = U Σ V^T with U, V proper rotations (the smallest singular value carries the
+  sign), so R = U V^T has det R = +1 also for inverted clusters. A is scaled to
+  unit norm first: the f32 SVD is inaccurate for entries below ~1e-4.
+* :func:`project_to_goals` — iterations: with ``shape_iterations`` n > 1, lines 7-23
+  are repeated n times per substep and the first n - 1 passes move p towards the
+  limited goal, p += α (g - p), then re-apply contacts. This is the position-level
+  shape matching of PBD (Müller et al. 2007; Macklin et al. 2014 §5); it carries
+  support through overlapping clusters, which the velocity pull alone (n = 1, the
+  literal Alg. 1) transmits only weakly. n = 1 is Alg. 1 exactly.
+* :func:`update_goals` — lines 12-25: η_i = η_contact if the particle collided
+  this substep else max(η_i - R_r, 0) (once per particle per substep); cluster goals
+  g^c = R (x^0 - x_cm^0) + p_cm (Eq. 2) averaged over the n_c clusters sharing the
+  particle (gathered, not scattered); g = g^c + η (p - g^c); then v = (p - x)/h,
+  x = p, with the health check.
+
+Seed 000 §7 tunes η = 0.7 for the value set on contact; Alg. 1 writes 1 (hold the
+vertex exactly). Both are the ``eta_on_contact`` material parameter.
+"""
+
+import taichi as ti
+
+from taichi_lap.kernels.contact import resolve_contacts
+from taichi_lap.kernels.health import report_fault
+from taichi_lap.kernels.mass_spring import spring_force
+
+
+@ti.kernel
+def predict(model: ti.template(), state: ti.template(), control: ti.template(),
+            gravity: ti.math.vec3, h: ti.f32):
+    """Alg. 1 lines 3-6 and contacts. Reads x, v, goal; writes p, collided.
+    ``gravity`` [m/s²], ``h`` [s]."""
+    for i in range(model.particle_count):
+        x = state.x[i]
+        p = x
+        hit = 0
+        if model.inv_mass[i] > 0.0:
+            v = state.v[i] + model.stiffness[i] * (state.goal[i] - x) / h
+            v += h * (gravity + spring_force(model, state, i) * model.inv_mass[i])
+            v *= ti.max(1.0 - model.damping[i] * h, 0.0)
+            p, hit = resolve_contacts(model, control, i, x + h * v, x)
+        state.p[i] = p
+        state.collided[i] = hit
+
+
+@ti.kernel
+def match_clusters(model: ti.template(), state: ti.template()):
+    """Alg. 1 lines 7-11 for every cluster. Reads p; writes cluster_center (p_cm) and
+    cluster_rotation (R)."""
+    for c in range(model.cluster_total):
+        rest_center = model.cluster_rest_center[c]
+        first = ti.Vector([0.0, 0.0, 0.0])
+        moment = ti.Matrix.zero(ti.f32, 3, 3)
+        for k in range(model.cluster_start[c], model.cluster_start[c + 1]):
+            i = model.cluster_member[k]
+            m = model.mass[i]
+            d = state.p[i] - rest_center  # any origin works: Σ m q = 0
+            first += m * d
+            moment += m * d.outer_product(model.cluster_rest_offset[k])
+        state.cluster_center[c] = rest_center + first / model.cluster_mass[c]
+        # the f32 SVD loses accuracy for tiny entries: R is scale-invariant, so normalise
+        U, _, V = ti.svd(moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30))
+        state.cluster_rotation[c] = U @ V.transpose()
+
+
+@ti.func
+def averaged_cluster_goal(model: ti.template(), state: ti.template(), i, p):
+    """Mean over the clusters containing particle ``i`` of g^c (Alg. 1 lines 18, 21-23);
+    ``p`` when the particle is in no cluster."""
+    begin, end = model.membership_start[i], model.membership_start[i + 1]
+    goal = p
+    if end > begin:
+        total = ti.Vector([0.0, 0.0, 0.0])
+        for j in range(begin, end):
+            k = model.membership[j]
+            c = model.member_cluster[k]
+            total += state.cluster_rotation[c] @ model.cluster_rest_offset[k] + state.cluster_center[c]
+        goal = total / (end - begin)
+    return goal
+
+
+@ti.func
+def limited_goal(model: ti.template(), state: ti.template(), i, p):
+    """Alg. 1 lines 13-19 for particle ``i`` at ``p``: the recovery factor η after this
+    substep (η_contact if collided, else max(η - R_r, 0)) and the goal
+    g = g^c + η (p - g^c). Averaging before blending equals blending per cluster
+    then averaging (the blend is linear)."""
+    eta = ti.max(state.eta[i] - model.recover_rate[i], 0.0)
+    if state.collided[i]:
+        eta = model.eta_on_contact[i]
+    goal = averaged_cluster_goal(model, state, i, p)
+    return goal + eta * (p - goal), eta
+
+
+@ti.kernel
+def project_to_goals(model: ti.template(), state: ti.template(), control: ti.template()):
+    """An extra shape-matching iteration: p += α (g - p) towards the limited goal, then
+    contacts. Reads and writes p (each particle only its own), collided."""
+    for i in range(model.particle_count):
+        if model.inv_mass[i] > 0.0 and model.membership_start[i + 1] > model.membership_start[i]:
+            p = state.p[i]
+            goal, _ = limited_goal(model, state, i, p)
+            p, hit = resolve_contacts(model, control, i, p + model.stiffness[i] * (goal - p),
+                                      state.x[i])
+            state.p[i] = p
+            if hit:
+                state.collided[i] = 1
+
+
+@ti.kernel
+def update_goals(model: ti.template(), state: ti.template(), h: ti.f32, speed_limit: ti.f32):
+    """Alg. 1 lines 12-25: recovery factor, limited goals, velocity and position
+    update, health check. Reads p, collided, eta, cluster frames; writes eta, goal,
+    v, x, fault."""
+    for i in range(model.particle_count):
+        p = state.p[i]
+        goal, eta = limited_goal(model, state, i, p)
+        state.eta[i] = eta
+        state.goal[i] = goal
+        v = (p - state.x[i]) / h
+        report_fault(state, i, p, v, speed_limit)
+        state.v[i] = v
+        state.x[i] = p

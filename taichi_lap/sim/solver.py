@@ -1,0 +1,113 @@
+"""The solver: the order of one simulation step, written once.
+
+A frame of length dt runs ``substeps`` substeps of h = dt / substeps, each:
+
+1. **predict** — seed 000 Alg. 1 lines 3-6 for every particle (goal pull, gravity,
+   springs of seed 001 §3.2, damping), then tool and environment contacts;
+2. **constraints** — ``iterations`` sweeps over distance constraints (struts, sheet
+   edges) and relaxed long-range attachments (seed 000 Eq. 3), contacts re-applied;
+3. **shape matching** — ``shape_iterations`` passes of Alg. 1 lines 7-23 (A, polar
+   decomposition per cluster, limited goals); all passes but the last move p
+   towards the goals;
+4. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
+
+After the substeps the render surface is skinned to the particles and the health
+flag is read: a non-finite or exploding particle raises :class:`SimulationFault`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from taichi_lap.errors import SimulationFault
+from taichi_lap.kernels import distance, shape_matching, skinning
+from taichi_lap.sim.control import Control
+from taichi_lap.sim.model import Model
+from taichi_lap.sim.state import State
+
+NO_FAULT = 2**31 - 1
+
+
+@dataclass
+class SolverSettings:
+    """Scene-wide solver parameters (units: s, m/s², m/s)."""
+
+    substeps: int = 1
+    shape_iterations: int = 5
+    iterations: int = 10
+    constraint_solver: str = "jacobi"
+    over_relaxation: float = 1.5
+    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
+    speed_limit: float = 50.0
+
+    @classmethod
+    def from_scene(cls, settings: dict) -> "SolverSettings":
+        return cls(substeps=settings["substeps"], shape_iterations=settings["shape_iterations"],
+                   iterations=settings["iterations"],
+                   constraint_solver=settings["constraint_solver"],
+                   over_relaxation=settings["over_relaxation"],
+                   gravity=tuple(settings["gravity"]), speed_limit=settings["speed_limit"])
+
+
+class Solver:
+    """Advances a :class:`State` in place; see the module docstring for the order."""
+
+    def __init__(self, model: Model, settings: SolverSettings):
+        if model.constraint_solver != settings.constraint_solver:
+            raise ValueError("the model was built for another constraint solver")
+        self.model = model
+        self.settings = settings
+        self._has_constraints = model.distance_count > 0 or model.lra_count > 0
+        self._has_clusters = model.cluster_total > 0
+
+    def step(self, state: State, control: Control, dt: float):
+        """Advance one frame of ``dt`` [s]; raise :class:`SimulationFault` on a fault."""
+        h = dt / self.settings.substeps
+        state.fault_particle[None] = NO_FAULT
+        for _ in range(self.settings.substeps):
+            self.substep(state, control, h)
+        skinning.skin_surface(self.model, state)
+        state.time += dt
+        state.frame += 1
+        self.check_health(state)
+
+    def substep(self, state: State, control: Control, h: float):
+        """One substep: predict, constraints, shape matching, update goals."""
+        model, settings = self.model, self.settings
+        shape_matching.predict(model, state, control, settings.gravity, h)
+        if self._has_constraints:
+            self._solve_constraints(state, control)
+        if self._has_clusters:
+            for _ in range(settings.shape_iterations - 1):
+                shape_matching.match_clusters(model, state)
+                shape_matching.project_to_goals(model, state, control)
+            shape_matching.match_clusters(model, state)
+        shape_matching.update_goals(model, state, h, settings.speed_limit)
+
+    def _solve_constraints(self, state: State, control: Control):
+        model, settings = self.model, self.settings
+        if settings.constraint_solver == "gauss_seidel":
+            for _ in range(settings.iterations):
+                for begin, end in model.color_ranges:
+                    distance.gauss_seidel_color(model, state, begin, end)
+                distance.gauss_seidel_finish(model, state, control)
+            return
+        buffers = (state.p, state.p_next)
+        for it in range(settings.iterations):
+            distance.jacobi_sweep(model, state, control, buffers[it % 2], buffers[(it + 1) % 2],
+                                  settings.over_relaxation)
+        if settings.iterations % 2:
+            distance.copy_positions(state.p_next, state.p)
+
+    def check_health(self, state: State):
+        """Raise :class:`SimulationFault` naming the first faulty particle and organ."""
+        if not state.fault[None]:
+            return
+        particle = int(state.fault_particle[None])
+        organ = "?"
+        for record in self.model.data.organs:
+            if record.particles[0] <= particle < record.particles[1]:
+                organ = record.name
+        raise SimulationFault(f"simulation fault at frame {state.frame}: particle {particle} of "
+                              f"organ {organ!r} has a non-finite position or a speed above "
+                              f"{self.settings.speed_limit:g} m/s")

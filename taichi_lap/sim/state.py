@@ -1,0 +1,71 @@
+"""Dynamic simulation state (the Warp/Newton ``State``): positions, velocities,
+goals, recovery factors, collision flags, cluster frames, the skinned surface and
+the health flag. Created by :meth:`State.from_model`; updated in place by the solver.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import taichi as ti
+
+from taichi_lap.sim.model import Model
+
+
+@ti.data_oriented
+class State:
+    """Per-particle ``x`` [m], ``v`` [m/s], predicted ``p`` [m] (and a second buffer
+    for Jacobi sweeps), shape-matching ``goal`` [m], recovery factor ``eta`` and
+    ``collided`` flag (seed 000 Alg. 1); per-cluster rotation and mass centre; the
+    skinned surface vertices; ``fault`` (non-zero after a non-finite or exploding
+    particle, the first such particle in ``fault_particle``)."""
+
+    def __init__(self, model: Model):
+        n = max(model.particle_count, 1)
+        c = max(model.cluster_total, 1)
+        self.x = ti.Vector.field(3, ti.f32, n)
+        self.v = ti.Vector.field(3, ti.f32, n)
+        self.p = ti.Vector.field(3, ti.f32, n)
+        self.p_next = ti.Vector.field(3, ti.f32, n)
+        self.goal = ti.Vector.field(3, ti.f32, n)
+        self.eta = ti.field(ti.f32, n)
+        self.collided = ti.field(ti.i32, n)
+        self.cluster_rotation = ti.Matrix.field(3, 3, ti.f32, c)
+        self.cluster_center = ti.Vector.field(3, ti.f32, c)
+        self.surface_position = ti.Vector.field(3, ti.f32, max(model.surface_vertex_count, 1))
+        self.fault = ti.field(ti.i32, ())
+        self.fault_particle = ti.field(ti.i32, ())
+        self.time = 0.0
+        self.frame = 0
+
+    @classmethod
+    def from_model(cls, model: Model) -> "State":
+        """A state at rest: x = goal = rest position, v = 0, eta = 0."""
+        state = cls(model)
+        state.reset(model)
+        return state
+
+    def reset(self, model: Model):
+        """Return to the rest configuration."""
+        self.x.copy_from(model.rest_position)
+        self.p.copy_from(model.rest_position)
+        self.p_next.copy_from(model.rest_position)
+        self.goal.copy_from(model.rest_position)
+        self.v.fill(0.0)
+        self.eta.fill(0.0)
+        self.collided.fill(0)
+        identity = np.broadcast_to(np.eye(3, dtype=np.float32), self.cluster_rotation.shape + (3, 3))
+        self.cluster_rotation.from_numpy(np.ascontiguousarray(identity))
+        self.cluster_center.copy_from(model.cluster_rest_center)
+        self.fault[None] = 0
+        self.fault_particle[None] = 2**31 - 1
+        self.time = 0.0
+        self.frame = 0
+
+    def positions(self) -> np.ndarray:
+        """Particle positions (N, 3) [m] as a NumPy copy."""
+        return self.x.to_numpy()
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Everything that evolves, as NumPy copies (for determinism checks)."""
+        return {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "goal": self.goal.to_numpy(),
+                "eta": self.eta.to_numpy(), "collided": self.collided.to_numpy()}
