@@ -1,0 +1,210 @@
+"""The ``taichi-lap`` command line: run, render, check, list, info.
+
+Exit status 0 on success, 2 on bad input (one line on stderr:
+``error: FILE: KEY: what was expected, what was found``), 1 on an internal error
+or a simulation fault.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+
+from taichi_lap.errors import InputError, SimulationFault
+
+log = logging.getLogger("taichi_lap")
+
+
+def _parser() -> argparse.ArgumentParser:
+    from taichi_lap.runtime import ARCH_CHOICES
+
+    parser = argparse.ArgumentParser(prog="taichi-lap", description="Laparoscopic surgery "
+                                     "simulator on Taichi (position-based soft tissue).")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress and backend")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def scene_args(p):
+        p.add_argument("scene", help="built-in scene name (see `taichi-lap list`) or a .toml file")
+        p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                       help="override a scene value, e.g. scene.detail=0.1 or "
+                            "organs.liver.material.stiffness=0.5")
+        p.add_argument("--no-cache", action="store_true", help="rebuild the model")
+
+    run = sub.add_parser("run", help="simulate a scene in a window or headless")
+    scene_args(run)
+    run.add_argument("--arch", default="auto", choices=ARCH_CHOICES)
+    run.add_argument("--headless", action="store_true", help="never open a window")
+    run.add_argument("--frames", type=int, default=None, help="stop after N frames")
+    run.add_argument("--out", default=None, help="headless output: .mp4, .gif or a folder of PNGs")
+    run.add_argument("--device", default="auto",
+                     help="mouse, none, script:PATH (default: mouse in a window, the scene's "
+                          "tool scripts headless)")
+    run.add_argument("--size", default="1280x720", help="image size WxH")
+    run.add_argument("--threads", type=int, default=None, help="CPU threads (reproducible runs)")
+
+    render = sub.add_parser("render", help="write one still image")
+    scene_args(render)
+    render.add_argument("--out", required=True, help="PNG file")
+    render.add_argument("--arch", default="auto", choices=ARCH_CHOICES)
+    render.add_argument("--frames", type=int, default=0, help="simulate N frames first")
+    render.add_argument("--size", default="1280x720", help="image size WxH")
+
+    check = sub.add_parser("check", help="validate a scene and print model statistics")
+    scene_args(check)
+    check.add_argument("--json", action="store_true", help="print JSON")
+
+    sub.add_parser("list", help="list the built-in scenes")
+    sub.add_parser("info", help="versions, backends and devices")
+    return parser
+
+
+def _load_scene(args):
+    from taichi_lap import scene as scene_mod
+
+    overrides = dict(scene_mod.parse_override(text) for text in args.set)
+    return scene_mod.load(args.scene, overrides)
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+        if w < 16 or h < 16 or w > 8192 or h > 8192:
+            raise ValueError
+        return w, h
+    except ValueError:
+        raise InputError("--size", text, "WIDTHxHEIGHT between 16 and 8192 was expected") from None
+
+
+def cmd_check(args) -> int:
+    from taichi_lap.builder import build_model
+    from taichi_lap.stats import format_table, model_statistics
+
+    scene = _load_scene(args)
+    stats = model_statistics(build_model(scene, use_cache=not args.no_cache, progress=not args.json))
+    print(json.dumps(stats, indent=2) if args.json else format_table(stats))
+    return 0
+
+
+def cmd_list(args) -> int:
+    from taichi_lap import scene as scene_mod
+
+    for name in scene_mod.builtin_names():
+        description = scene_mod.load(name).settings["description"]
+        print(f"{name:<12} {description}")
+    return 0
+
+
+def cmd_info(args) -> int:
+    import ctypes.util
+    import platform
+
+    import numpy
+    import taichi
+    import trimesh
+
+    import taichi_lap
+    from taichi_lap.runtime import available_backends
+
+    print(f"taichi-lap {taichi_lap.__version__}")
+    print(f"python {platform.python_version()} ({platform.machine()}, {platform.system()})")
+    print(f"taichi {'.'.join(map(str, taichi.__version__))}, numpy {numpy.__version__}, "
+          f"trimesh {trimesh.__version__}")
+    print(f"backends: {', '.join(available_backends())}")
+    print(f"display: {'yes' if has_display() else 'no (run falls back to headless)'}")
+    print(f"OpenHaptics libHD: {ctypes.util.find_library('HD') or 'not found'}")
+    return 0
+
+
+def has_display() -> bool:
+    """Whether a window can be opened (Linux needs X11 or Wayland)."""
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
+
+
+def _device(args, scene, headless: bool):
+    from taichi_lap.devices import MouseDevice, ScriptedDevice
+    from taichi_lap.session import scene_script
+
+    choice = args.device
+    if choice == "auto":
+        choice = "scene" if headless else "mouse"
+    if choice.startswith("script:"):
+        return ScriptedDevice.from_file(choice[len("script:"):], scene.tools)
+    if choice == "scene":
+        return scene_script(scene)
+    if choice == "mouse":
+        if headless:
+            raise InputError("--device", choice, "a device that works headless (none, "
+                                                 "script:PATH) was expected")
+        return MouseDevice(scene.tools[0]) if scene.tools else None
+    if choice == "none":
+        return None
+    raise InputError("--device", choice, "mouse, none or script:PATH was expected")
+
+
+def cmd_run(args) -> int:
+    from taichi_lap import app, runtime
+
+    if args.frames is not None and args.frames < 0:
+        raise InputError("--frames", str(args.frames), "a non-negative number was expected")
+    headless = args.headless
+    if not headless and not has_display():
+        print("no display found: running headless", file=sys.stderr)
+        headless = True
+    if headless and args.frames is None:
+        args.frames = 120
+    scene = _load_scene(args)
+    size = _size(args.size)
+    device = _device(args, scene, headless)
+    runtime.init(args.arch, threads=args.threads, random_seed=scene.settings["seed"])
+    if headless:
+        out = args.out or f"{scene.settings['name']}.mp4"
+        app.run_headless(scene, device, frames=args.frames, out=out, size=size,
+                         use_cache=not args.no_cache)
+        print(f"wrote {out}")
+    else:
+        app.run_window(scene, device, frames=args.frames, size=size, use_cache=not args.no_cache)
+    return 0
+
+
+def cmd_render(args) -> int:
+    from taichi_lap import app, runtime
+
+    if not args.out.lower().endswith(".png"):
+        raise InputError("--out", args.out, "a .png file was expected")
+    scene = _load_scene(args)
+    runtime.init(args.arch, random_seed=scene.settings["seed"])
+    app.render_still(scene, frames=args.frames, out=args.out, size=_size(args.size),
+                     use_cache=not args.no_cache)
+    print(f"wrote {args.out}")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "render": cmd_render, "check": cmd_check, "list": cmd_list,
+            "info": cmd_info}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s: %(message)s")
+    try:
+        return COMMANDS[args.command](args)
+    except InputError as exc:
+        print(f"error: {exc.one_line()}", file=sys.stderr)
+        return 2
+    except SimulationFault as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

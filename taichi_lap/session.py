@@ -1,0 +1,52 @@
+"""A scene ready to run: model built (or loaded from the cache), the device-side
+Model / State / Control, the solver, and per-stage timings."""
+
+from __future__ import annotations
+
+import time
+
+import taichi as ti
+
+from taichi_lap.builder import build_model
+from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
+from taichi_lap.scene import Scene
+from taichi_lap.sim import Control, Model, Solver, SolverSettings, State
+
+
+def model_for(scene: Scene, data) -> Model:
+    """Upload a built model with the scene's environment and solver choices."""
+    planes = [(p["point"], p["normal"], p["friction"]) for p in scene.planes]
+    return Model(data, planes=planes, iterations=scene.settings["iterations"],
+                 constraint_solver=scene.settings["constraint_solver"])
+
+
+def scene_script(scene: Scene) -> ScriptedDevice | None:
+    """The tools' inline scripts as one device, or ``None`` when no tool has one."""
+    frames = [dict(frame, tool=tool["name"]) for tool in scene.tools for frame in tool["script"]]
+    return ScriptedDevice.from_tables(scene.source, frames, scene.tools) if frames else None
+
+
+class Session:
+    """Owns everything one running scene needs. ``timings`` holds the last frame's
+    milliseconds per stage (``physics``; renderers add theirs)."""
+
+    def __init__(self, scene: Scene, *, use_cache: bool = True, progress: bool = True):
+        start = time.perf_counter()
+        self.scene = scene
+        self.data = build_model(scene, use_cache=use_cache, progress=progress)
+        self.build_seconds = time.perf_counter() - start
+        self.model = model_for(scene, self.data)
+        self.state = State.from_model(self.model)
+        self.control = Control()
+        self.solver = Solver(self.model, SolverSettings.from_scene(scene.settings))
+        self.dt = scene.settings["dt"]
+        self.timings: dict[str, float] = {}
+        apply_poses(self.control, scene.tools, {})
+
+    def step(self, poses: dict[str, Pose] | None = None):
+        """Place the tools, advance one frame of ``dt``, time it."""
+        start = time.perf_counter()
+        apply_poses(self.control, self.scene.tools, poses or {})
+        self.solver.step(self.state, self.control, self.dt)
+        ti.sync()
+        self.timings["physics"] = (time.perf_counter() - start) * 1e3
