@@ -1,0 +1,164 @@
+"""Deformation benchmark (issue: simulation core).
+
+Cases
+* ``10k``, ``50k``, ``liver-full``, ``500k``: the liver scene's step (seed 000
+  Alg. 1 run as 5 substeps, each with integration, environment contact and one
+  shape-matching pass; seed 002 clusters) at about that many particles;
+  ``liver-full`` is the full-scale scene with its vessels (seed 002 Table 1).
+  Metric ``ms_per_step``, and ``numpy_ms_per_step`` for the same step in the NumPy
+  reference (:mod:`taichi_lap.sim.reference`).
+* ``fascia-128``: a 128 x 128 fascia sheet (relaxed LRA, edge and bending
+  constraints) hanging from one edge, 10 constraint iterations per step, for the
+  Jacobi and the graph-coloured Gauss-Seidel solver: ``ms_per_step`` and the
+  largest edge strain left after the step (``max_strain``) at 5-40 iterations, to
+  compare convergence per millisecond.
+* ``cold-start`` / ``cached-start``: seconds from launch to the first stepped frame
+  of the full liver with empty caches, then with the model cache and Taichi's
+  kernel cache filled (child processes).
+
+Usage: python perf/bench_deform.py [--quick] [--arch cpu] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import arguments, report, result, timed  # noqa: E402
+
+LIVER_ONLY_PARTICLES = 146_000  # liver organ of scenes/liver.toml at detail 1 (approx.)
+DT = 1.0 / 60.0
+
+
+def liver_session(detail: float, vessels: bool):
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.session import Session
+
+    scene = scene_mod.load("liver", {"scene.detail": detail})
+    if not vessels:
+        scene.organs = scene.organs[:1]
+        scene.raw["organs"] = scene.raw["organs"][:1]
+    return Session(scene, progress=False)
+
+
+def deform_cases(quick: bool, runs: int) -> list[dict]:
+    from taichi_lap.sim.reference import ReferenceShapeMatching
+
+    sizes = [("10k", 10_000, False), ("50k", 50_000, False)] if quick else \
+        [("10k", 10_000, False), ("50k", 50_000, False), ("liver-full", None, True),
+         ("500k", 500_000, False)]
+    out = []
+    for case, target, vessels in sizes:
+        detail = 1.0 if target is None else target / LIVER_ONLY_PARTICLES
+        session = liver_session(detail, vessels)
+        params = {"particles": session.model.particle_count, "clusters": session.model.cluster_total,
+                  "memberships": int(len(session.data.cluster_member)),
+                  "substeps": session.solver.settings.substeps,
+                  "shape_iterations": session.solver.settings.shape_iterations}
+        out.append(result(case, params, "ms_per_step", timed(session.step, runs)))
+        print(out[-1]["case"], out[-1]["metric"], f"{out[-1]['median']:.2f}", flush=True)
+        settings, scene = session.solver.settings, session.scene
+        reference = ReferenceShapeMatching(
+            session.data, substeps=settings.substeps, shape_iterations=settings.shape_iterations,
+            gravity=settings.gravity,
+            planes=[(p["point"], p["normal"], p["friction"]) for p in scene.planes])
+        numpy_runs = max(2, min(runs, 5 if params["particles"] < 200_000 else 2))
+        out.append(result(case, params, "numpy_ms_per_step",
+                          timed(lambda: reference.step(DT), numpy_runs, warmup=1)))
+        print(out[-1]["case"], out[-1]["metric"], f"{out[-1]['median']:.2f}", flush=True)
+    return out
+
+
+def fascia_session(size: int, solver: str, iterations: int):
+    from taichi_lap.scene import from_tables
+    from taichi_lap.session import Session
+
+    organ = {"name": "fascia", "model": "fascia_lra",
+             "geometry": {"generator": "sheet", "width": 0.2, "depth": 0.2, "resolution_x": size - 1,
+                          "resolution_z": size - 1, "sag": 0.0},
+             "material": {"lra_relaxation": 0.25, "lra_anchors": 4, "damping": 2.0},
+             "attachments": [{"kind": "lra_anchor", "box_min": [-1, -1, -1],
+                              "box_max": [1, 1, -0.0995]}]}
+    return Session(from_tables([organ], iterations=iterations, constraint_solver=solver),
+                   use_cache=False, progress=False)
+
+
+def max_strain(data, x) -> float:
+    import numpy as np
+
+    pairs = data.distance_pair
+    length = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
+    return float(np.abs(length / data.distance_rest - 1.0).max())
+
+
+def fascia_cases(quick: bool, runs: int) -> list[dict]:
+    size = 64 if quick else 128
+    out = []
+    for solver in ("jacobi", "gauss_seidel"):
+        for iterations in ((10,) if quick else (5, 10, 20, 40)):
+            session = fascia_session(size, solver, iterations)
+            model = session.model
+            for _ in range(60):  # let it hang
+                session.step()
+            params = {"particles": model.particle_count, "constraints": model.distance_count,
+                      "solver": solver, "iterations": iterations,
+                      "colors": len(model.color_ranges) if solver == "gauss_seidel" else 0}
+            case = f"fascia-{size}"
+
+            out.append(result(case, params, "ms_per_step", timed(session.step, runs)))
+            out.append(result(case, params, "max_strain",
+                              [max_strain(session.data, session.state.x.to_numpy())]))
+            print(case, solver, iterations, f"{out[-2]['median']:.2f} ms",
+                  f"strain {out[-1]['median']:.4f}", flush=True)
+    return out
+
+
+def startup_probe():
+    """Child process: time to the first stepped frame of the full liver."""
+    from taichi_lap import runtime
+
+    start = time.perf_counter()
+    runtime.init("cpu")
+    session = liver_session(1.0, True)
+    session.step()
+    print(f"STARTUP {time.perf_counter() - start:.3f} BUILD {session.build_seconds:.3f}")
+
+
+def startup_cases() -> list[dict]:
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, TAICHI_LAP_CACHE=str(Path(tmp) / "models"),
+                   TI_OFFLINE_CACHE_FILE_PATH=str(Path(tmp) / "kernels"))
+        for case in ("cold-start", "cached-start"):
+            proc = subprocess.run([sys.executable, __file__, "--startup-probe"], env=env,
+                                  capture_output=True, text=True, check=True)
+            line = next(l for l in proc.stdout.splitlines() if l.startswith("STARTUP"))
+            _, total, _, build = line.split()
+            out.append(result(case, {"model_build_s": float(build)}, "seconds", [float(total)]))
+            print(case, total, "s", flush=True)
+    return out
+
+
+def main():
+    if "--startup-probe" in sys.argv:
+        startup_probe()
+        return
+    args = arguments("deform")
+    from taichi_lap import runtime
+
+    runtime.init(args.arch)
+    runs = args.runs or (5 if args.quick else 20)
+    results = deform_cases(args.quick, runs) + fascia_cases(args.quick, runs)
+    if not args.quick:
+        results += startup_cases()
+    report("deform", args.arch, results, args.json)
+
+
+if __name__ == "__main__":
+    main()

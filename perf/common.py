@@ -1,0 +1,72 @@
+"""Shared benchmark plumbing: machine description, timing, the results table and
+the JSON file every ``perf/bench_*.py`` writes (format in docs/architecture.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+
+def machine() -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "gpu": None}
+
+
+def arguments(name: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=f"{name} benchmark")
+    parser.add_argument("--quick", action="store_true", help="small sizes, under a minute")
+    parser.add_argument("--arch", default="cpu", choices=("cpu", "cuda", "vulkan", "metal"))
+    parser.add_argument("--json", default=f"perf/results/{name}.json", help="output file")
+    parser.add_argument("--runs", type=int, default=None, help="timed runs per case")
+    return parser.parse_args()
+
+
+def timed(func, runs: int, warmup: int = 2) -> list[float]:
+    """Milliseconds of ``runs`` calls of ``func`` after ``warmup`` untimed calls."""
+    for _ in range(warmup):
+        func()
+    samples = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        func()
+        samples.append((time.perf_counter() - start) * 1e3)
+    return samples
+
+
+def result(case: str, params: dict, metric: str, samples: list[float]) -> dict:
+    return {"case": case, "params": params, "metric": metric,
+            "median": statistics.median(samples), "min": min(samples), "max": max(samples),
+            "runs": len(samples)}
+
+
+def report(benchmark: str, arch: str, results: list[dict], path: str):
+    """Print the table and write the JSON (atomically)."""
+    import taichi
+
+    width = max(len(r["case"]) for r in results) + 2
+    print(f"\n{benchmark} on {machine()['cpu']} ({machine()['cores']} cores), backend {arch}")
+    print(f"{'case':<{width}}{'metric':<22}{'median':>12}{'min':>12}{'max':>12}{'runs':>6}  params")
+    for r in results:
+        params = ", ".join(f"{k}={v}" for k, v in r["params"].items())
+        print(f"{r['case']:<{width}}{r['metric']:<22}{r['median']:>12.4g}{r['min']:>12.4g}"
+              f"{r['max']:>12.4g}{r['runs']:>6}  {params}")
+    out = {"benchmark": benchmark, "machine": machine(),
+           "taichi": ".".join(map(str, taichi.__version__)), "arch": arch, "results": results}
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_suffix(target.suffix + ".tmp")
+    tmp.write_text(json.dumps(out, indent=2))
+    os.replace(tmp, target)
+    print(f"wrote {target}")
