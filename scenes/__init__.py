@@ -1,0 +1,1 @@
+"""Built-in scenes (TOML) and the procedural anatomy they reference."""
