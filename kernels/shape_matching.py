@@ -55,23 +55,44 @@ def predict(model: ti.template(), state: ti.template(), control: ti.template(),
 
 
 @ti.kernel
-def match_clusters(model: ti.template(), state: ti.template()):
-    """Alg. 1 lines 7-11 for every cluster. Reads p; writes cluster_center (p_cm) and
-    cluster_rotation (R)."""
-    for c in range(model.cluster_total):
-        rest_center = model.cluster_rest_center[c]
+def cluster_partial_sums(model: ti.template(), state: ti.template()):
+    """Alg. 1 lines 8-10 over each chunk of a cluster's members: Σ m (p - x_cm^0) and
+    Σ m (p - x_cm^0) q^T (any origin works in Eq. 1 because Σ m q = 0). Reads p;
+    writes chunk_first, chunk_moment."""
+    for chunk in range(model.chunk_total):
+        rest_center = model.cluster_rest_center[model.chunk_cluster[chunk]]
         first = ti.Vector([0.0, 0.0, 0.0])
         moment = ti.Matrix.zero(ti.f32, 3, 3)
-        for k in range(model.cluster_start[c], model.cluster_start[c + 1]):
+        for k in range(model.chunk_begin[chunk], model.chunk_end[chunk]):
             i = model.cluster_member[k]
             m = model.mass[i]
-            d = state.p[i] - rest_center  # any origin works: Σ m q = 0
+            d = state.p[i] - rest_center
             first += m * d
             moment += m * d.outer_product(model.cluster_rest_offset[k])
-        state.cluster_center[c] = rest_center + first / model.cluster_mass[c]
+        state.chunk_first[chunk] = first
+        state.chunk_moment[chunk] = moment
+
+
+@ti.kernel
+def cluster_frames(model: ti.template(), state: ti.template()):
+    """Alg. 1 lines 8-11 per cluster: p_cm and R from the chunk sums (in order).
+    Writes cluster_center (p_cm) and cluster_rotation (R)."""
+    for c in range(model.cluster_total):
+        first = ti.Vector([0.0, 0.0, 0.0])
+        moment = ti.Matrix.zero(ti.f32, 3, 3)
+        for chunk in range(model.cluster_chunk_start[c], model.cluster_chunk_start[c + 1]):
+            first += state.chunk_first[chunk]
+            moment += state.chunk_moment[chunk]
+        state.cluster_center[c] = model.cluster_rest_center[c] + first / model.cluster_mass[c]
         # the f32 SVD loses accuracy for tiny entries: R is scale-invariant, so normalise
         U, _, V = ti.svd(moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30))
         state.cluster_rotation[c] = U @ V.transpose()
+
+
+def match_clusters(model, state):
+    """Alg. 1 lines 7-11 for every cluster (two launches: chunk sums, then frames)."""
+    cluster_partial_sums(model, state)
+    cluster_frames(model, state)
 
 
 @ti.func
@@ -83,9 +104,8 @@ def averaged_cluster_goal(model: ti.template(), state: ti.template(), i, p):
     if end > begin:
         total = ti.Vector([0.0, 0.0, 0.0])
         for j in range(begin, end):
-            k = model.membership[j]
-            c = model.member_cluster[k]
-            total += state.cluster_rotation[c] @ model.cluster_rest_offset[k] + state.cluster_center[c]
+            c = model.membership_cluster[j]
+            total += state.cluster_rotation[c] @ model.membership_offset[j] + state.cluster_center[c]
         goal = total / (end - begin)
     return goal
 

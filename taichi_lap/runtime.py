@@ -7,6 +7,8 @@ several times slower than the CPU backend. Kernels use f32 and i32 only.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import os
 
@@ -49,7 +51,8 @@ def init(arch: str = "auto", *, debug: bool = False, threads: int | None = None,
         raise RuntimeError(f"backend {arch!r} is not available on this machine")
     else:
         name = arch
-    ti.init(arch=getattr(ti, name), **kwargs)
+    with contextlib.redirect_stdout(io.StringIO()):  # "[Taichi] Starting on arch=..."
+        ti.init(arch=getattr(ti, name), **kwargs)
     _current_arch = name
     log.info("taichi backend: %s", name)
     return name

@@ -97,6 +97,8 @@ _SHAPE = {
     "cluster_radius": Param("float", None, "cluster radius; default gives ≈50 particles per "
                                            "cluster count (seed 002 Table 1)", lo=1e-4, hi=1.0,
                             unit="m"),
+    "organ_cluster": Param("bool", True, "add one cluster holding the whole organ, so it keeps "
+                                         "its overall shape under gravity"),
 }
 _EDGES = {
     "edge_stiffness": Param("float", 1.0, "stiffness of the surface edges", lo=0.0, hi=1.0),

@@ -1,23 +1,37 @@
-"""GGUI view of a running session: organ surfaces coloured per organ, the intestine
-as spheres along its centre row, instruments as strings of spheres along their
-shafts, and a panel with frame rate, stage timings and controls.
+"""GGUI view of a running session: organ surfaces coloured per organ, the
+intestine and the instruments as tubes, and a panel with frame rate, stage
+timings and controls.
 
-This is GGUI's own mesh drawing (rasterised by Vulkan; on a machine without a GPU
-by Mesa's software driver). ``show_window=False`` renders offscreen for headless
-output.
+Everything is drawn as one triangle mesh (GGUI's own rasteriser, on Vulkan; on a
+machine without a GPU Mesa's software driver). With several GGUI renderables per
+frame, Taichi 1.7.4's GGUI on the CPU backend drops whole draws on random frames;
+a single mesh does not. ``show_window=False`` renders offscreen for headless output.
 """
 
 import numpy as np
 import taichi as ti
 
-from taichi_lap.kernels.instruments import capsule_beads
+from taichi_lap.kernels.contact import MAX_TOOLS
 from taichi_lap.kernels.normals import vertex_normals
+from taichi_lap.kernels.tube_mesh import gather_polylines, ring_vertices
 from taichi_lap.session import Session
-from taichi_lap.sim.control import MAX_TOOLS
 from taichi_lap.sim.csr import incidence
 
-TOOL_BEADS = 32
+TUBE_SIDES = 10
 TOOL_COLOR = (0.72, 0.74, 0.78)
+GGUI_MIN_NEAR = 0.02
+"""GGUI drops draws on random frames with a near plane closer than about 2 cm; the
+GGUI view clamps it (the scene value is kept for renderers that handle it)."""
+
+
+def _tube_triangles(first_ring: int, rings: int, sides: int) -> np.ndarray:
+    """Triangles joining consecutive rings of a tube."""
+    k, j = np.meshgrid(np.arange(rings - 1), np.arange(sides), indexing="ij")
+    a = first_ring + k * sides + j
+    b = first_ring + k * sides + (j + 1) % sides
+    c, d = a + sides, b + sides
+    return np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                           np.stack([b, d, c], -1).reshape(-1, 3)])
 
 
 class Viewer:
@@ -36,57 +50,82 @@ class Viewer:
         self.camera.lookat(*cam["target"])
         self.camera.up(*cam["up"])
         self.camera.fov(cam["fov"])
-        self.camera.z_near(cam["near"])
+        self.camera.z_near(max(cam["near"], GGUI_MIN_NEAR))
         self.camera.z_far(cam["far"])
-        self._init_surface()
-        self.beads = ti.Vector.field(3, ti.f32, MAX_TOOLS * TOOL_BEADS)
-        self.bead_radius = ti.field(ti.f32, MAX_TOOLS * TOOL_BEADS)
+        self._build_mesh()
         self.paused = False
         self.show_panel = show_window
 
-    def _init_surface(self):
+    def _build_mesh(self):
+        """Static parts of the drawn mesh: indices, colours, tube layout, incidence."""
         data, model = self.session.data, self.session.model
-        v = max(model.surface_vertex_count, 1)
-        colors = np.zeros((v, 3), dtype=np.float32)
+        surface_count = model.surface_vertex_count
+        tubes = [o for o in data.organs if o.row_length]
+        tube_source = np.concatenate([np.arange(o.surface_vertices[0],
+                                                o.surface_vertices[0] + o.row_length)
+                                      for o in tubes] or [np.zeros(0, np.int64)])
+        tube_radius = np.concatenate([data.radius[o.particles[0]:o.particles[0] + o.row_length]
+                                      for o in tubes] or [np.zeros(0)])
+        lines = [(o.row_length, o.color) for o in tubes] + [(2, TOOL_COLOR)] * MAX_TOOLS
+        points = sum(n for n, _ in lines)
+        previous, following, triangles = [], [], [data.surface_triangles]
+        colors = [np.zeros((surface_count, 3))]
         for organ in data.organs:
-            colors[organ.surface_vertices[0]:organ.surface_vertices[1]] = organ.color
-        self.colors = ti.Vector.field(3, ti.f32, v)
-        self.colors.from_numpy(colors)
-        tris = data.surface_triangles
-        start, rows = incidence(tris.reshape(-1), v)
-        self.incident_start = ti.field(ti.i32, v + 1)
-        self.incident = ti.field(ti.i32, max(len(rows), 1))
-        self.incident_start.from_numpy(start.astype(np.int32))
-        if len(rows):
-            self.incident.from_numpy((rows // 3).astype(np.int32))
-        self.normals = ti.Vector.field(3, ti.f32, v)
-        self.tubes = [(o.surface_vertices[0], o.row_length, o.color) for o in data.organs
-                      if o.row_length]
-        self.tube_radius = float(np.max(data.radius)) if self.tubes else 0.0
+            colors[0][organ.surface_vertices[0]:organ.surface_vertices[1]] = organ.color
+        start = 0
+        for count, color in lines:
+            k = np.arange(start, start + count)
+            previous.append(np.maximum(k - 1, start))
+            following.append(np.minimum(k + 1, start + count - 1))
+            triangles.append(_tube_triangles(surface_count + start * TUBE_SIDES, count, TUBE_SIDES))
+            colors.append(np.tile(color, (count * TUBE_SIDES, 1)))
+            start += count
+        triangles = np.concatenate(triangles).astype(np.int32).reshape(-1)
+        vertex_count = surface_count + points * TUBE_SIDES
+        self.surface_count, self.tube_count, self.point_count = surface_count, len(tube_source), points
+
+        def field(values, dtype, n=None):
+            values = np.asarray(values)
+            f = ti.field(dtype, max(len(values), 1)) if n is None else \
+                ti.Vector.field(n, dtype, max(len(values), 1))
+            if len(values):
+                f.from_numpy(values.astype(np.float32 if dtype == ti.f32 else np.int32))
+            return f
+
+        self.tube_source = field(tube_source, ti.i32)
+        self.point_radius = field(np.concatenate([tube_radius, np.zeros(2 * MAX_TOOLS)]), ti.f32)
+        self.previous = field(np.concatenate(previous), ti.i32)
+        self.following = field(np.concatenate(following), ti.i32)
+        self.points = ti.Vector.field(3, ti.f32, points)
+        self.vertices = ti.Vector.field(3, ti.f32, vertex_count)
+        self.normals = ti.Vector.field(3, ti.f32, vertex_count)
+        self.colors = field(np.concatenate(colors), ti.f32, 3)
+        self.indices = field(triangles, ti.i32)
+        start, rows = incidence(triangles, vertex_count)
+        self.incident_start = field(start, ti.i32)
+        self.incident = field(rows // 3, ti.i32)
+        self.vertex_count = vertex_count
 
     def camera_pose(self) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(self.camera.curr_position), np.asarray(self.camera.curr_lookat)
 
     def render(self):
         """Draw the current state into the canvas."""
-        session, model, state = self.session, self.session.model, self.session.state
+        session = self.session
+        gather_polylines(session.state.surface_position, self.surface_count, self.tube_source,
+                         self.tube_count, session.control, self.vertices, self.points,
+                         self.point_radius)
+        ring_vertices(self.points, self.point_radius, self.previous, self.following,
+                      self.point_count, TUBE_SIDES, self.vertices, self.surface_count)
+        vertex_normals(self.vertices, self.indices, self.incident_start, self.incident,
+                       self.vertex_count, self.normals)
         scene = self.scene3d
         scene.set_camera(self.camera)
         scene.ambient_light((0.25, 0.22, 0.22))
         eye, _ = self.camera_pose()
         scene.point_light(tuple(eye), (1.0, 0.95, 0.9))  # endoscope headlight
-        if model.surface_triangle_count:
-            vertex_normals(state.surface_position, model.surface_triangles, self.incident_start,
-                           self.incident, model.surface_vertex_count, self.normals)
-            scene.mesh(state.surface_position, indices=model.surface_triangles,
-                       normals=self.normals, per_vertex_color=self.colors, two_sided=True)
-        for start, count, color in self.tubes:
-            scene.particles(state.surface_position, radius=self.tube_radius, color=tuple(color),
-                            index_offset=start, index_count=count)
-        if session.scene.tools:
-            capsule_beads(session.control, self.beads, self.bead_radius, TOOL_BEADS)
-            scene.particles(self.beads, radius=float(max(t["radius"] for t in session.scene.tools)),
-                            color=TOOL_COLOR, index_count=len(session.scene.tools) * TOOL_BEADS)
+        scene.mesh(self.vertices, indices=self.indices, normals=self.normals,
+                   per_vertex_color=self.colors, two_sided=True)
         self.canvas.set_background_color((0.09, 0.05, 0.05))
         self.canvas.scene(scene)
         if self.show_panel:
@@ -94,10 +133,9 @@ class Viewer:
 
     def _panel(self):
         gui = self.window.get_gui()
-        timings = self.session.timings
         with gui.sub_window("taichi-lap", 0.01, 0.01, 0.24, 0.3):
             gui.text(f"frame {self.session.state.frame}  t = {self.session.state.time:.2f} s")
-            for stage, ms in timings.items():
+            for stage, ms in self.session.timings.items():
                 gui.text(f"{stage}: {ms:.1f} ms")
             gui.text(f"particles {self.session.model.particle_count}  "
                      f"clusters {self.session.model.cluster_total}")

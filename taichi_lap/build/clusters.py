@@ -59,9 +59,10 @@ def _from_lists(lists: list[np.ndarray], centers: np.ndarray, radius: float) -> 
                     radius=np.full(len(lists), float(radius)))
 
 
-def lattice_clusters(positions: np.ndarray, radius: float) -> Clusters:
+def lattice_clusters(positions: np.ndarray, radius: float, max_gap: float | None = None) -> Clusters:
     """Clusters of ``positions`` (N, 3) [m] with centres on a cubic lattice of
-    spacing ``radius`` (seed 002 §3.2). Centres reaching fewer than
+    spacing ``radius`` (seed 002 §3.2). Centres farther than ``max_gap`` [m] from
+    every particle (outside a filled body) and centres reaching fewer than
     :data:`MIN_MEMBERS` particles are dropped; uncovered particles join their
     nearest remaining centre."""
     positions = np.asarray(positions, dtype=np.float64)
@@ -75,6 +76,9 @@ def lattice_clusters(positions: np.ndarray, radius: float) -> Clusters:
     corners = np.unique(corners, axis=0)
     centers = lo + corners * radius
     tree = cKDTree(positions)
+    if max_gap is not None:
+        gap, _ = tree.query(centers)
+        centers = centers[gap <= max_gap]
     lists = [np.sort(np.asarray(m, dtype=np.int64))
              for m in tree.query_ball_point(centers, radius * (1 + 1e-9))]
     keep = [i for i, m in enumerate(lists) if len(m) >= MIN_MEMBERS]
@@ -94,14 +98,26 @@ def lattice_clusters(positions: np.ndarray, radius: float) -> Clusters:
     return _from_lists(lists, centers, radius)
 
 
+def whole_body_cluster(positions: np.ndarray) -> Clusters:
+    """One cluster holding every particle: the global shape matching of Müller et
+    al. (2005), which seed 000 §3.1 names as the way to preserve an organ's overall
+    shape. Added to the local clusters, it carries the organ's weight in one pass,
+    which overlapping local clusters alone pass on only one cluster per iteration."""
+    positions = np.asarray(positions, dtype=np.float64)
+    center = positions.mean(axis=0)
+    radius = float(np.linalg.norm(positions - center, axis=1).max())
+    return _from_lists([np.arange(len(positions))], center[None], radius)
+
+
 def joining_clusters(positions: np.ndarray, own: np.ndarray, other: np.ndarray,
                      centers: np.ndarray, radius: float) -> Clusters:
     """Clusters tying two organs together (seed 002 §3.2: "additional clusters to
-    physically connect the liver parenchyma and intrahepatic vessels"): around each
-    of ``centers`` (the first organ's cluster centres), the particles of ``own`` and of
-    ``other`` (global particle indices) within ``radius``. Kept only where both organs
-    contribute at least two particles."""
+    physically connect the liver parenchyma and intrahepatic vessels"): around
+    ``centers`` (the first organ's cluster centres, thinned to one per 2·radius), the
+    particles of ``own`` and of ``other`` (global particle indices) within ``radius``.
+    Kept only where both organs contribute at least two particles."""
     positions = np.asarray(positions, dtype=np.float64)
+    centers = _thin(np.asarray(centers, dtype=np.float64).reshape(-1, 3), 2.0 * radius)
     own_tree, other_tree = cKDTree(positions[own]), cKDTree(positions[other])
     lists, kept_centers = [], []
     for center, a, b in zip(centers, own_tree.query_ball_point(centers, radius),
@@ -110,6 +126,15 @@ def joining_clusters(positions: np.ndarray, own: np.ndarray, other: np.ndarray,
             lists.append(np.sort(np.concatenate([own[a], other[b]])))
             kept_centers.append(center)
     return _from_lists(lists, np.array(kept_centers), radius)
+
+
+def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Greedy subset of ``points`` no two of which are closer than ``spacing``."""
+    kept: list[np.ndarray] = []
+    for p in points:
+        if not kept or np.min(np.linalg.norm(np.asarray(kept) - p, axis=1)) >= spacing:
+            kept.append(p)
+    return np.asarray(kept).reshape(-1, 3)
 
 
 def concatenate(parts: list[Clusters]) -> Clusters:

@@ -30,6 +30,9 @@ from taichi_lap.scene import OrganSpec
 
 SURFACE_CLUSTER_EDGES = 4.0
 """Default cluster radius of a surface organ, in mean edge lengths."""
+BODY_GAP = 0.6
+"""A cluster centre of a tet organ lies in the body: within this many lattice
+spacings of a particle (the BCC Voronoi cell reaches 0.56 spacings)."""
 
 Progress = Callable[[float], None]
 
@@ -106,6 +109,14 @@ def _edge_constraints(parts: OrganParts, pairs: np.ndarray, stiffness: float | n
         [parts.distance_stiffness, np.broadcast_to(stiffness, (len(pairs),))])
 
 
+def _with_organ_cluster(local: clustering.Clusters, positions: np.ndarray,
+                        material: dict) -> clustering.Clusters:
+    """The local clusters, plus the whole-organ cluster when ``organ_cluster`` is set."""
+    if not material["organ_cluster"]:
+        return local
+    return clustering.concatenate([local, clustering.whole_body_cluster(positions)])
+
+
 def build_tet_clusters(organ: OrganSpec, geometry: Geometry, detail: float,
                        progress: Progress | None) -> OrganParts:
     """Seed 002 §3.2: BCC tets fill the solid, tet vertices are the particles,
@@ -120,9 +131,11 @@ def build_tet_clusters(organ: OrganSpec, geometry: Geometry, detail: float,
     n = len(tet.particles)
     radius = material["cluster_radius"]
     radius = clustering.auto_cluster_radius(spacing) if radius is None else radius * shrink
+    clusters = clustering.lattice_clusters(tet.particles, radius, max_gap=BODY_GAP * spacing)
     return OrganParts(positions=tet.particles, mass=_uniform(n, material["mass"]),
                       radius=np.full(n, 0.5 * spacing), pinned=np.zeros(n, bool),
-                      clusters=clustering.lattice_clusters(tet.particles, radius), tets=tet.tets,
+                      clusters=_with_organ_cluster(clusters, tet.particles, material),
+                      tets=tet.tets,
                       surface_index=tet.binding_index, surface_weight=tet.binding_weight,
                       surface_triangles=tet.surface.triangles)
 
@@ -131,7 +144,8 @@ def build_shape_matching(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
     """Seed 000 §3.1: the surface vertices are the particles, grouped in clusters."""
     parts = _surface_parts(mesh, organ.material["mass"])
     radius = organ.material["cluster_radius"] or SURFACE_CLUSTER_EDGES * _mean_edge(mesh)
-    parts.clusters = clustering.lattice_clusters(parts.positions, radius)
+    parts.clusters = _with_organ_cluster(clustering.lattice_clusters(parts.positions, radius),
+                                         parts.positions, organ.material)
     return parts
 
 

@@ -14,6 +14,10 @@ from taichi_lap.build.model_data import ModelData
 from taichi_lap.sim.csr import both_ends, incidence
 
 
+CHUNK = 128
+"""Cluster members summed by one thread in the cluster-matching reduction."""
+
+
 def _field(dtype, n, shape_extra=None):
     n = max(int(n), 1)  # Taichi fields cannot be empty
     if shape_extra is None:
@@ -93,7 +97,8 @@ class Model:
 
     def _init_clusters(self, data: ModelData, n: int, c: int, k: int):
         """Cluster tables of seed 000 Alg. 1: members, rest offsets q = x0 - x0_cm,
-        masses, and for every particle the memberships it gathers goals from."""
+        masses, and for every particle its clusters and rest offsets in them (the
+        memberships it gathers goals from)."""
         start, member = data.cluster_start, data.cluster_member
         owner = np.repeat(np.arange(c), np.diff(start))
         m = data.mass[member]
@@ -111,16 +116,39 @@ class Model:
         self.cluster_rest_center = _field(ti.f32, c, 3)
         self.cluster_mass = _field(ti.f32, c)
         self.membership_start = _field(ti.i32, n + 1)
-        self.membership = _field(ti.i32, k)
-        self.member_cluster = _field(ti.i32, k)
+        self.membership_cluster = _field(ti.i32, k)
+        self.membership_offset = _field(ti.f32, k, 3)
         _put(self.cluster_start, start.astype(np.int32))
         _put(self.cluster_member, member.astype(np.int32))
         _put(self.cluster_rest_offset, offset.astype(np.float32))
         _put(self.cluster_rest_center, center.astype(np.float32))
         _put(self.cluster_mass, cmass.astype(np.float32))
         _put(self.membership_start, mstart.astype(np.int32))
-        _put(self.membership, mrows.astype(np.int32))
-        _put(self.member_cluster, owner.astype(np.int32))
+        # particle-major copies: a particle's goal gather reads contiguous memory
+        _put(self.membership_cluster, owner[mrows].astype(np.int32))
+        _put(self.membership_offset, offset[mrows].astype(np.float32))
+        self._init_chunks(start)
+
+    def _init_chunks(self, start: np.ndarray):
+        """Split each cluster's members into chunks of at most :data:`CHUNK`, summed in
+        parallel then per cluster in order: balanced work for clusters of any size (a
+        whole-organ cluster has ~10^5 members), still deterministic."""
+        sizes = np.diff(start)
+        per_cluster = np.maximum(-(-sizes // CHUNK), 1)
+        chunk_start = np.concatenate([[0], np.cumsum(per_cluster)])
+        owner = np.repeat(np.arange(len(sizes)), per_cluster)
+        rank = np.arange(chunk_start[-1]) - chunk_start[owner]
+        begin = start[owner] + rank * CHUNK
+        end = np.minimum(begin + CHUNK, start[owner + 1])
+        self.chunk_total = int(chunk_start[-1])
+        self.cluster_chunk_start = _field(ti.i32, len(chunk_start))
+        self.chunk_cluster = _field(ti.i32, self.chunk_total)
+        self.chunk_begin = _field(ti.i32, self.chunk_total)
+        self.chunk_end = _field(ti.i32, self.chunk_total)
+        _put(self.cluster_chunk_start, chunk_start.astype(np.int32))
+        _put(self.chunk_cluster, owner.astype(np.int32))
+        _put(self.chunk_begin, begin.astype(np.int32))
+        _put(self.chunk_end, end.astype(np.int32))
 
     def _init_distance(self, data: ModelData, n: int, iterations: int):
         """Distance constraints (struts, sheet edges): per-particle lists for the

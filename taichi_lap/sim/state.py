@@ -31,6 +31,8 @@ class State:
         self.collided = ti.field(ti.i32, n)
         self.cluster_rotation = ti.Matrix.field(3, 3, ti.f32, c)
         self.cluster_center = ti.Vector.field(3, ti.f32, c)
+        self.chunk_first = ti.Vector.field(3, ti.f32, max(model.chunk_total, 1))
+        self.chunk_moment = ti.Matrix.field(3, 3, ti.f32, max(model.chunk_total, 1))
         self.surface_position = ti.Vector.field(3, ti.f32, max(model.surface_vertex_count, 1))
         self.fault = ti.field(ti.i32, ())
         self.fault_particle = ti.field(ti.i32, ())
