@@ -8,18 +8,18 @@ Per substep of length h:
   outside any cluster have α = 0 and integrate as plain PBD. External forces are
   gravity and, for mass-spring particles, seed 001's damped springs.
 * :func:`match_clusters` — lines 7-11: per cluster the mass centre p_cm of the
-  predicted positions, A = Σ m_i (p_i - p_cm)(x_i^0 - x_cm^0)^T (Eq. 1) and its
-  rotation R by polar decomposition (Müller et al. 2005). R comes from the SVD
-  A = U Σ V^T with U, V proper rotations (the smallest singular value carries the
-  sign), so R = U V^T has det R = +1 also for inverted clusters. A is scaled to
-  unit norm first: the f32 SVD is inaccurate for entries below ~1e-4.
+  predicted positions, A = Σ m_i (p_i - p_cm)(x_i^0 - x_cm^0)^T (Eq. 1) and the
+  rotation R of its polar decomposition (Müller et al. 2005), extracted by the
+  warm-started iteration of :mod:`taichi_lap.kernels.rotation`, which gives
+  det R = +1 also for inverted clusters.
 * :func:`project_to_goals` — iterations: with ``shape_iterations`` n > 1, lines 7-23
   are repeated n times per substep and the first n - 1 passes move p towards the
   limited goal, p += α (g - p), then re-apply contacts. This is the position-level
   shape matching of PBD (Müller et al. 2007; Macklin et al. 2014 §5); it carries
   support through overlapping clusters, which the velocity pull alone (n = 1, the
   literal Alg. 1) transmits only weakly. n = 1 is Alg. 1 exactly.
-* :func:`update_goals` — lines 12-25: η_i = η_contact if the particle collided
+* :func:`update_goals` — lines 12-25 (fused with the next substep's prediction of
+  particles without springs, to read each particle once): η_i = η_contact if the particle collided
   this substep else max(η_i - R_r, 0) (once per particle per substep); cluster goals
   g^c = R (x^0 - x_cm^0) + p_cm (Eq. 2) averaged over the n_c clusters sharing the
   particle (gathered, not scattered); g = g^c + η (p - g^c); then v = (p - x)/h,
@@ -34,24 +34,39 @@ import taichi as ti
 from taichi_lap.kernels.contact import resolve_contacts
 from taichi_lap.kernels.health import report_fault
 from taichi_lap.kernels.mass_spring import spring_force
+from taichi_lap.kernels.rotation import extract_rotation, quaternion_to_matrix
+
+
+@ti.func
+def predict_particle(model: ti.template(), state: ti.template(), control: ti.template(), i,
+                     gravity, h):
+    """Alg. 1 lines 4-5 for particle ``i``, then contacts: writes p and collided."""
+    x = state.x[i]
+    p = x
+    hit = 0
+    if model.inv_mass[i] > 0.0:
+        v = state.v[i] + model.stiffness[i] * (state.goal[i] - x) / h
+        v += h * (gravity + spring_force(model, state, i) * model.inv_mass[i])
+        v *= ti.max(1.0 - model.damping[i] * h, 0.0)
+        p, hit = resolve_contacts(model, control, i, x + h * v, x)
+    state.p[i] = p
+    state.collided[i] = hit
+
+
+@ti.func
+def has_springs(model: ti.template(), i):
+    return model.spring_start[i + 1] > model.spring_start[i]
 
 
 @ti.kernel
 def predict(model: ti.template(), state: ti.template(), control: ti.template(),
-            gravity: ti.math.vec3, h: ti.f32):
-    """Alg. 1 lines 3-6 and contacts. Reads x, v, goal; writes p, collided.
-    ``gravity`` [m/s²], ``h`` [s]."""
+            gravity: ti.math.vec3, h: ti.f32, springs_only: ti.i32):
+    """Alg. 1 lines 3-6 and contacts for every particle, or only for those with
+    springs when the others were predicted by :func:`update_goals`. Reads x, v, goal;
+    writes p, collided. ``gravity`` [m/s²], ``h`` [s]."""
     for i in range(model.particle_count):
-        x = state.x[i]
-        p = x
-        hit = 0
-        if model.inv_mass[i] > 0.0:
-            v = state.v[i] + model.stiffness[i] * (state.goal[i] - x) / h
-            v += h * (gravity + spring_force(model, state, i) * model.inv_mass[i])
-            v *= ti.max(1.0 - model.damping[i] * h, 0.0)
-            p, hit = resolve_contacts(model, control, i, x + h * v, x)
-        state.p[i] = p
-        state.collided[i] = hit
+        if not springs_only or has_springs(model, i):
+            predict_particle(model, state, control, i, gravity, h)
 
 
 @ti.kernel
@@ -76,7 +91,8 @@ def cluster_partial_sums(model: ti.template(), state: ti.template()):
 @ti.kernel
 def cluster_frames(model: ti.template(), state: ti.template()):
     """Alg. 1 lines 8-11 per cluster: p_cm and R from the chunk sums (in order).
-    Writes cluster_center (p_cm) and cluster_rotation (R)."""
+    Reads and writes cluster_quaternion (the warm start); writes cluster_center (p_cm)
+    and cluster_rotation (R)."""
     for c in range(model.cluster_total):
         first = ti.Vector([0.0, 0.0, 0.0])
         moment = ti.Matrix.zero(ti.f32, 3, 3)
@@ -84,9 +100,11 @@ def cluster_frames(model: ti.template(), state: ti.template()):
             first += state.chunk_first[chunk]
             moment += state.chunk_moment[chunk]
         state.cluster_center[c] = model.cluster_rest_center[c] + first / model.cluster_mass[c]
-        # the f32 SVD loses accuracy for tiny entries: R is scale-invariant, so normalise
-        U, _, V = ti.svd(moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30))
-        state.cluster_rotation[c] = U @ V.transpose()
+        # R is scale-invariant: normalise A so f32 stays accurate for tiny clusters
+        q = extract_rotation(moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30),
+                             state.cluster_quaternion[c])
+        state.cluster_quaternion[c] = q
+        state.cluster_rotation[c] = quaternion_to_matrix(q)
 
 
 def match_clusters(model, state):
@@ -139,10 +157,12 @@ def project_to_goals(model: ti.template(), state: ti.template(), control: ti.tem
 
 
 @ti.kernel
-def update_goals(model: ti.template(), state: ti.template(), h: ti.f32, speed_limit: ti.f32):
+def update_goals(model: ti.template(), state: ti.template(), control: ti.template(), h: ti.f32,
+                 speed_limit: ti.f32, gravity: ti.math.vec3, predict_next: ti.i32):
     """Alg. 1 lines 12-25: recovery factor, limited goals, velocity and position
-    update, health check. Reads p, collided, eta, cluster frames; writes eta, goal,
-    v, x, fault."""
+    update, health check; with ``predict_next`` also the next substep's prediction of
+    every particle without springs (those need all neighbours updated first). Reads
+    p, collided, eta, cluster frames; writes eta, goal, v, x, fault (and p, collided)."""
     for i in range(model.particle_count):
         p = state.p[i]
         goal, eta = limited_goal(model, state, i, p)
@@ -152,3 +172,5 @@ def update_goals(model: ti.template(), state: ti.template(), h: ti.f32, speed_li
         report_fault(state, i, p, v, speed_limit)
         state.v[i] = v
         state.x[i] = p
+        if predict_next and not has_springs(model, i):
+            predict_particle(model, state, control, i, gravity, h)

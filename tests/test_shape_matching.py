@@ -124,7 +124,10 @@ def test_kernel_agrees_with_numpy_reference():
         solver.step(state, control, DT)
         ref.step(DT)
     x = state.x.to_numpy()
-    assert np.abs(x - ref.x).max() < 2e-5
+    # f32 kernels with rotations converged to 1e-4 rad against the exact f64 polar
+    # decomposition: agree within 1e-3 of the body's size (4 cm)
+    size = np.ptp(data.rest_position, axis=0).max()
+    assert np.abs(x - ref.x).max() < 1e-3 * size
     assert np.abs(state.eta.to_numpy() - ref.eta).max() < 1e-5
     assert np.array_equal(state.collided.to_numpy().astype(bool), ref.collided)
     assert np.abs(x - data.rest_position).max() > 1e-3  # the case really deforms

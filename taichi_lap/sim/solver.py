@@ -59,22 +59,28 @@ class Solver:
         self.settings = settings
         self._has_constraints = model.distance_count > 0 or model.lra_count > 0
         self._has_clusters = model.cluster_total > 0
+        self._has_springs = model.spring_count > 0
 
     def step(self, state: State, control: Control, dt: float):
         """Advance one frame of ``dt`` [s]; raise :class:`SimulationFault` on a fault."""
         h = dt / self.settings.substeps
         state.fault_particle[None] = NO_FAULT
-        for _ in range(self.settings.substeps):
-            self.substep(state, control, h)
+        for k in range(self.settings.substeps):
+            self.substep(state, control, h, first=k == 0,
+                         last=k == self.settings.substeps - 1)
         skinning.skin_surface(self.model, state)
         state.time += dt
         state.frame += 1
         self.check_health(state)
 
-    def substep(self, state: State, control: Control, h: float):
-        """One substep: predict, constraints, shape matching, update goals."""
+    def substep(self, state: State, control: Control, h: float, *, first: bool = True,
+                last: bool = True):
+        """One substep: predict, constraints, shape matching, update goals. Within a
+        frame the update of one substep also predicts the next (``first``/``last``
+        say where this substep lies), except for particles with springs."""
         model, settings = self.model, self.settings
-        shape_matching.predict(model, state, control, settings.gravity, h)
+        if first or self._has_springs:
+            shape_matching.predict(model, state, control, settings.gravity, h, int(not first))
         if self._has_constraints:
             self._solve_constraints(state, control)
         if self._has_clusters:
@@ -82,7 +88,8 @@ class Solver:
                 shape_matching.match_clusters(model, state)
                 shape_matching.project_to_goals(model, state, control)
             shape_matching.match_clusters(model, state)
-        shape_matching.update_goals(model, state, h, settings.speed_limit)
+        shape_matching.update_goals(model, state, control, h, settings.speed_limit,
+                                    settings.gravity, int(not last))
 
     def _solve_constraints(self, state: State, control: Control):
         model, settings = self.model, self.settings

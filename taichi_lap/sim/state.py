@@ -30,6 +30,7 @@ class State:
         self.eta = ti.field(ti.f32, n)
         self.collided = ti.field(ti.i32, n)
         self.cluster_rotation = ti.Matrix.field(3, 3, ti.f32, c)
+        self.cluster_quaternion = ti.Vector.field(4, ti.f32, c)
         self.cluster_center = ti.Vector.field(3, ti.f32, c)
         self.chunk_first = ti.Vector.field(3, ti.f32, max(model.chunk_total, 1))
         self.chunk_moment = ti.Matrix.field(3, 3, ti.f32, max(model.chunk_total, 1))
@@ -57,6 +58,8 @@ class State:
         self.collided.fill(0)
         identity = np.broadcast_to(np.eye(3, dtype=np.float32), self.cluster_rotation.shape + (3, 3))
         self.cluster_rotation.from_numpy(np.ascontiguousarray(identity))
+        self.cluster_quaternion.from_numpy(
+            np.tile(np.float32([1.0, 0.0, 0.0, 0.0]), (self.cluster_quaternion.shape[0], 1)))
         self.cluster_center.copy_from(model.cluster_rest_center)
         self.fault[None] = 0
         self.fault_particle[None] = 2**31 - 1
