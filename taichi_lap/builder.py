@@ -24,6 +24,7 @@ import taichi_lap.scenes.anatomy as anatomy
 from taichi_lap.build import clusters as clustering
 from taichi_lap.build.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
 from taichi_lap.build.organs import OrganParts, add_long_range_attachments, build_organ, select_region
+from taichi_lap.errors import InputError
 from taichi_lap.scene import CLUSTER_MODELS, Scene
 
 log = logging.getLogger("taichi_lap")
@@ -191,14 +192,20 @@ def _shift_clusters(c: clustering.Clusters, base: int) -> clustering.Clusters:
 
 
 def _join(scene: Scene, parts, offsets, organ, att, index) -> clustering.Clusters:
-    """Seed 002 §3.2 clusters tying ``organ`` to ``att.organ``."""
+    """Seed 002 §3.2 clusters tying ``organ`` to ``att.organ``; their reach is the
+    attachment's radius, else the organ's typical cluster radius."""
     other = next(k for k, o in enumerate(scene.organs) if o.name == att.organ)
-    own_clusters = parts[index].clusters
-    radius = att.radius or float(own_clusters.radius.mean())
+    radius = att.radius or float(np.median(parts[index].clusters.radius))
     positions = np.concatenate([p.positions for p in parts])
     own = np.arange(offsets[index], offsets[index + 1])
     theirs = np.arange(offsets[other], offsets[other + 1])
-    return clustering.joining_clusters(positions, own, theirs, own_clusters.center, radius)
+    joined = clustering.joining_clusters(positions, own, theirs, radius)
+    if joined.count == 0:
+        key = f"{organ.key}.attachments[{organ.attachments.index(att)}]"
+        raise InputError(scene.source, key, f"organs {organ.name!r} and {att.organ!r} within "
+                                            f"{radius:g} m of each other were expected, they "
+                                            f"do not touch")
+    return joined
 
 
 def save_model(data: ModelData, path: Path):

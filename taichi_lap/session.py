@@ -9,6 +9,7 @@ import taichi as ti
 
 from taichi_lap.builder import build_model
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
+from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.scene import Scene
 from taichi_lap.sim import Control, Model, Solver, SolverSettings, State
 
@@ -36,12 +37,18 @@ class Session:
         self.data = build_model(scene, use_cache=use_cache, progress=progress)
         self.build_seconds = time.perf_counter() - start
         self.model = model_for(scene, self.data)
-        self.state = State.from_model(self.model)
+        self.state = State(self.model)
         self.control = Control()
         self.solver = Solver(self.model, SolverSettings.from_scene(scene.settings))
         self.dt = scene.settings["dt"]
         self.timings: dict[str, float] = {}
-        apply_poses(self.control, scene.tools, {})
+        self.reset()
+
+    def reset(self):
+        """Back to the rest state, tools at their scene poses, surface skinned."""
+        self.state.reset(self.model)
+        apply_poses(self.control, self.scene.tools, {})
+        skin_surface(self.model, self.state)
 
     def step(self, poses: dict[str, Pose] | None = None):
         """Place the tools, advance one frame of ``dt``, time it."""

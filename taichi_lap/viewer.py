@@ -16,6 +16,7 @@ from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.kernels.tube_mesh import gather_polylines, ring_vertices
 from taichi_lap.session import Session
 from taichi_lap.sim.csr import incidence
+from taichi_lap.sim.fields import FieldGroup
 
 TUBE_SIDES = 10
 TOOL_COLOR = (0.72, 0.74, 0.78)
@@ -84,26 +85,22 @@ class Viewer:
         vertex_count = surface_count + points * TUBE_SIDES
         self.surface_count, self.tube_count, self.point_count = surface_count, len(tube_source), points
 
-        def field(values, dtype, n=None):
-            values = np.asarray(values)
-            f = ti.field(dtype, max(len(values), 1)) if n is None else \
-                ti.Vector.field(n, dtype, max(len(values), 1))
-            if len(values):
-                f.from_numpy(values.astype(np.float32 if dtype == ti.f32 else np.int32))
-            return f
-
-        self.tube_source = field(tube_source, ti.i32)
-        self.point_radius = field(np.concatenate([tube_radius, np.zeros(2 * MAX_TOOLS)]), ti.f32)
-        self.previous = field(np.concatenate(previous), ti.i32)
-        self.following = field(np.concatenate(following), ti.i32)
-        self.points = ti.Vector.field(3, ti.f32, points)
-        self.vertices = ti.Vector.field(3, ti.f32, vertex_count)
-        self.normals = ti.Vector.field(3, ti.f32, vertex_count)
-        self.colors = field(np.concatenate(colors), ti.f32, 3)
-        self.indices = field(triangles, ti.i32)
+        group = FieldGroup()
+        self.tube_source = group.field(ti.i32, len(tube_source), values=tube_source)
+        self.point_radius = group.field(ti.f32, points, values=np.concatenate(
+            [tube_radius, np.zeros(2 * MAX_TOOLS)]).astype(np.float32))
+        self.previous = group.field(ti.i32, points, values=np.concatenate(previous))
+        self.following = group.field(ti.i32, points, values=np.concatenate(following))
+        self.points = group.field(ti.f32, points, vector=3)
+        self.vertices = group.field(ti.f32, vertex_count, vector=3)
+        self.normals = group.field(ti.f32, vertex_count, vector=3)
+        self.colors = group.field(ti.f32, vertex_count, vector=3,
+                                  values=np.concatenate(colors).astype(np.float32))
+        self.indices = group.field(ti.i32, len(triangles), values=triangles)
         start, rows = incidence(triangles, vertex_count)
-        self.incident_start = field(start, ti.i32)
-        self.incident = field(rows // 3, ti.i32)
+        self.incident_start = group.field(ti.i32, vertex_count + 1, values=start.astype(np.int32))
+        self.incident = group.field(ti.i32, len(rows), values=(rows // 3).astype(np.int32))
+        group.finalize()
         self.vertex_count = vertex_count
 
     def camera_pose(self) -> tuple[np.ndarray, np.ndarray]:
@@ -141,7 +138,7 @@ class Viewer:
                      f"clusters {self.session.model.cluster_total}")
             self.paused = gui.checkbox("pause", self.paused)
             if gui.button("reset"):
-                self.session.state.reset(self.session.model)
+                self.session.reset()
             gui.text("LMB drag: move tool, q/e: depth")
             gui.text("RMB drag + WASD: camera")
 

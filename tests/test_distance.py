@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from tests.archrun import run_on_arch
 from tests.helpers import simulation
 
 
@@ -39,3 +40,21 @@ def test_gauss_seidel_colours_share_no_particle():
         ends = pairs[begin:end].reshape(-1)
         assert len(np.unique(ends)) == len(ends)
     assert sum(e - b for b, e in model.color_ranges) == len(data.distance_pair)
+
+
+def compute_sweeps(solver_name: str) -> dict:
+    """Constraint sweeps from a fixed noisy sheet (run on any backend)."""
+    _, data, _, state, control, solver = simulation(
+        [sheet()], gravity=[0, 0, 0], iterations=30, constraint_solver=solver_name)
+    noisy = data.rest_position + np.random.default_rng(0).normal(0, 0.0005, data.rest_position.shape)
+    state.p.from_numpy(noisy.astype(np.float32))
+    solver._solve_constraints(state, control)
+    return {"p": state.p.to_numpy()}
+
+
+@pytest.mark.vulkan
+@pytest.mark.parametrize("solver_name", ["jacobi", "gauss_seidel"])
+def test_vulkan_agrees_with_cpu(solver_name):
+    cpu = compute_sweeps(solver_name)
+    vulkan = run_on_arch("vulkan", "tests.test_distance:compute_sweeps", solver_name=solver_name)
+    assert np.abs(cpu["p"] - vulkan["p"]).max() < 1e-5

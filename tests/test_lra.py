@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from taichi_lap.kernels import distance
+from tests.archrun import run_on_arch
 from tests.helpers import simulation
 
 DT = 1.0 / 60.0
@@ -62,3 +63,18 @@ def test_relaxed_lra_stretches_more_than_hard():
             solver.step(state, control, DT)
         sag.append((lra_distances(data, state.x.to_numpy()) / data.lra_rest).max())
     assert sag[1] > sag[0]
+
+
+def compute_fascia_case() -> dict:
+    """Hard LRA fascia falling for 20 frames (run on any backend)."""
+    _, _, _, state, control, solver = simulation([fascia(0.0, 4)], iterations=20)
+    for _ in range(20):
+        solver.step(state, control, DT)
+    return {"x": state.x.to_numpy()}
+
+
+@pytest.mark.vulkan
+def test_vulkan_agrees_with_cpu():
+    cpu = compute_fascia_case()
+    vulkan = run_on_arch("vulkan", "tests.test_lra:compute_fascia_case")
+    assert np.abs(cpu["x"] - vulkan["x"]).max() < 1e-4

@@ -3,10 +3,12 @@
 import math
 
 import numpy as np
+import pytest
 
 from taichi_lap.build.geometry import TriangleMesh
 from taichi_lap.build.truss import generate_truss, vertex_normals
 from taichi_lap.scenes.anatomy import GENERATORS
+from tests.archrun import run_on_arch
 from tests.helpers import simulation
 
 THRESHOLD = math.pi / 3
@@ -118,3 +120,20 @@ def test_truss_holds_the_gland_up_where_edges_alone_collapse():
         heights[cone] = np.ptp(x[:, 1]) / np.ptp(data.rest_position[:, 1])
     assert heights[0.35] > 0.85
     assert heights[0.01] < 0.5
+
+
+def compute_gland_case() -> dict:
+    """The truss gland settling on the floor for 30 frames (run on any backend)."""
+    floor = {"point": [0, -0.014, 0], "normal": [0, 1, 0], "friction": 0.5}
+    _, _, _, state, control, solver = simulation([organ(0.35)], planes=[floor], iterations=10,
+                                                 substeps=4)
+    for _ in range(30):
+        solver.step(state, control, 1 / 60)
+    return {"x": state.x.to_numpy()}
+
+
+@pytest.mark.vulkan
+def test_vulkan_agrees_with_cpu():
+    cpu = compute_gland_case()
+    vulkan = run_on_arch("vulkan", "tests.test_truss:compute_gland_case")
+    assert np.abs(cpu["x"] - vulkan["x"]).max() < 1e-4

@@ -110,31 +110,33 @@ def whole_body_cluster(positions: np.ndarray) -> Clusters:
 
 
 def joining_clusters(positions: np.ndarray, own: np.ndarray, other: np.ndarray,
-                     centers: np.ndarray, radius: float) -> Clusters:
+                     radius: float) -> Clusters:
     """Clusters tying two organs together (seed 002 §3.2: "additional clusters to
-    physically connect the liver parenchyma and intrahepatic vessels"): around
-    ``centers`` (the first organ's cluster centres, thinned to one per 2·radius), the
-    particles of ``own`` and of ``other`` (global particle indices) within ``radius``.
-    Kept only where both organs contribute at least two particles."""
+    physically connect the liver parenchyma and intrahepatic vessels").
+
+    The contact zone is the particles of ``own`` within ``radius`` of a particle of
+    ``other`` (global indices). One cluster per occupied cell of a 2·radius lattice
+    over the zone, centred at the mean of the zone particles in the cell, holds the
+    particles of both organs within ``radius``; kept where each organ gives at least
+    two. An empty result means the organs do not touch."""
     positions = np.asarray(positions, dtype=np.float64)
-    centers = _thin(np.asarray(centers, dtype=np.float64).reshape(-1, 3), 2.0 * radius)
     own_tree, other_tree = cKDTree(positions[own]), cKDTree(positions[other])
-    lists, kept_centers = [], []
+    gap, _ = other_tree.query(positions[own], distance_upper_bound=radius)
+    zone = positions[own][np.isfinite(gap)]
+    if len(zone) == 0:
+        return _from_lists([], np.zeros((0, 3)), radius)
+    cell = np.floor(zone / (2.0 * radius)).astype(np.int64)
+    _, which = np.unique(cell, axis=0, return_inverse=True)
+    which = which.reshape(-1)
+    centers = np.stack([np.bincount(which, weights=zone[:, a]) for a in range(3)], axis=1) \
+        / np.bincount(which)[:, None]
+    lists, kept = [], []
     for center, a, b in zip(centers, own_tree.query_ball_point(centers, radius),
                             other_tree.query_ball_point(centers, radius)):
-        if len(a) >= 2 and len(b) >= 2 and len(a) + len(b) >= MIN_MEMBERS:
+        if len(a) >= 2 and len(b) >= 2:
             lists.append(np.sort(np.concatenate([own[a], other[b]])))
-            kept_centers.append(center)
-    return _from_lists(lists, np.array(kept_centers), radius)
-
-
-def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
-    """Greedy subset of ``points`` no two of which are closer than ``spacing``."""
-    kept: list[np.ndarray] = []
-    for p in points:
-        if not kept or np.min(np.linalg.norm(np.asarray(kept) - p, axis=1)) >= spacing:
-            kept.append(p)
-    return np.asarray(kept).reshape(-1, 3)
+            kept.append(center)
+    return _from_lists(lists, np.array(kept).reshape(-1, 3), radius)
 
 
 def concatenate(parts: list[Clusters]) -> Clusters:

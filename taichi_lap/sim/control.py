@@ -11,6 +11,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.kernels.contact import MAX_TOOLS
+from taichi_lap.sim.fields import FieldGroup
 
 __all__ = ["Control", "MAX_TOOLS"]
 
@@ -20,10 +21,12 @@ class Control:
     """Tool capsules: ``tool_a``, ``tool_b`` [m], ``tool_radius`` [m], ``tool_active``."""
 
     def __init__(self):
-        self.tool_a = ti.Vector.field(3, ti.f32, MAX_TOOLS)
-        self.tool_b = ti.Vector.field(3, ti.f32, MAX_TOOLS)
-        self.tool_radius = ti.field(ti.f32, MAX_TOOLS)
-        self.tool_active = ti.field(ti.i32, MAX_TOOLS)
+        group = FieldGroup()
+        self.tool_a = group.field(ti.f32, MAX_TOOLS, vector=3)
+        self.tool_b = group.field(ti.f32, MAX_TOOLS, vector=3)
+        self.tool_radius = group.field(ti.f32, MAX_TOOLS)
+        self.tool_active = group.field(ti.i32, MAX_TOOLS)
+        group.finalize()
 
     def set_tool(self, index: int, tip, tail, radius: float, active: bool = True):
         """Place tool ``index`` as a capsule from ``tip`` to ``tail`` [m]."""

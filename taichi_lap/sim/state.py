@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
+from taichi_lap.sim.fields import FieldGroup
 from taichi_lap.sim.model import Model
 
 
@@ -20,23 +21,25 @@ class State:
     particle, the first such particle in ``fault_particle``)."""
 
     def __init__(self, model: Model):
-        n = max(model.particle_count, 1)
-        c = max(model.cluster_total, 1)
-        self.x = ti.Vector.field(3, ti.f32, n)
-        self.v = ti.Vector.field(3, ti.f32, n)
-        self.p = ti.Vector.field(3, ti.f32, n)
-        self.p_next = ti.Vector.field(3, ti.f32, n)
-        self.goal = ti.Vector.field(3, ti.f32, n)
-        self.eta = ti.field(ti.f32, n)
-        self.collided = ti.field(ti.i32, n)
-        self.cluster_rotation = ti.Matrix.field(3, 3, ti.f32, c)
-        self.cluster_quaternion = ti.Vector.field(4, ti.f32, c)
-        self.cluster_center = ti.Vector.field(3, ti.f32, c)
-        self.chunk_first = ti.Vector.field(3, ti.f32, max(model.chunk_total, 1))
-        self.chunk_moment = ti.Matrix.field(3, 3, ti.f32, max(model.chunk_total, 1))
-        self.surface_position = ti.Vector.field(3, ti.f32, max(model.surface_vertex_count, 1))
-        self.fault = ti.field(ti.i32, ())
-        self.fault_particle = ti.field(ti.i32, ())
+        n = model.particle_count
+        c = model.cluster_total
+        group = FieldGroup()
+        self.x = group.field(ti.f32, n, vector=3)
+        self.v = group.field(ti.f32, n, vector=3)
+        self.p = group.field(ti.f32, n, vector=3)
+        self.p_next = group.field(ti.f32, n, vector=3)
+        self.goal = group.field(ti.f32, n, vector=3)
+        self.eta = group.field(ti.f32, n)
+        self.collided = group.field(ti.i32, n)
+        self.cluster_rotation = group.field(ti.f32, c, matrix=(3, 3))
+        self.cluster_quaternion = group.field(ti.f32, c, vector=4)
+        self.cluster_center = group.field(ti.f32, c, vector=3)
+        self.chunk_first = group.field(ti.f32, model.chunk_total, vector=3)
+        self.chunk_moment = group.field(ti.f32, model.chunk_total, matrix=(3, 3))
+        self.surface_position = group.field(ti.f32, model.surface_vertex_count, vector=3)
+        self.fault = group.field(ti.i32, None)
+        self.fault_particle = group.field(ti.i32, None)
+        group.finalize()
         self.time = 0.0
         self.frame = 0
 

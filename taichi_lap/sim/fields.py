@@ -1,0 +1,54 @@
+"""Fields allocated together in one SNode tree and filled once it is built.
+
+Taichi gives every separately created field its own SNode tree, and a process can
+hold only a limited number of trees (beyond ~512 the CPU backend crashes). A
+session allocates dozens of fields, so each Model, State, Control or viewer places
+its fields in one :class:`FieldGroup`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import taichi as ti
+
+
+class FieldGroup:
+    """Declare fields with :meth:`field`, then :meth:`finalize` builds the tree and
+    uploads the values given at declaration."""
+
+    def __init__(self):
+        self._builder = ti.FieldsBuilder()
+        self._uploads: list = []
+        self.tree = None
+
+    def field(self, dtype, n: int | None, *, vector: int = 0, matrix: tuple[int, int] | None = None,
+              values=None):
+        """A field of ``n`` entries (at least one; ``n=None`` for a 0-D field) of
+        scalars, ``vector``-vectors or ``matrix`` matrices, filled with ``values``
+        (padded with zeros) when the group is finalized."""
+        if matrix:
+            f = ti.Matrix.field(matrix[0], matrix[1], dtype)
+        elif vector:
+            f = ti.Vector.field(vector, dtype)
+        else:
+            f = ti.field(dtype)
+        if n is None:
+            self._builder.place(f)
+        else:
+            self._builder.dense(ti.i, max(int(n), 1)).place(f)
+        if values is not None:
+            self.fill(f, values)
+        return f
+
+    def fill(self, field, values):
+        """Upload ``values`` into ``field`` when the group is finalized."""
+        self._uploads.append((field, np.asarray(values)))
+
+    def finalize(self):
+        self.tree = self._builder.finalize()
+        for f, values in self._uploads:
+            if len(values):
+                padded = np.zeros(f.shape + values.shape[1:], dtype=values.dtype)
+                padded[:len(values)] = values
+                f.from_numpy(padded)
+        self._uploads = []

@@ -1,0 +1,115 @@
+"""The command line contract: list, info, check --json, run --headless, render."""
+
+import json
+
+import imageio.v2 as imageio
+import pytest
+
+from taichi_lap import scene as scene_mod
+from taichi_lap.cli import main
+from taichi_lap.runtime import available_backends
+
+SMALL = ["--set", "scene.detail=0.03"]
+needs_vulkan = pytest.mark.skipif("vulkan" not in available_backends(),
+                                  reason="GGUI needs a Vulkan driver (mesa-vulkan-drivers)")
+
+
+def test_list_names_the_three_builtin_scenes(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("liver", "rectum", "intestine"):
+        assert name in out
+
+
+def test_info_reports_versions_and_backends(capsys):
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    assert "taichi 1.7.4" in out and "backends:" in out and "cpu" in out
+
+
+def test_check_json_follows_the_contract(capsys):
+    assert main(["check", "liver", "--json", *SMALL]) == 0
+    stats = json.loads(capsys.readouterr().out)
+    names = [o["name"] for o in stats["organs"]]
+    assert names == ["liver", "portal_vein", "hepatic_vein", "hepatic_artery", "bile_duct"]
+    for organ in stats["organs"]:
+        for key in ("name", "model", "vertices", "triangles", "particles", "tets", "clusters",
+                    "avg_cluster_radius"):
+            assert key in organ
+        assert organ["tets"] > 0 and organ["clusters"] > 0
+    assert stats["totals"]["particles"] == sum(o["particles"] for o in stats["organs"])
+
+
+@pytest.mark.slow
+def test_full_liver_matches_table_1():
+    """Seed 002 Table 1: 170 854 particles and 3 892 clusters in all; the liver
+    146 090 particles in 2 994 clusters of radius 0.84 cm (builds ~170k particles)."""
+    from taichi_lap.builder import build_model
+    from taichi_lap.stats import model_statistics
+
+    stats = model_statistics(build_model(scene_mod.load("liver"), progress=False))
+    totals, liver = stats["totals"], stats["organs"][0]
+    assert abs(totals["particles"] / 170_854 - 1) < 0.05
+    assert abs(totals["clusters"] / 3_892 - 1) < 0.25
+    assert abs(liver["particles"] / 146_090 - 1) < 0.05
+    assert abs(liver["clusters"] / 2_994 - 1) < 0.1
+    assert abs(liver["avg_cluster_radius"] - 0.0084) < 0.0003
+
+
+def test_run_headless_writes_frames(tmp_path, capsys):
+    if "vulkan" not in available_backends():
+        pytest.skip("GGUI needs a Vulkan driver (mesa-vulkan-drivers)")
+    out = tmp_path / "frames"
+    status = main(["run", "rectum", "--headless", "--frames", "3", "--size", "160x120",
+                   "--out", str(out), *SMALL])
+    assert status == 0, capsys.readouterr().err
+    frames = sorted(out.glob("frame_*.png"))
+    assert len(frames) == 3
+    image = imageio.imread(frames[-1])
+    assert image.shape == (120, 160, 3)
+    assert image.reshape(-1, 3).std(axis=0).max() > 10  # organs drawn, not a blank frame
+
+
+@needs_vulkan
+def test_run_headless_writes_an_mp4(tmp_path, capsys):
+    pytest.importorskip("imageio_ffmpeg")
+    out = tmp_path / "clip.mp4"
+    status = main(["run", "intestine", "--headless", "--frames", "4", "--size", "160x120",
+                   "--out", str(out)])
+    assert status == 0, capsys.readouterr().err
+    frames = imageio.mimread(out, format="FFMPEG")
+    assert len(frames) == 4
+
+
+@needs_vulkan
+def test_render_writes_a_still(tmp_path, capsys):
+    out = tmp_path / "still.png"
+    assert main(["render", "liver", "--out", str(out), "--size", "200x150", *SMALL]) == 0
+    image = imageio.imread(out)
+    assert image.shape == (150, 200, 3)
+    centre = image[50:100, 70:130].reshape(-1, 3).astype(float)
+    assert centre[:, 0].mean() > centre[:, 2].mean() + 10  # red-brown liver in the middle
+
+
+def test_run_without_display_falls_back_to_headless(tmp_path, capsys, monkeypatch):
+    if "vulkan" not in available_backends():
+        pytest.skip("GGUI needs a Vulkan driver (mesa-vulkan-drivers)")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    status = main(["run", "rectum", "--frames", "1", "--size", "64x48",
+                   "--out", str(tmp_path / "f"), *SMALL])
+    assert status == 0
+    assert "running headless" in capsys.readouterr().err
+
+
+def test_simulation_fault_is_reported_not_raised(tmp_path, capsys):
+    path = tmp_path / "fast.toml"
+    path.write_text("[scene]\nname = 'fault'\ngravity = [0, -900, 0]\nspeed_limit = 0.5\n"
+                    "[[organs]]\nname = 'ball'\nmodel = 'tet_clusters'\n"
+                    "geometry = { generator = 'sphere', radius = 0.02 }\n"
+                    "material = { particle_spacing = 0.006 }\n")
+    status = main(["render", str(path), "--out", str(tmp_path / "x.png"), "--frames", "5"])
+    err = capsys.readouterr().err
+    assert status == 1
+    assert "simulation fault" in err and "'ball'" in err
+    assert not (tmp_path / "x.png").exists()
