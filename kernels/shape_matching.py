@@ -45,8 +45,9 @@ def predict_particle(model: ti.template(), state: ti.template(), control: ti.tem
     p = x
     hit = 0
     if model.inv_mass[i] > 0.0:
-        v = state.v[i] + model.stiffness[i] * (state.goal[i] - x) / h
-        v += h * (gravity + spring_force(model, state, i) * model.inv_mass[i])
+        v = state.v[i] + model.stiffness[i] * (state.goal[i] - x) / h + h * gravity
+        if ti.static(model.spring_count > 0):
+            v += h * spring_force(model, state, i) * model.inv_mass[i]
         v *= ti.max(1.0 - model.damping[i] * h, 0.0)
         p, hit = resolve_contacts(model, control, i, x + h * v, x)
     state.p[i] = p
@@ -55,7 +56,10 @@ def predict_particle(model: ti.template(), state: ti.template(), control: ti.tem
 
 @ti.func
 def has_springs(model: ti.template(), i):
-    return model.spring_start[i + 1] > model.spring_start[i]
+    result = False
+    if ti.static(model.spring_count > 0):
+        result = model.spring_start[i + 1] > model.spring_start[i]
+    return result
 
 
 @ti.kernel

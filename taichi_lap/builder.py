@@ -25,7 +25,8 @@ from taichi_lap.build import clusters as clustering
 from taichi_lap.build.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
 from taichi_lap.build.organs import OrganParts, add_long_range_attachments, build_organ, select_region
 from taichi_lap.errors import InputError
-from taichi_lap.scene import CLUSTER_MODELS, Scene
+from taichi_lap.scene import Scene
+from taichi_lap.scene_schema import CLUSTER_MODELS
 
 log = logging.getLogger("taichi_lap")
 

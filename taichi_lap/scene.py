@@ -1,15 +1,14 @@
 """Scene files: TOML (read with the standard library's ``tomllib``; nothing in a
 scene file is ever executed), validated into :class:`Scene`.
 
-The schema is the tables of :class:`Param` below; the README's scene-file
-reference is written from them. Bad input raises :class:`InputError`
+The schema is the tables of :mod:`taichi_lap.scene_schema`; the README's
+scene-file reference is written from them. Bad input raises :class:`InputError`
 (``error: FILE: KEY: what was expected, what was found``).
 """
 
 from __future__ import annotations
 
 import copy
-import math
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -17,140 +16,18 @@ from pathlib import Path
 from typing import Any
 
 from taichi_lap.errors import InputError
+from taichi_lap.scene_schema import (ATTACHMENT_PARAMS, CAMERA_PARAMS, CLUSTER_MODELS,
+                                     GEOMETRY_COMMON, MATERIAL_PARAMS, MESH_PARAMS,
+                                     ORGAN_PARAMS, PLANE_PARAMS, SCENE_PARAMS, TOOL_PARAMS, UNITS)
 from taichi_lap.schema import REQUIRED, check_table, check_value, describe
 from taichi_lap.scenes.anatomy.params import Param
 
-MODELS = ("shape_matching", "tet_clusters", "fascia_lra", "truss", "mass_spring")
-CLUSTER_MODELS = ("shape_matching", "tet_clusters")
-ATTACHMENTS = ("fixed", "lra_anchor", "join")
-TOOL_KINDS = ("probe", "grasper", "scissors", "hook")
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
-
-SCENE_PARAMS = {
-    "name": Param("str", REQUIRED, "scene name"),
-    "description": Param("str", "", "one line shown by `taichi-lap list`"),
-    "dt": Param("float", 1.0 / 60.0, "frame time step", lo=1e-4, hi=0.1, unit="s"),
-    "substeps": Param("int", 1, "substeps per frame", lo=1, hi=200),
-    "shape_iterations": Param("int", 5, "shape-matching passes per substep (Alg. 1 lines 7-23)",
-                              lo=1, hi=100),
-    "iterations": Param("int", 10, "distance/LRA constraint iterations per substep", lo=1, hi=500),
-    "constraint_solver": Param("str", "jacobi", "distance constraint solver",
-                               choices=("jacobi", "gauss_seidel")),
-    "over_relaxation": Param("float", 1.5, "Jacobi over-relaxation ω (Macklin et al. 2014)",
-                             lo=0.1, hi=2.0),
-    "gravity": Param("vec3", [0.0, -9.81, 0.0], "gravity", lo=-1000, hi=1000, unit="m/s²"),
-    "seed": Param("int", 0, "seed of every random source", lo=0, hi=2**31 - 1),
-    "detail": Param("float", 1.0, "particle-count multiplier (smaller scenes for tests)",
-                    lo=1e-3, hi=8.0),
-    "speed_limit": Param("float", 50.0, "particle speed reported as a simulation fault",
-                         lo=1e-3, hi=1e6, unit="m/s"),
-}
-CAMERA_PARAMS = {
-    "position": Param("vec3", [0.0, 0.1, 0.35], "endoscope tip", lo=-100, hi=100, unit="m"),
-    "target": Param("vec3", [0.0, 0.0, 0.0], "point looked at", lo=-100, hi=100, unit="m"),
-    "up": Param("vec3", [0.0, 1.0, 0.0], "up direction", lo=-1, hi=1),
-    "fov": Param("float", 60.0, "vertical field of view", lo=5.0, hi=170.0, unit="deg"),
-    "near": Param("float", 0.002, "near clipping distance", lo=1e-5, hi=10.0, unit="m"),
-    "far": Param("float", 5.0, "far clipping distance", lo=1e-3, hi=1e4, unit="m"),
-}
-PLANE_PARAMS = {
-    "point": Param("vec3", REQUIRED, "a point on the plane", lo=-100, hi=100, unit="m"),
-    "normal": Param("vec3", REQUIRED, "normal pointing to the free side", lo=-1e3, hi=1e3),
-    "friction": Param("float", 0.5, "Coulomb friction coefficient", lo=0.0, hi=10.0),
-}
-TOOL_PARAMS = {
-    "name": Param("str", REQUIRED, "tool name"),
-    "kind": Param("str", "probe", "instrument", choices=TOOL_KINDS),
-    "radius": Param("float", 0.0025, "shaft radius", lo=1e-4, hi=0.05, unit="m"),
-    "length": Param("float", 0.25, "shaft length inside the body", lo=1e-3, hi=1.0, unit="m"),
-    "tip": Param("vec3", [0.0, 0.08, 0.0], "initial tip position", lo=-100, hi=100, unit="m"),
-    "direction": Param("vec3", [0.0, 1.0, 0.0], "from the tip towards the handle", lo=-1e3,
-                       hi=1e3),
-}
-ORGAN_PARAMS = {
-    "name": Param("str", REQUIRED, "organ name, unique in the scene"),
-    "model": Param("str", REQUIRED, "tissue model", choices=MODELS),
-    "color": Param("vec3", [0.75, 0.35, 0.3], "display colour (linear RGB)", lo=0.0, hi=1.0),
-}
-GEOMETRY_COMMON = {
-    "translate": Param("vec3", [0.0, 0.0, 0.0], "offset applied after rotation", lo=-100, hi=100,
-                       unit="m"),
-    "rotate": Param("vec3", [0.0, 0.0, 0.0], "rotation about x, then y, then z", lo=-720,
-                    hi=720, unit="deg"),
-}
-MESH_PARAMS = {
-    "mesh": Param("str", REQUIRED, "OBJ/STL/PLY file, relative to the scene file"),
-    "units": Param("str", "m", "length unit of the file", choices=tuple(UNITS)),
-}
-
-_MASS = Param("float", 0.5, "total mass", lo=1e-6, hi=100.0, unit="kg")
-_DAMPING = Param("float", 1.0, "velocity damping rate", lo=0.0, hi=1000.0, unit="1/s")
-_SHAPE = {
-    "mass": _MASS,
-    "damping": _DAMPING,
-    "stiffness": Param("float", 0.4, "α, pull towards the goal per substep (Alg. 1)", lo=0.0,
-                       hi=1.0),
-    "recover_rate": Param("float", 0.01, "R_r, decrease of η per substep (Alg. 1)", lo=0.0,
-                          hi=1.0),
-    "eta_on_contact": Param("float", 0.7, "η set where a tool touches (seed 000 §7: 0.7; "
-                                          "Alg. 1: 1)", lo=0.0, hi=1.0),
-    "cluster_radius": Param("float", None, "cluster radius; default gives ≈50 particles per "
-                                           "cluster count (seed 002 Table 1)", lo=1e-4, hi=1.0,
-                            unit="m"),
-    "organ_cluster": Param("bool", True, "add one cluster holding the whole organ, so it keeps "
-                                         "its overall shape under gravity"),
-}
-_EDGES = {
-    "edge_stiffness": Param("float", 1.0, "stiffness of the surface edges", lo=0.0, hi=1.0),
-}
-MATERIAL_PARAMS = {
-    "shape_matching": _SHAPE,
-    "tet_clusters": {**_SHAPE, "particle_spacing": Param(
-        "float", 0.004, "BCC lattice cube edge (seed 002: 2.9 mm gives Table 1)", lo=2e-4,
-        hi=0.1, unit="m")},
-    "fascia_lra": {
-        "mass": _MASS, "damping": _DAMPING, **_EDGES,
-        "bending_stiffness": Param("float", 0.05, "stiffness across neighbouring triangles",
-                                   lo=0.0, hi=1.0),
-        "lra_relaxation": Param("float", 0.25, "β of Eq. 3 (seed 000 §7: 0.1-0.4)", lo=0.0,
-                                hi=1.0),
-        "lra_anchors": Param("int", 4, "nearest attached vertices each vertex keeps", lo=1,
-                             hi=64),
-    },
-    "truss": {
-        "mass": _MASS, "damping": _DAMPING, **_EDGES,
-        "cone_angle": Param("float", 0.3, "θ, half-angle of the strut cone (Alg. 2)", lo=0.01,
-                            hi=1.5, unit="rad"),
-        "bending_threshold": Param("float", math.pi / 3, "θ_threshold (seed 000 §7: π/3)",
-                                   lo=0.0, hi=math.pi, unit="rad"),
-        "min_stiffness": Param("float", 0.05, "k_min (seed 000 §7: 0.05)", lo=0.0, hi=1.0),
-    },
-    "mass_spring": {
-        "damping": Param("float", 0.2, "velocity damping rate", lo=0.0, hi=1000.0, unit="1/s"),
-        "intestine_mass": Param("float", 0.6, "mass of the intestine row", lo=1e-6, hi=100.0,
-                                unit="kg"),
-        "mesentery_mass": Param("float", 0.3, "mass of the other rows", lo=1e-6, hi=100.0,
-                                unit="kg"),
-        "intestine_stiffness": Param("float", 60.0, "springs along the intestine", lo=0.0,
-                                     hi=1e6, unit="N/m"),
-        "mesentery_stiffness": Param("float", 15.0, "springs of the mesentery", lo=0.0,
-                                     hi=1e6, unit="N/m"),
-        "bending_stiffness": Param("float", 5.0, "springs skipping one intestine mass", lo=0.0,
-                                   hi=1e6, unit="N/m"),
-        "spring_damping": Param("float", 0.05, "damping of every spring", lo=0.0, hi=1e4,
-                                unit="N s/m"),
-    },
-}
-ATTACHMENT_PARAMS = {
-    "kind": Param("str", REQUIRED, "what the attachment does", choices=ATTACHMENTS),
-    "box_min": Param("vec3", None, "region: lower corner of a box", lo=-100, hi=100, unit="m"),
-    "box_max": Param("vec3", None, "region: upper corner of a box", lo=-100, hi=100, unit="m"),
-    "center": Param("vec3", None, "region: centre of a sphere", lo=-100, hi=100, unit="m"),
-    "radius": Param("float", None, "region: sphere radius; join: reach", lo=1e-5, hi=100,
-                    unit="m"),
-    "rows": Param("intlist", None, "region: rows of a spring sheet (0 = intestine)", lo=-1000,
-                  hi=1000),
-    "organ": Param("str", None, "join: the organ to tie to"),
+_PRODUCES_FOR_MODEL = {
+    "tet_clusters": ("solid", "surface"),
+    "shape_matching": ("surface",),
+    "truss": ("surface",),
+    "fascia_lra": ("surface",),
+    "mass_spring": ("spring_sheet",),
 }
 
 
@@ -384,15 +261,6 @@ def _geometry(source: str, directory: Path, key: str, table: Any, model: str) ->
     params = {k: spec[k] for k in generator.params}
     return GeometrySpec(generator=name, params=params, mesh=None, units=1.0,
                         translate=spec["translate"], rotate=spec["rotate"])
-
-
-_PRODUCES_FOR_MODEL = {
-    "tet_clusters": ("solid", "surface"),
-    "shape_matching": ("surface",),
-    "truss": ("surface",),
-    "fascia_lra": ("surface",),
-    "mass_spring": ("spring_sheet",),
-}
 
 
 def _attachment(source: str, key: str, table: dict, model: str) -> AttachmentSpec:

@@ -1,6 +1,9 @@
 """The command line contract: list, info, check --json, run --headless, render."""
 
 import json
+import shutil
+import subprocess
+import sys
 
 import imageio.v2 as imageio
 import pytest
@@ -100,6 +103,17 @@ def test_run_without_display_falls_back_to_headless(tmp_path, capsys, monkeypatc
                    "--out", str(tmp_path / "f"), *SMALL])
     assert status == 0
     assert "running headless" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="needs xvfb-run (apt: xvfb xauth)")
+@needs_vulkan
+def test_interactive_window_runs_on_a_virtual_display():
+    """The GGUI window loop (camera, mouse device, panel) on Xvfb."""
+    proc = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1024x768x24", sys.executable, "-m",
+                           "taichi_lap", "run", "rectum", "--frames", "20", "--size", "640x480",
+                           *SMALL], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "running headless" not in proc.stderr
 
 
 def test_simulation_fault_is_reported_not_raised(tmp_path, capsys):
