@@ -38,6 +38,18 @@ def run_on_arch(arch: str, target: str, **kwargs) -> dict[str, np.ndarray]:
             return {key: data[key] for key in data.files}
 
 
+def assert_vulkan_matches_cpu(target: str, tolerance: float, **kwargs) -> dict[str, np.ndarray]:
+    """Run ``target`` here (CPU) and on Vulkan; every array must agree within
+    ``tolerance`` (max abs difference). Returns the CPU arrays."""
+    module_name, func_name = target.split(":")
+    cpu = getattr(importlib.import_module(module_name), func_name)(**kwargs)
+    vulkan = run_on_arch("vulkan", target, **kwargs)
+    for key, value in cpu.items():
+        difference = np.abs(np.asarray(value, dtype=np.float64) - vulkan[key]).max()
+        assert difference <= tolerance, f"{target} {key}: CPU and Vulkan differ by {difference}"
+    return cpu
+
+
 def _main(argv: list[str]) -> int:
     arch, target, kwargs_json, out = argv
     from taichi_lap import runtime

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.archrun import run_on_arch
+from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation
 
 
@@ -55,6 +55,4 @@ def compute_sweeps(solver_name: str) -> dict:
 @pytest.mark.vulkan
 @pytest.mark.parametrize("solver_name", ["jacobi", "gauss_seidel"])
 def test_vulkan_agrees_with_cpu(solver_name):
-    cpu = compute_sweeps(solver_name)
-    vulkan = run_on_arch("vulkan", "tests.test_distance:compute_sweeps", solver_name=solver_name)
-    assert np.abs(cpu["p"] - vulkan["p"]).max() < 1e-5
+    assert_vulkan_matches_cpu("tests.test_distance:compute_sweeps", 1e-5, solver_name=solver_name)

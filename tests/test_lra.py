@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from taichi_lap.kernels import distance
-from tests.archrun import run_on_arch
+from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation
 
 DT = 1.0 / 60.0
@@ -75,6 +75,4 @@ def compute_fascia_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    cpu = compute_fascia_case()
-    vulkan = run_on_arch("vulkan", "tests.test_lra:compute_fascia_case")
-    assert np.abs(cpu["x"] - vulkan["x"]).max() < 1e-4
+    assert_vulkan_matches_cpu("tests.test_lra:compute_fascia_case", 1e-4)

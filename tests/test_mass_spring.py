@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.archrun import run_on_arch
+from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation
 
 INTESTINE = {"name": "intestine", "model": "mass_spring",
@@ -54,6 +54,4 @@ def compute_intestine_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    cpu = compute_intestine_case()
-    vulkan = run_on_arch("vulkan", "tests.test_mass_spring:compute_intestine_case")
-    assert np.abs(cpu["x"] - vulkan["x"]).max() < 1e-4
+    assert_vulkan_matches_cpu("tests.test_mass_spring:compute_intestine_case", 1e-4)

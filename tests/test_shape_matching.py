@@ -5,7 +5,7 @@ import pytest
 
 from taichi_lap.kernels import shape_matching
 from taichi_lap.sim.reference import ReferenceShapeMatching
-from tests.archrun import run_on_arch
+from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX, simulation
 
 DT = 1.0 / 60.0
@@ -154,7 +154,4 @@ def compute_reference_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    cpu = compute_reference_case()
-    vulkan = run_on_arch("vulkan", "tests.test_shape_matching:compute_reference_case")
-    assert np.abs(cpu["x"] - vulkan["x"]).max() < 1e-4
-    assert np.abs(cpu["eta"] - vulkan["eta"]).max() < 1e-4
+    assert_vulkan_matches_cpu("tests.test_shape_matching:compute_reference_case", 1e-4)

@@ -8,7 +8,7 @@ import pytest
 from taichi_lap.build.geometry import TriangleMesh
 from taichi_lap.build.truss import generate_truss, vertex_normals
 from taichi_lap.scenes.anatomy import GENERATORS
-from tests.archrun import run_on_arch
+from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation
 
 THRESHOLD = math.pi / 3
@@ -134,6 +134,4 @@ def compute_gland_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    cpu = compute_gland_case()
-    vulkan = run_on_arch("vulkan", "tests.test_truss:compute_gland_case")
-    assert np.abs(cpu["x"] - vulkan["x"]).max() < 1e-4
+    assert_vulkan_matches_cpu("tests.test_truss:compute_gland_case", 1e-4)
