@@ -19,6 +19,15 @@ from taichi_lap.errors import InputError
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
+def _publish(tmp: str, path: Path):
+    """Give a finished temporary file the usual permissions and move it into place
+    (``mkstemp`` creates files readable by their owner only)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    os.replace(tmp, path)
+
+
 def write_png(path: str | Path, image: np.ndarray):
     """Write one PNG atomically."""
     path = Path(path)
@@ -27,7 +36,7 @@ def write_png(path: str | Path, image: np.ndarray):
     os.close(fd)
     try:
         imageio.imwrite(tmp, image, format="png")
-        os.replace(tmp, path)
+        _publish(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -71,7 +80,7 @@ class FrameWriter:
     def close(self):
         if self._writer is not None:
             self._writer.close()
-            os.replace(self._tmp, self.out)
+            _publish(self._tmp, self.out)
             self._writer = None
 
     def __enter__(self):

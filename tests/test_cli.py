@@ -1,6 +1,7 @@
 """The command line contract: list, info, check --json, run --headless, render."""
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -68,6 +69,9 @@ def test_run_headless_writes_frames(tmp_path, capsys):
     assert status == 0, capsys.readouterr().err
     frames = sorted(out.glob("frame_*.png"))
     assert len(frames) == 3
+    umask = os.umask(0)
+    os.umask(umask)
+    assert frames[0].stat().st_mode & 0o777 == 0o666 & ~umask  # not a private temporary
     image = imageio.imread(frames[-1])
     assert image.shape == (120, 160, 3)
     assert image.reshape(-1, 3).std(axis=0).max() > 10  # organs drawn, not a blank frame
