@@ -118,72 +118,56 @@ def _apply_region_attachments(scene: Scene, organ, parts: OrganParts):
 
 
 def _concatenate(scene: Scene, parts: list[OrganParts]) -> ModelData:
+    """One ModelData from the organs' parts: local indices become global."""
     offsets = np.concatenate([[0], np.cumsum([len(p.positions) for p in parts])])
     surface_offsets = np.concatenate([[0], np.cumsum([len(p.surface_index) for p in parts])])
-    n = int(offsets[-1])
-    material = {name: np.zeros(n) for name in PARTICLE_MATERIAL}
+    material = {name: np.zeros(int(offsets[-1])) for name in PARTICLE_MATERIAL}
     cluster_parts, records = [], []
-    tri_start = tet_start = 0
+    triangles = tets = 0
     for index, (organ, part) in enumerate(zip(scene.organs, parts)):
-        base = int(offsets[index])
+        first, last = int(offsets[index]), int(offsets[index + 1])
         for name in PARTICLE_MATERIAL:
             if name in organ.material and organ.model in _MATERIAL_FOR_MODEL.get(name, (organ.model,)):
-                material[name][base:base + len(part.positions)] = organ.material[name]
+                material[name][first:last] = organ.material[name]
         cluster_start = sum(c.count for c in cluster_parts)
         if part.clusters is not None:
-            cluster_parts.append(_shift_clusters(part.clusters, base))
-        for att in organ.attachments:
-            if att.kind == "join":
-                cluster_parts.append(_join(scene, parts, offsets, organ, att, index))
+            cluster_parts.append(_shift_clusters(part.clusters, first))
+        cluster_parts += [_join(scene, parts, offsets, organ, att, index)
+                          for att in organ.attachments if att.kind == "join"]
         records.append(OrganRecord(
-            name=organ.name, model=organ.model, color=tuple(organ.color),
-            particles=(base, base + len(part.positions)),
-            triangles=(tri_start, tri_start + len(part.surface_triangles)),
+            name=organ.name, model=organ.model, color=tuple(organ.color), particles=(first, last),
+            triangles=(triangles, triangles + len(part.surface_triangles)),
             surface_vertices=(int(surface_offsets[index]), int(surface_offsets[index + 1])),
-            tets=(tet_start, tet_start + len(part.tets)),
+            tets=(tets, tets + len(part.tets)),
             clusters=(cluster_start, sum(c.count for c in cluster_parts)),
             struts=part.struts, springs=len(part.spring_pairs), row_length=part.row_length))
-        tri_start += len(part.surface_triangles)
-        tet_start += len(part.tets)
-    everything = clustering.concatenate(cluster_parts) if cluster_parts else None
+        triangles += len(part.surface_triangles)
+        tets += len(part.tets)
+    clusters = clustering.concatenate(cluster_parts)
 
     def cat(name, width=None, shift=None):
-        arrays = []
-        for k, part in enumerate(parts):
-            value = getattr(part, name)
-            if shift == "particles":
-                value = value + offsets[k]
-            elif shift == "surface":
-                value = value + surface_offsets[k]
-            arrays.append(value)
-        out = np.concatenate(arrays) if arrays else np.zeros(0)
+        """Concatenate one array of every part; indices shifted to global."""
+        arrays = [getattr(p, name) + (0 if shift is None else shift[k]) for k, p in enumerate(parts)]
+        out = np.concatenate(arrays)
         return out.reshape(-1, width) if width else out
 
-    lra = [p.lra for p in parts]
-    lra_particle = np.concatenate([a.particle + offsets[k] for k, a in enumerate(lra) if a]
-                                  or [np.zeros(0, np.int64)])
-    lra_anchor = np.concatenate([a.anchor + offsets[k] for k, a in enumerate(lra) if a]
-                                or [np.zeros(0, np.int64)])
-    lra_rest = np.concatenate([a.rest for a in lra if a] or [np.zeros(0)])
-    damping_springs = np.concatenate([np.full(len(p.spring_pairs), o.material.get("spring_damping", 0.0))
-                                      for p, o in zip(parts, scene.organs)])
+    def particle_index(name, width=None):
+        return cat(name, width, offsets).astype(np.int64)
+
     return ModelData(
         rest_position=cat("positions", 3), mass=cat("mass"), pinned=cat("pinned").astype(bool),
         radius=cat("radius"), organ=np.repeat(np.arange(len(parts)), np.diff(offsets)),
-        material=material,
-        cluster_start=everything.start if everything else np.zeros(1, np.int64),
-        cluster_member=everything.members if everything else np.zeros(0, np.int64),
-        cluster_radius=everything.radius if everything else np.zeros(0),
-        distance_pair=cat("distance_pairs", 2, "particles").astype(np.int64),
-        distance_rest=cat("distance_rest"), distance_stiffness=cat("distance_stiffness"),
-        lra_particle=lra_particle, lra_anchor=lra_anchor, lra_rest=lra_rest,
-        spring_pair=cat("spring_pairs", 2, "particles").astype(np.int64),
-        spring_rest=cat("spring_rest"), spring_stiffness=cat("spring_stiffness"),
-        spring_damping=damping_springs,
-        tets=cat("tets", 4, "particles").astype(np.int64),
-        surface_index=cat("surface_index", 4, "particles").astype(np.int64),
+        material=material, cluster_start=clusters.start, cluster_member=clusters.members,
+        cluster_radius=clusters.radius,
+        distance_pair=particle_index("distance_pairs", 2), distance_rest=cat("distance_rest"),
+        distance_stiffness=cat("distance_stiffness"),
+        lra_particle=particle_index("lra_particle"), lra_anchor=particle_index("lra_anchor"),
+        lra_rest=cat("lra_rest"),
+        spring_pair=particle_index("spring_pairs", 2), spring_rest=cat("spring_rest"),
+        spring_stiffness=cat("spring_stiffness"), spring_damping=cat("spring_damping"),
+        tets=particle_index("tets", 4), surface_index=particle_index("surface_index", 4),
         surface_weight=cat("surface_weight", 4),
-        surface_triangles=cat("surface_triangles", 3, "surface").astype(np.int64),
+        surface_triangles=cat("surface_triangles", 3, surface_offsets).astype(np.int64),
         organs=records)
 
 

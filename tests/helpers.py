@@ -13,6 +13,15 @@ def simulation(organs: list[dict], **settings):
             session.solver)
 
 
+def state_after(organs: list[dict], frames: int, **settings) -> dict:
+    """Positions and recovery factors after ``frames`` frames of 1/60 s (the
+    computations the Vulkan comparisons run on both backends)."""
+    _, _, _, state, control, solver = simulation(organs, **settings)
+    for _ in range(frames):
+        solver.step(state, control, 1.0 / 60.0)
+    return {"x": state.x.to_numpy(), "eta": state.eta.to_numpy()}
+
+
 BOX = {"name": "block", "model": "tet_clusters",
        "geometry": {"generator": "box", "half_extents": [0.02, 0.012, 0.015]},
        "material": {"particle_spacing": 0.004, "stiffness": 0.5, "damping": 0.0,

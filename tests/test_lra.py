@@ -5,7 +5,7 @@ import pytest
 
 from taichi_lap.kernels import distance
 from tests.archrun import assert_vulkan_matches_cpu
-from tests.helpers import simulation
+from tests.helpers import simulation, state_after
 
 DT = 1.0 / 60.0
 
@@ -67,10 +67,7 @@ def test_relaxed_lra_stretches_more_than_hard():
 
 def compute_fascia_case() -> dict:
     """Hard LRA fascia falling for 20 frames (run on any backend)."""
-    _, _, _, state, control, solver = simulation([fascia(0.0, 4)], iterations=20)
-    for _ in range(20):
-        solver.step(state, control, DT)
-    return {"x": state.x.to_numpy()}
+    return state_after([fascia(0.0, 4)], 20, iterations=20)
 
 
 @pytest.mark.vulkan

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tests.archrun import assert_vulkan_matches_cpu
-from tests.helpers import simulation
+from tests.helpers import simulation, state_after
 
 INTESTINE = {"name": "intestine", "model": "mass_spring",
              "geometry": {"generator": "intestine"},
@@ -46,10 +46,7 @@ def test_damped_energy_decays():
 
 def compute_intestine_case() -> dict:
     """The intestine hanging from its root for 30 frames (run on any backend)."""
-    _, _, _, state, control, solver = simulation([INTESTINE], substeps=8)
-    for _ in range(30):
-        solver.step(state, control, 1 / 60)
-    return {"x": state.x.to_numpy()}
+    return state_after([INTESTINE], 30, substeps=8)
 
 
 @pytest.mark.vulkan

@@ -6,7 +6,7 @@ import pytest
 from taichi_lap.kernels import shape_matching
 from taichi_lap.sim.reference import ReferenceShapeMatching
 from tests.archrun import assert_vulkan_matches_cpu
-from tests.helpers import BOX, simulation
+from tests.helpers import BOX, simulation, state_after
 
 DT = 1.0 / 60.0
 
@@ -103,13 +103,18 @@ def test_inverted_cluster_gives_proper_rotation():
     assert np.allclose(rotations @ rotations.transpose(0, 2, 1), np.eye(3), atol=1e-4)
 
 
+REFERENCE_ORGANS = [dict(BOX, material=dict(BOX["material"], damping=2.0, eta_on_contact=0.7,
+                                            recover_rate=0.02))]
+REFERENCE_SETTINGS = dict(
+    tools=[{"name": "probe", "radius": 0.005, "length": 0.1, "tip": [0.004, 0.016, 0.0],
+            "direction": [0.2, 1, 0]}],
+    planes=[{"point": [0, -0.013, 0], "normal": [0, 1, 0], "friction": 0.4}],
+    substeps=2, shape_iterations=3)
+
+
 def reference_case():
-    tool = {"name": "probe", "radius": 0.005, "length": 0.1, "tip": [0.004, 0.016, 0.0],
-            "direction": [0.2, 1, 0]}
-    plane = {"point": [0, -0.013, 0], "normal": [0, 1, 0], "friction": 0.4}
-    return simulation([dict(BOX, material=dict(BOX["material"], damping=2.0, eta_on_contact=0.7,
-                                               recover_rate=0.02))],
-                      tools=[tool], planes=[plane], substeps=2, shape_iterations=3)
+    """A block under gravity on a floor, dented by a tool."""
+    return simulation(REFERENCE_ORGANS, **REFERENCE_SETTINGS)
 
 
 def test_kernel_agrees_with_numpy_reference():
@@ -146,10 +151,7 @@ def test_two_runs_are_identical():
 
 def compute_reference_case() -> dict:
     """Run on any backend (used by the Vulkan comparison)."""
-    _, _, _, state, control, solver = reference_case()
-    for _ in range(15):
-        solver.step(state, control, DT)
-    return {"x": state.x.to_numpy(), "eta": state.eta.to_numpy()}
+    return state_after(REFERENCE_ORGANS, 15, **REFERENCE_SETTINGS)
 
 
 @pytest.mark.vulkan

@@ -9,7 +9,7 @@ from taichi_lap.build.geometry import TriangleMesh
 from taichi_lap.build.truss import generate_truss, vertex_normals
 from taichi_lap.scenes.anatomy import GENERATORS
 from tests.archrun import assert_vulkan_matches_cpu
-from tests.helpers import simulation
+from tests.helpers import simulation, state_after
 
 THRESHOLD = math.pi / 3
 CONE = 0.35
@@ -125,11 +125,7 @@ def test_truss_holds_the_gland_up_where_edges_alone_collapse():
 def compute_gland_case() -> dict:
     """The truss gland settling on the floor for 30 frames (run on any backend)."""
     floor = {"point": [0, -0.014, 0], "normal": [0, 1, 0], "friction": 0.5}
-    _, _, _, state, control, solver = simulation([organ(0.35)], planes=[floor], iterations=10,
-                                                 substeps=4)
-    for _ in range(30):
-        solver.step(state, control, 1 / 60)
-    return {"x": state.x.to_numpy()}
+    return state_after([organ(0.35)], 30, planes=[floor], iterations=10, substeps=4)
 
 
 @pytest.mark.vulkan

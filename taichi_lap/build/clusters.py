@@ -142,6 +142,7 @@ def joining_clusters(positions: np.ndarray, own: np.ndarray, other: np.ndarray,
 def concatenate(parts: list[Clusters]) -> Clusters:
     """All clusters of ``parts`` in one compressed-row table (members are global)."""
     lists = [p.members[p.start[c]:p.start[c + 1]] for p in parts for c in range(p.count)]
-    merged = _from_lists(lists, np.concatenate([p.center for p in parts]), 0.0)
-    merged.radius = np.concatenate([p.radius for p in parts])
+    merged = _from_lists(lists, np.concatenate([p.center for p in parts] or [np.zeros((0, 3))]),
+                         0.0)
+    merged.radius = np.concatenate([p.radius for p in parts] or [np.zeros(0)])
     return merged

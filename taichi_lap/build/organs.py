@@ -20,8 +20,8 @@ import numpy as np
 from taichi_lap.build import clusters as clustering
 from taichi_lap.build.geometry import Geometry, Solid, SpringSheet, TriangleMesh
 from taichi_lap.build.meshfile import load_surface_mesh
-from taichi_lap.build.sheets import (Attachments, bending_pairs, long_range_attachments,
-                                     mesh_edges, sheet_springs, sheet_triangles)
+from taichi_lap.build.sheets import (bending_pairs, long_range_attachments, mesh_edges,
+                                     sheet_springs, sheet_triangles)
 from taichi_lap.build.tetrahedralize import tetrahedralize
 from taichi_lap.build.transform import place
 from taichi_lap.build.truss import generate_truss
@@ -49,10 +49,13 @@ class OrganParts:
     distance_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     distance_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))
     distance_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    lra: Attachments | None = None
+    lra_particle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    lra_anchor: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    lra_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))
     spring_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     spring_rest: np.ndarray = field(default_factory=lambda: np.zeros(0))
     spring_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    spring_damping: np.ndarray = field(default_factory=lambda: np.zeros(0))
     tets: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
     surface_index: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
     surface_weight: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
@@ -162,7 +165,8 @@ def build_fascia(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
 def add_long_range_attachments(organ: OrganSpec, parts: OrganParts, anchors: np.ndarray):
     """Attach every free vertex to its nearest ``lra_anchors`` anchors (seed 000 Eq. 3)."""
     mesh = TriangleMesh(parts.positions, parts.surface_triangles)
-    parts.lra = long_range_attachments(mesh, anchors, organ.material["lra_anchors"])
+    lra = long_range_attachments(mesh, anchors, organ.material["lra_anchors"])
+    parts.lra_particle, parts.lra_anchor, parts.lra_rest = lra.particle, lra.anchor, lra.rest
 
 
 def build_truss(organ: OrganSpec, mesh: TriangleMesh, progress: Progress | None) -> OrganParts:
@@ -194,6 +198,7 @@ def build_mass_spring(organ: OrganSpec, sheet: SpringSheet) -> OrganParts:
     return OrganParts(positions=sheet.rows.reshape(-1, 3).copy(), mass=mass, radius=radius,
                       pinned=np.zeros(rows * cols, bool), spring_pairs=springs.pairs,
                       spring_rest=springs.rest, spring_stiffness=springs.stiffness,
+                      spring_damping=np.full(len(springs.pairs), material["spring_damping"]),
                       surface_index=index, surface_weight=weight,
                       surface_triangles=sheet_triangles(rows, cols), row_length=cols)
 
