@@ -12,14 +12,11 @@ import json
 import logging
 import os
 import sys
-from pathlib import Path
 
 # Taichi prints a banner to stdout on import; keep stdout for our output (check --json)
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")
 
 from taichi_lap.errors import InputError, SimulationFault  # noqa: E402
-
-log = logging.getLogger("taichi_lap")
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -40,8 +40,10 @@ def place(geometry: Geometry, rotate, translate) -> Geometry:
     if geometry.sdf is not None:
         inner = geometry.sdf
 
-        def sdf(points: np.ndarray) -> np.ndarray:
+        def moved_sdf(points: np.ndarray) -> np.ndarray:
             return inner((np.asarray(points) - offset) @ rot)
+
+        sdf = moved_sdf
 
     surface = None if geometry.surface is None else place(geometry.surface, rotate, translate)
     return Solid(bounds=(moved.min(axis=0), moved.max(axis=0)), sdf=sdf, surface=surface)

@@ -1,6 +1,6 @@
 """Dynamic simulation state (the Warp/Newton ``State``): positions, velocities,
 goals, recovery factors, collision flags, cluster frames, the skinned surface and
-the health flag. Created by :meth:`State.from_model`; updated in place by the solver.
+the health flag. :meth:`State.reset` puts it at rest; the solver updates it in place.
 """
 
 from __future__ import annotations
@@ -42,13 +42,6 @@ class State:
         group.finalize()
         self.time = 0.0
         self.frame = 0
-
-    @classmethod
-    def from_model(cls, model: Model) -> "State":
-        """A state at rest: x = goal = rest position, v = 0, eta = 0."""
-        state = cls(model)
-        state.reset(model)
-        return state
 
     def reset(self, model: Model):
         """Return to the rest configuration."""
