@@ -1,0 +1,293 @@
+"""Image-based lighting of the abdominal cavity (seed 000 §6.2, Eq. 13-15).
+
+The cavity is lit by :func:`environment_radiance`, a procedural, smooth, low-frequency
+warm red and pink surround without bright sources. :class:`ImageLighting` precomputes
+once, in one SNode tree:
+
+- ``sh_coeffs``: the environment projected on 9 spherical harmonics, for the diffuse
+  sum of Eq. 15 (irradiance by Ramamoorthi & Hanrahan 2001, Eq. 13 there);
+- ``dfg``: the first sum of Eq. 14 (the DFG term) as scale A and bias B of F0, by the
+  split sum of Karis 2013 (the seed cites it as Kasyan 2013);
+- ``prefiltered``: the second sum of Eq. 14 (the LD term), the environment convolved
+  with GGX lobes under Karis's n = v = r assumption, at ``PREFILTER_LEVELS`` roughnesses.
+
+Directions are world unit vectors, y up. Latitude-longitude maps put theta = acos(y)
+along rows (row 0 at +y) and phi = atan2(z, x) in [0, 2 pi) along columns. Tables are
+1-D fields (FieldGroup), indexed as documented on :class:`ImageLighting`. Precomputation
+sums in a fixed order (no float atomics), so it is deterministic on every backend.
+"""
+
+import math
+
+import taichi as ti
+
+from taichi_lap.kernels.brdf import (ALPHA_MIN, INV_PI, MUCUS_F0, MUCUS_ROUGHNESS, N_DOT_MIN, PI, fresnel,
+                                     fresnel_weight, mucus_fresnel, smith_visibility, specular_f0)
+from taichi_lap.sim.fields import FieldGroup
+
+SH_ROWS, SH_COLUMNS = 128, 256  # latitude-longitude quadrature grid of the SH projection
+DFG_SIZE, DFG_SAMPLES = 32, 256
+PREFILTER_WIDTH, PREFILTER_HEIGHT, PREFILTER_LEVELS, PREFILTER_SAMPLES = 64, 32, 5, 512
+FRESNEL_WEIGHT_MEAN = 0.048864
+"""Cosine-weighted hemispherical mean of the Eq. 11 weight, 2 ∫ fresnel_weight(mu) mu dmu."""
+
+
+def _unit(x, y, z):
+    s = math.sqrt(x * x + y * y + z * z)
+    return (x / s, y / s, z / s)
+
+
+# (colour, axis, sharpness) of the spherical Gaussians on the cavity wall
+_PERITONEUM = ((0.45, 0.22, 0.20), _unit(0.3, 0.8, -0.5), 3.0)  # pink anterior wall
+_FAT = ((0.30, 0.22, 0.10), _unit(-0.7, 0.2, 0.4), 4.0)  # yellowish omentum
+_BOWEL = ((0.25, 0.04, 0.03), _unit(0.5, -0.3, 0.6), 5.0)  # deep red below
+
+
+@ti.func
+def spherical_gaussian(direction, axis, sharpness):
+    """exp(sharpness (direction·axis - 1)): 1 on the axis, smooth elsewhere."""
+    return ti.exp(sharpness * (direction.dot(ti.Vector(axis)) - 1.0))
+
+
+@ti.func
+def environment_radiance(direction):
+    """Radiance [relative units] of the abdominal cavity seen along unit ``direction``:
+    a red wall, darker below (y < 0), with pink, yellowish and deep red patches; RGB in
+    about [0.05, 1.1]."""
+    wall = ti.math.mix(ti.Vector([0.20, 0.05, 0.045]), ti.Vector([0.55, 0.20, 0.17]), 0.5 + 0.5 * direction.y)
+    for patch in ti.static((_PERITONEUM, _FAT, _BOWEL)):
+        wall += ti.Vector(patch[0]) * spherical_gaussian(direction, patch[1], patch[2])
+    return wall
+
+
+@ti.func
+def latlong_direction(theta, phi):
+    """Unit direction at polar angle ``theta`` from +y and azimuth ``phi`` from +x to +z."""
+    s = ti.sin(theta)
+    return ti.Vector([s * ti.cos(phi), ti.cos(theta), s * ti.sin(phi)])
+
+
+@ti.func
+def sh9_basis(d):
+    """The 9 real spherical harmonics Y00, Y1-1, Y10, Y11, Y2-2, Y2-1, Y20, Y21, Y22 at
+    unit ``d`` (Ramamoorthi & Hanrahan 2001; x, y, z = d)."""
+    x, y, z = d.x, d.y, d.z
+    return ti.Vector([0.282095, 0.488603 * y, 0.488603 * z, 0.488603 * x, 1.092548 * x * y,
+                      1.092548 * y * z, 0.315392 * (3.0 * z * z - 1.0), 1.092548 * x * z,
+                      0.546274 * (x * x - y * y)])
+
+
+@ti.kernel
+def project_sh9(environment: ti.template(), intensity: ti.f32, row_sums: ti.template(), coeffs: ti.template()):
+    """coeffs[k] = intensity ∫ L(w) Y_k(w) dw (Ramamoorthi & Hanrahan 2001)
+    by the midpoint rule on a SH_ROWS x SH_COLUMNS latitude-longitude grid. One latitude
+    ring per thread into ``row_sums[row * 9 + k]``, then rings summed in order."""
+    d_theta, d_phi = PI / SH_ROWS, 2.0 * PI / SH_COLUMNS
+    for row in range(SH_ROWS):
+        theta = (row + 0.5) * d_theta
+        ring = ti.Matrix.zero(ti.f32, 9, 3)
+        for col in range(SH_COLUMNS):
+            d = latlong_direction(theta, (col + 0.5) * d_phi)
+            ring += sh9_basis(d).outer_product(environment(d))
+        d_omega = ti.sin(theta) * d_theta * d_phi
+        for k in ti.static(range(9)):
+            row_sums[row * 9 + k] = d_omega * ti.Vector([ring[k, 0], ring[k, 1], ring[k, 2]])
+    for k in range(9):
+        total = ti.Vector([0.0, 0.0, 0.0])
+        for row in range(SH_ROWS):
+            total += row_sums[row * 9 + k]
+        coeffs[k] = intensity * total
+
+
+@ti.func
+def sh9_irradiance(coeffs, n):
+    """Irradiance E(n) = ∫ L(w) max(n·w, 0) dw from 9 SH coefficients, Ramamoorthi &
+    Hanrahan 2001 Eq. 13 (c1..c5 fold the clamped-cosine lobe). Includes no 1/pi: a
+    Lambertian surface reflects radiance albedo · E(n) / pi. A constant L gives pi L."""
+    c1, c2, c3, c4, c5 = 0.429043, 0.511664, 0.743125, 0.886227, 0.247708
+    x, y, z = n.x, n.y, n.z
+    e = c1 * coeffs[8] * (x * x - y * y) + c3 * coeffs[6] * z * z + c4 * coeffs[0] - c5 * coeffs[6] \
+        + 2.0 * c1 * (coeffs[4] * x * y + coeffs[7] * x * z + coeffs[5] * y * z) \
+        + 2.0 * c2 * (coeffs[3] * x + coeffs[1] * y + coeffs[2] * z)
+    return ti.max(e, 0.0)
+
+
+@ti.func
+def radical_inverse(i):
+    """Van der Corput radical inverse of i >= 0 in base 2 (Hammersley's second coordinate)."""
+    x, f, k = 0.0, 0.5, i
+    while k > 0:
+        if k & 1:
+            x += f
+        f *= 0.5
+        k >>= 1
+    return x
+
+
+@ti.func
+def tangent_frame(n):
+    """Two unit vectors completing unit ``n`` to an orthonormal frame (Duff et al. 2017)."""
+    sign = ti.select(n.z >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n.z)
+    b = n.x * n.y * a
+    return ti.Vector([1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x]), ti.Vector([b, sign + n.y * n.y * a, -n.y])
+
+
+@ti.func
+def ggx_half_vector(i, count, alpha, n):
+    """Hammersley point i of ``count``, mapped to a GGX-distributed half vector around unit
+    ``n`` (pdf D(h) n·h; Walter et al. 2007, Eq. 35-36; Karis 2013)."""
+    a2 = ti.max(alpha, ALPHA_MIN) ** 2
+    u = radical_inverse(i)
+    cos_theta = ti.sqrt((1.0 - u) / (1.0 + (a2 - 1.0) * u))
+    sin_theta = ti.sqrt(ti.max(1.0 - cos_theta * cos_theta, 0.0))
+    phi = 2.0 * PI * (i + 0.5) / count
+    tangent, bitangent = tangent_frame(n)
+    return (tangent * ti.cos(phi) + bitangent * ti.sin(phi)) * sin_theta + n * cos_theta
+
+
+@ti.kernel
+def integrate_dfg(dfg: ti.template()):
+    """Split-sum DFG term (seed 000 Eq. 14 first sum; Karis 2013): for n·v = (i + 0.5) /
+    DFG_SIZE and roughness = (j + 0.5) / DFG_SIZE, dfg[j * DFG_SIZE + i] = (A, B) with
+    ∫ F D V n·l dl = F0 A + B, F from Eq. 11, V from Eq. 10, DFG_SAMPLES GGX samples."""
+    for i, j in ti.ndrange(DFG_SIZE, DFG_SIZE):
+        n_dot_v = (i + 0.5) / DFG_SIZE
+        roughness = (j + 0.5) / DFG_SIZE
+        alpha = roughness * roughness
+        n = ti.Vector([0.0, 0.0, 1.0])
+        v = ti.Vector([ti.sqrt(1.0 - n_dot_v * n_dot_v), 0.0, n_dot_v])
+        scale, bias = 0.0, 0.0
+        for s in range(DFG_SAMPLES):
+            h = ggx_half_vector(s, DFG_SAMPLES, alpha, n)
+            v_dot_h = v.dot(h)
+            l = 2.0 * v_dot_h * h - v
+            if l.z > 0.0 and v_dot_h > 0.0:
+                # estimator F D V n·l / pdf_l with pdf_l = D n·h / (4 v·h)
+                g_vis = smith_visibility(n_dot_v, l.z, alpha) * 4.0 * l.z * v_dot_h / h.z
+                fc = fresnel_weight(v_dot_h)
+                scale += (1.0 - fc) * g_vis
+                bias += fc * g_vis
+        dfg[j * DFG_SIZE + i] = ti.Vector([scale, bias]) / DFG_SAMPLES
+
+
+@ti.func
+def dfg_lookup(dfg, n_dot_v, roughness):
+    """(A, B) of the DFG table at n·v and roughness, bilinear, clamped at the edges."""
+    x = ti.math.clamp(n_dot_v * DFG_SIZE - 0.5, 0.0, DFG_SIZE - 1.0)
+    y = ti.math.clamp(roughness * DFG_SIZE - 0.5, 0.0, DFG_SIZE - 1.0)
+    i0, j0 = ti.min(ti.cast(x, ti.i32), DFG_SIZE - 2), ti.min(ti.cast(y, ti.i32), DFG_SIZE - 2)
+    fx, fy = x - i0, y - j0
+    row0 = ti.math.mix(dfg[j0 * DFG_SIZE + i0], dfg[j0 * DFG_SIZE + i0 + 1], fx)
+    row1 = ti.math.mix(dfg[(j0 + 1) * DFG_SIZE + i0], dfg[(j0 + 1) * DFG_SIZE + i0 + 1], fx)
+    return ti.math.mix(row0, row1, fy)
+
+
+@ti.kernel
+def prefilter_environment(environment: ti.template(), intensity: ti.f32, maps: ti.template()):
+    """LD term of seed 000 Eq. 14 (Karis 2013): for each level k (roughness k / (LEVELS - 1))
+    and texel direction r, the n·l-weighted mean of intensity · L(l) over PREFILTER_SAMPLES
+    GGX reflections about n = v = r. Writes maps[(k * HEIGHT + row) * WIDTH + col]."""
+    for level, row, col in ti.ndrange(PREFILTER_LEVELS, PREFILTER_HEIGHT, PREFILTER_WIDTH):
+        roughness = level / (PREFILTER_LEVELS - 1.0)
+        r = latlong_direction(PI * (row + 0.5) / PREFILTER_HEIGHT, 2.0 * PI * (col + 0.5) / PREFILTER_WIDTH)
+        total = ti.Vector([0.0, 0.0, 0.0])
+        weight = 0.0
+        for s in range(PREFILTER_SAMPLES):
+            h = ggx_half_vector(s, PREFILTER_SAMPLES, roughness * roughness, r)
+            l = 2.0 * r.dot(h) * h - r
+            n_dot_l = r.dot(l)
+            if n_dot_l > 0.0:
+                total += environment(l) * n_dot_l
+                weight += n_dot_l
+        maps[(level * PREFILTER_HEIGHT + row) * PREFILTER_WIDTH + col] = intensity * total / weight
+
+
+@ti.func
+def latlong_sample(maps, level, d):
+    """Bilinear sample of level ``level`` of the prefiltered maps along unit ``d``
+    (wraps in phi, clamps in theta)."""
+    theta = ti.acos(ti.math.clamp(d.y, -1.0, 1.0))
+    phi = ti.atan2(d.z, d.x)
+    phi = ti.select(phi < 0.0, phi + 2.0 * PI, phi)
+    x = phi * (PREFILTER_WIDTH / (2.0 * PI)) - 0.5
+    y = ti.math.clamp(theta * (PREFILTER_HEIGHT / PI) - 0.5, 0.0, PREFILTER_HEIGHT - 1.0)
+    x0 = ti.floor(x)
+    fx = x - x0
+    c0 = (ti.cast(x0, ti.i32) + PREFILTER_WIDTH) % PREFILTER_WIDTH
+    c1 = (c0 + 1) % PREFILTER_WIDTH
+    r0 = ti.min(ti.cast(y, ti.i32), PREFILTER_HEIGHT - 2)
+    fy = y - r0
+    base = level * PREFILTER_HEIGHT
+    top = ti.math.mix(maps[(base + r0) * PREFILTER_WIDTH + c0], maps[(base + r0) * PREFILTER_WIDTH + c1], fx)
+    bottom = ti.math.mix(maps[(base + r0 + 1) * PREFILTER_WIDTH + c0],
+                         maps[(base + r0 + 1) * PREFILTER_WIDTH + c1], fx)
+    return ti.math.mix(top, bottom, fy)
+
+
+@ti.func
+def prefiltered_radiance(maps, direction, roughness):
+    """Prefiltered environment radiance along unit ``direction`` for ``roughness`` in
+    [0, 1]: bilinear in the map, linear between the two nearest levels."""
+    level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
+    k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
+    return ti.math.mix(latlong_sample(maps, k0, direction), latlong_sample(maps, k0 + 1, direction), level - k0)
+
+
+@ti.func
+def ibl_diffuse(lighting, n, v, albedo, metalness, mucus):
+    """Diffuse radiance under the environment, seed 000 Eq. 15 with a Lambertian f_d:
+    albedo (1 - metalness) E(n) / pi (E from :func:`sh9_irradiance`) times the energy
+    factors of :func:`~taichi_lap.kernels.brdf.surface_brdf_cos`, (1 - F) at n·v and the
+    film's (1 - mucus F_c) at n·v; on the light side, where l spans the hemisphere, F and
+    F_c take their cosine-weighted means. RGB, the environment's units."""
+    n_dot_v = ti.max(n.dot(v), N_DOT_MIN)
+    f0 = specular_f0(albedo, metalness)
+    base = (1.0 - fresnel(f0, n_dot_v)) * (1.0 - f0 - (1.0 - f0) * FRESNEL_WEIGHT_MEAN)
+    film = (1.0 - mucus * mucus_fresnel(n_dot_v)) * (1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * FRESNEL_WEIGHT_MEAN))
+    return albedo * ((1.0 - metalness) * INV_PI * film) * sh9_irradiance(lighting.sh_coeffs, n) * base
+
+
+@ti.func
+def ibl_specular(lighting, n, v, albedo, roughness, metalness, mucus):
+    """Specular radiance under the environment, seed 000 Eq. 14 by the split sum:
+    prefiltered(r, roughness) (F0 A + B), r the mirror of v about n, for the base layer
+    (through the film twice, n·l ~ n·v: (1 - mucus F_c(n·v))^2) plus ``mucus`` times the
+    same for the water film (F0 = 0.02, roughness 0.08). RGB, the environment's units."""
+    n_dot_v = ti.max(n.dot(v), N_DOT_MIN)
+    r = 2.0 * n.dot(v) * n - v
+    ab = dfg_lookup(lighting.dfg, n_dot_v, roughness)
+    base = prefiltered_radiance(lighting.prefiltered, r, roughness) * (specular_f0(albedo, metalness) * ab[0] + ab[1])
+    coat_ab = dfg_lookup(lighting.dfg, n_dot_v, MUCUS_ROUGHNESS)
+    coat = prefiltered_radiance(lighting.prefiltered, r, MUCUS_ROUGHNESS) * (MUCUS_F0 * coat_ab[0] + coat_ab[1])
+    film = 1.0 - mucus * mucus_fresnel(n_dot_v)
+    return film * film * base + mucus * coat
+
+
+@ti.data_oriented
+class ImageLighting:
+    """Precomputed image-based lighting of ``environment`` (a ti.func direction -> RGB,
+    default :func:`environment_radiance`) times ``intensity`` (radiance scale); all fields in one
+    FieldGroup, filled once here:
+
+    - ``sh_coeffs``: 9 x vec3 f32, SH coefficients in :func:`sh9_basis` order;
+    - ``dfg``: DFG_SIZE^2 x vec2 f32, (A, B) at ``j * DFG_SIZE + i`` (roughness row j,
+      n·v column i), read with :func:`dfg_lookup`;
+    - ``prefiltered``: PREFILTER_LEVELS * PREFILTER_HEIGHT * PREFILTER_WIDTH x vec3 f32 at
+      ``(level * HEIGHT + row) * WIDTH + col``, read with :func:`prefiltered_radiance`;
+    - ``sh_row_sums``: SH_ROWS * 9 x vec3 f32, scratch of the projection.
+
+    Pass the object to a kernel as ``lighting: ti.template()`` and call
+    ``ibl_diffuse(lighting, ...) + ibl_specular(lighting, ...)``, or pass single fields.
+    """
+
+    def __init__(self, intensity: float = 1.0, *, environment=environment_radiance):
+        group = FieldGroup()
+        self.sh_coeffs = group.field(ti.f32, 9, vector=3)
+        self.sh_row_sums = group.field(ti.f32, SH_ROWS * 9, vector=3)
+        self.dfg = group.field(ti.f32, DFG_SIZE * DFG_SIZE, vector=2)
+        self.prefiltered = group.field(ti.f32, PREFILTER_LEVELS * PREFILTER_HEIGHT * PREFILTER_WIDTH, vector=3)
+        group.finalize()
+        project_sh9(environment, float(intensity), self.sh_row_sums, self.sh_coeffs)
+        integrate_dfg(self.dfg)
+        prefilter_environment(environment, float(intensity), self.prefiltered)
