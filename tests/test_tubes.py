@@ -1,0 +1,289 @@
+"""Generalized-cylinder tubes (kernels/generalized_cylinder.py, taichi_lap/tubes.py; seed 001
+§5): spline, Eq. 10-11 sampling, Eq. 12 frames, Eq. 1/13 skinning, §5.3 controller."""
+
+import functools
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.tubes import TessellationController, TubeMesh
+from tests.archrun import assert_vulkan_matches_cpu
+
+CAPACITY, TUBES, SIDES, MAX_LEVEL = 128, 3, 16, 3
+
+
+@functools.cache
+def rig():
+    """One TubeMesh and its input/output fields for the whole module (one compilation)."""
+    mesh = TubeMesh(CAPACITY, TUBES, sides=SIDES, max_level=MAX_LEVEL)
+    g = FieldGroup()
+    fields = dict(points=g.field(ti.f32, CAPACITY, vector=3), radius=g.field(ti.f32, CAPACITY),
+                  tube_range=g.field(ti.i32, TUBES, vector=2),
+                  vertices=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
+                  normals=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
+                  indices=g.field(ti.i32, 3 * mesh.triangle_capacity + 5))
+    g.finalize()
+    return mesh, fields
+
+
+def tessellate(polylines, radii, epsilon=0.1, level=2, vertex_offset=7, index_offset=5):
+    """Upload the tubes, update; return the mesh, the live output and the whole regions."""
+    mesh, f = rig()
+    points = np.zeros((CAPACITY, 3), np.float32)
+    radius = np.zeros(CAPACITY, np.float32)
+    ranges, start = np.zeros((TUBES, 2), np.int32), 0
+    for t, (p, r) in enumerate(zip(polylines, radii)):
+        points[start:start + len(p)], radius[start:start + len(p)] = p, r
+        ranges[t] = start, start + len(p)
+        start += len(p)
+    f["points"].from_numpy(points)
+    f["radius"].from_numpy(radius)
+    f["tube_range"].from_numpy(ranges)
+    mesh.update(f["points"], f["radius"], f["tube_range"], len(polylines), f["vertices"],
+                f["normals"], f["indices"], vertex_offset=vertex_offset,
+                index_offset=index_offset, epsilon=epsilon, level=level)
+    nv, nt = mesh.live_counts()
+    v = f["vertices"].to_numpy()[vertex_offset:vertex_offset + mesh.vertex_capacity]
+    n = f["normals"].to_numpy()[vertex_offset:vertex_offset + mesh.vertex_capacity]
+    i = f["indices"].to_numpy()[index_offset:index_offset + 3 * mesh.triangle_capacity]
+    i = i.reshape(-1, 3) - vertex_offset
+    return mesh, dict(vertices=v[:nv], normals=n[:nv], triangles=i[:nt]), (v, n, i)
+
+
+def samples(mesh, tube=0):
+    s, c = mesh.tube_sample_start[tube], mesh.tube_sample_count[tube]
+    return {k: getattr(mesh, "sample_" + k).to_numpy()[s:s + c]
+            for k in ("segment", "parameter", "position", "tangent", "normal", "radius")}
+
+
+def bend(degrees, h=1.0, legs=5):
+    """A polyline of 2 legs of ``legs`` segments of length h [m] turning by ``degrees`` at 0."""
+    a = np.radians(degrees)
+    before = [[-h * k, 0.0, 0.0] for k in range(legs, 0, -1)]
+    after = [[h * k * np.cos(a), h * k * np.sin(a), 0.0] for k in range(legs + 1)]
+    return np.array(before + after, np.float32)
+
+
+def helix(radius=0.05, rise=0.01, turns=2.0, n=60):
+    """Points on x = R cos φ, y = R sin φ, z = rise φ [m]."""
+    phi = np.linspace(0.0, 2 * np.pi * turns, n)
+    return np.stack([radius * np.cos(phi), radius * np.sin(phi), rise * phi], 1).astype(np.float32)
+
+
+def catmull_rom(p, i):
+    """NumPy reference: coefficients (4, 3) of segment i with Bessel ghost points."""
+    p = np.asarray(p, np.float64)
+    q = np.vstack([3 * p[0] - 3 * p[1] + p[2], p, 3 * p[-1] - 3 * p[-2] + p[-3]])
+    q0, q1, q2, q3 = q[i:i + 4]
+    m1, m2 = 0.5 * (q2 - q0), 0.5 * (q3 - q1)
+    return np.array([q1, m1, 3 * (q2 - q1) - 2 * m1 - m2, 2 * (q1 - q2) + m1 + m2])
+
+
+def ring_planes(vertices):
+    """Centroid and unit normal (least-squares plane) of every ring, (rings, sides, 3)."""
+    rings = vertices.reshape(-1, SIDES, 3).astype(np.float64)
+    centre = rings.mean(1)
+    normal = np.array([np.linalg.svd(r - c)[2][2] for r, c in zip(rings, centre)])
+    return rings, centre, normal
+
+
+def test_spline_interpolates_the_mechanical_points():
+    p = helix(n=30)
+    mesh, _, _ = tessellate([p], [np.full(len(p), 0.01)], epsilon=0.02)
+    s = samples(mesh)
+    knots = s["parameter"] == 0.0
+    assert np.array_equal(s["position"][knots], p[s["segment"][knots]])
+    assert np.allclose(s["position"][-1], p[-1], atol=1e-6)
+    inner = ~knots & (s["parameter"] < 1.0)
+    assert inner.sum() > 10
+    for seg, u, x in zip(s["segment"][inner], s["parameter"][inner], s["position"][inner]):
+        assert np.allclose(np.array([1, u, u * u, u ** 3]) @ catmull_rom(p, seg), x, atol=1e-6)
+
+
+def test_rmf_frames_stay_orthonormal_and_follow_the_helix_rmf():
+    R, rise = 0.05, 0.01
+    p = helix(R, rise, turns=3.0, n=90)
+    mesh, _, _ = tessellate([p], [np.full(len(p), 0.01)], epsilon=0.0, level=1)
+    s = samples(mesh)
+    t, k = s["tangent"].astype(np.float64), s["normal"].astype(np.float64)
+    assert np.abs(np.linalg.norm(t, axis=1) - 1).max() < 1e-4
+    assert np.abs(np.linalg.norm(k, axis=1) - 1).max() < 1e-4
+    assert np.abs((t * k).sum(1)).max() < 1e-4
+    # double reflection (Wang et al. 2008) in float64 on the same samples
+    x, ref = s["position"].astype(np.float64), [k[0]]
+    for j in range(len(x) - 1):
+        v1 = x[j + 1] - x[j]
+        r_l = ref[-1] - 2 / (v1 @ v1) * (v1 @ ref[-1]) * v1
+        t_l = t[j] - 2 / (v1 @ v1) * (v1 @ t[j]) * v1
+        v2 = t[j + 1] - t_l
+        ref.append(r_l - 2 / (v2 @ v2) * (v2 @ r_l) * v2)
+    assert np.abs(np.array(ref) - k).max() < 1e-4
+    # analytic RMF of the helix: the normal turns against the Frenet normal by -torsion * s
+    phi = np.unwrap(np.arctan2(x[:, 1], x[:, 0]))
+    arc = phi * np.hypot(R, rise)
+    frenet_n = np.stack([-np.cos(phi), -np.sin(phi), np.zeros_like(phi)], 1)
+    frenet_b = np.cross(t, frenet_n)
+    angle = np.unwrap(np.arctan2((k * frenet_b).sum(1), (k * frenet_n).sum(1)))
+    twist = angle - angle[0] + rise / (R * R + rise * rise) * arc
+    assert abs(angle[-1] - angle[0]) > 3.6  # 3 turns: the RMF turns 3.70 rad against Frenet
+    assert np.abs(twist).max() < 2e-3  # measured 3.1e-4 rad (8e-6 with knots only)
+
+
+def test_more_samples_land_where_curvature_is_high():
+    p = bend(120.0)  # sharp bend at point 5; straight legs
+    mesh, _, _ = tessellate([p], [np.full(len(p), 0.3)], epsilon=0.1)
+    counts = mesh.segment_sample_count.to_numpy()[:len(p)]
+    c = mesh.segment_indicator.to_numpy()[:len(p)]
+    assert c[5] == pytest.approx(0.75) and np.abs(np.delete(c, 5)).max() < 1e-6
+    assert counts[4] > 1 and counts[5] > 1  # the two segments meeting at the bend
+    assert np.all(np.delete(counts, [4, 5, len(p) - 1]) == 1) and counts[-1] == 0
+
+
+def test_eq11_samples_straddle_the_curvature_maximum():
+    x = np.array([-2.0, -1.2, -0.55, 0.3, 1.1, 2.0])  # uneven knots on a parabola
+    p = np.stack([x, 0.8 * x * x, 0 * x], 1).astype(np.float32)
+    mesh, _, _ = tessellate([p], [np.full(len(p), 0.1)], epsilon=0.0)  # refine every segment
+    peak = mesh.segment_peak.to_numpy()[:len(p) - 1]
+    s = samples(mesh)
+    grid = np.linspace(0.0, 1.0, 20001)
+    interior = 0
+    for i in np.nonzero(peak >= 0)[0]:
+        C = catmull_rom(p, i)
+        d1 = np.stack([np.zeros_like(grid), np.ones_like(grid), 2 * grid, 3 * grid ** 2], 1) @ C
+        d2 = np.stack([0 * grid, 0 * grid, 2 + 0 * grid, 6 * grid], 1) @ C
+        kappa = np.linalg.norm(np.cross(d1, d2), axis=1) / np.linalg.norm(d1, axis=1) ** 3
+        m = grid[np.argmax(kappa)]
+        assert abs(peak[i] - m) < 2e-3, (i, peak[i], m)
+        u = s["parameter"][s["segment"] == i]
+        extra = np.sort(u[(u > 0) & (u < 1)])
+        expected = [u for u in (2 * m / 3, (1 + 2 * m) / 3) if 0.05 <= u <= 0.95]
+        assert np.allclose(extra, expected, atol=2e-3)  # m - δ and m + δ', Eq. 11
+        interior += 0.1 < m < 0.9
+    assert interior >= 1  # maxima at the knots are common; this one is inside a segment
+
+
+@pytest.mark.parametrize("radius,legs,h", [(1.0, 5, 1.0), (0.3, 5, 1.0), (1.0, 20, 0.2)])
+def test_cross_sections_do_not_cross_at_a_sharp_bend(radius, legs, h):
+    """120° bend, tube radius = segment length (and 0.3 x, and 5 x): at every level every
+    vertex of ring k+1 lies ahead of the plane of ring k and every vertex of ring k behind
+    the plane of ring k+1, and no triangle faces against its vertex normals."""
+    p = bend(120.0, h, legs)
+    for level in range(MAX_LEVEL + 1):
+        _, out, _ = tessellate([p], [np.full(len(p), radius)], epsilon=0.1, level=level)
+        rings, centre, normal = ring_planes(out["vertices"])
+        forward = np.diff(centre, axis=0)
+        normal *= np.sign((np.vstack([forward, forward[-1:]]) * normal).sum(1))[:, None]
+        ahead = np.einsum("ksx,kx->ks", rings[1:] - centre[:-1, None], normal[:-1]).min()
+        behind = np.einsum("ksx,kx->ks", rings[:-1] - centre[1:, None], normal[1:]).max()
+        assert ahead > 0 and behind < 0, (level, ahead, behind)
+        v, tri = out["vertices"].astype(np.float64), out["triangles"]
+        face = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
+        real = np.linalg.norm(face, axis=1) > 1e-9 * radius ** 2
+        facing = (face * out["normals"][tri].sum(1)).sum(1)
+        assert np.all(facing[real] > 0), level
+        assert np.isfinite(v).all()
+
+
+def test_surface_lies_at_the_radius_on_straight_parts():
+    direction = np.array([0.6, -0.48, 0.64])
+    straight = (np.arange(12)[:, None] * 0.04 * direction).astype(np.float32)
+    p = bend(90.0, 0.04, 8)
+    mesh, out, _ = tessellate([straight, p], [np.full(12, 0.02), np.full(len(p), 0.015)])
+    v = out["vertices"].astype(np.float64)
+    first = v[:mesh.tube_ring_base[1] * SIDES]
+    along = first @ direction
+    distance = np.linalg.norm(first - along[:, None] * direction, axis=1)
+    assert np.abs(distance / 0.02 - 1).max() < 0.01
+    second = v[len(first):].reshape(-1, SIDES, 3)
+    legs = second[second[:, :, 0].max(1) < -0.1]  # more than 2.5 segments before the bend
+    assert len(legs) > 20
+    assert np.abs(np.hypot(legs[..., 1], legs[..., 2]) / 0.015 - 1).max() < 0.01
+
+
+def test_unused_capacity_is_degenerate_padding():
+    p = helix(n=40)
+    mesh, _, _ = tessellate([p], [np.full(40, 0.01)], epsilon=0.0, level=3)
+    _, out, (v, n, i) = tessellate([p[:20]], [np.full(20, 0.01)], epsilon=0.5, level=1)
+    nv, nt = len(out["vertices"]), len(out["triangles"])
+    assert nt == 2 * (nv // SIDES - 1) * SIDES and 0 < nt < mesh.triangle_capacity
+    assert np.all(i[nt:] == 0) and not np.any(v[nv:]) and not np.any(n[nv:])
+    assert out["triangles"].min() == 0 and out["triangles"].max() == nv - 1
+
+
+def test_packed_tubes_match_tubes_drawn_alone():
+    a, b = helix(n=25), bend(100.0, 0.03, 6) + np.float32([0.2, 0, 0])
+    ra, rb = np.full(len(a), 0.01), np.linspace(0.01, 0.02, len(b))
+    _, alone_a, _ = tessellate([a], [ra])
+    _, alone_b, _ = tessellate([b], [rb])
+    _, both, _ = tessellate([a, np.zeros((1, 3)), b], [ra, [0.01], rb])  # middle tube: 1 point
+    na = len(alone_a["vertices"])
+    assert np.array_equal(both["vertices"][:na], alone_a["vertices"])
+    assert np.array_equal(both["vertices"][na:], alone_b["vertices"])
+    assert np.array_equal(both["triangles"][len(alone_a["triangles"]):], alone_b["triangles"] + na)
+
+
+def wiggle(n=100, seed=3):
+    """An intestine-like polyline: 4 m, 100 points, random bends up to ~70°."""
+    rng = np.random.default_rng(seed)
+    heading = np.array([1.0, 0, 0])
+    p = [np.zeros(3)]
+    for _ in range(n - 1):
+        axis = rng.normal(size=3)
+        axis -= axis @ heading * heading
+        angle = rng.uniform(0.0, 1.2) ** 2
+        axis /= np.linalg.norm(axis)
+        heading = heading * np.cos(angle) + np.cross(axis, heading) * np.sin(angle)
+        p.append(p[-1] + 0.04 * heading)
+    return np.array(p, np.float32)
+
+
+@pytest.mark.parametrize("target_ms", [2.0, 4.0, 8.0])
+def test_frame_time_controller_converges_on_a_linear_cost_model(target_ms):
+    """frame_ms = 1 + 1e-4 * triangles (3.2 ms at the start, level 2): within 10% of the
+    target from the 12th update on, for 40 updates (measured: from the 4th, 6th, 10th)."""
+    p = wiggle()
+    radius = np.full(len(p), 0.02)
+    control = TessellationController(target_ms, max_level=MAX_LEVEL)
+    times = []
+    for _ in range(52):
+        tessellate([p], [radius], control.epsilon, control.level)
+        frame_ms = 1.0 + 1e-4 * rig()[0].live_counts()[1]
+        times.append(frame_ms)
+        epsilon, level = control.update(frame_ms)
+        assert 0.0 <= epsilon <= 0.5 and 0 <= level <= MAX_LEVEL
+    within = np.abs(np.array(times) / target_ms - 1) <= 0.1
+    assert within[12:].all() and not within[0], times
+
+
+def test_frame_time_controller_stops_at_its_bounds():
+    slow = TessellationController(4.0, max_level=MAX_LEVEL)
+    for _ in range(20):
+        slow.update(100.0)
+    assert (slow.level, slow.epsilon) == (0, 0.5)
+    for _ in range(20):
+        slow.update(0.1)
+    assert slow.level == MAX_LEVEL and slow.epsilon == pytest.approx(0.0, abs=1e-6)
+
+
+def test_two_runs_are_identical():
+    p = wiggle(60, seed=5)
+    first = tessellate([p], [np.linspace(0.01, 0.03, 60)], 0.05, 2)[1]
+    tessellate([helix()], [np.full(60, 0.01)], 0.0, 3)
+    second = tessellate([p], [np.linspace(0.01, 0.03, 60)], 0.05, 2)[1]
+    for key in first:
+        assert np.array_equal(first[key], second[key]), key
+
+
+def vulkan_case(level=2):
+    """Live output for a wiggle and a bend (run on CPU and on Vulkan)."""
+    _, out, _ = tessellate([wiggle(50, seed=7), bend(120.0, 0.03, 6)],
+                           [np.full(50, 0.02), np.full(13, 0.03)], 0.1, level)
+    return out
+
+
+@pytest.mark.vulkan
+def test_vulkan_matches_cpu():
+    cpu = assert_vulkan_matches_cpu("tests.test_tubes:vulkan_case", 1e-5)
+    assert len(cpu["triangles"]) > 1000
