@@ -135,7 +135,7 @@ def _concatenate(scene: Scene, parts: list[OrganParts]) -> ModelData:
         cluster_parts += [_join(scene, parts, offsets, organ, att, index)
                           for att in organ.attachments if att.kind == "join"]
         records.append(OrganRecord(
-            name=organ.name, model=organ.model, color=tuple(organ.color), particles=(first, last),
+            name=organ.name, model=organ.model, particles=(first, last),
             triangles=(triangles, triangles + len(part.surface_triangles)),
             surface_vertices=(int(surface_offsets[index]), int(surface_offsets[index + 1])),
             tets=(tets, tets + len(part.tets)),

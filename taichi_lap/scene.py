@@ -55,7 +55,8 @@ class AttachmentSpec:
 class OrganSpec:
     name: str
     model: str
-    color: list[float]
+    appearance: str
+    color: list[float] | None
     geometry: GeometrySpec
     material: dict[str, Any]
     attachments: list[AttachmentSpec] = field(default_factory=list)
@@ -225,7 +226,8 @@ def _organ(source: str, directory: Path, key: str, table: dict) -> OrganSpec:
     attachments = [_attachment(source, f"{key}.attachments[{k}]", t, head["model"])
                    for k, t in enumerate(_list_of_tables(source, f"{key}.attachments",
                                                          table.get("attachments", [])))]
-    return OrganSpec(name=head["name"], model=head["model"], color=head["color"],
+    return OrganSpec(name=head["name"], model=head["model"], appearance=head["appearance"],
+                     color=head["color"],
                      geometry=geometry, material=material, attachments=attachments, key=key)
 
 

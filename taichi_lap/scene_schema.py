@@ -4,6 +4,7 @@ tables and a test keeps the two in step."""
 
 import math
 
+from taichi_lap.render.materials import PRESETS
 from taichi_lap.schema import REQUIRED
 from taichi_lap.scenes.anatomy.params import Param
 
@@ -57,7 +58,10 @@ TOOL_PARAMS = {
 ORGAN_PARAMS = {
     "name": Param("str", REQUIRED, "organ name, unique in the scene"),
     "model": Param("str", REQUIRED, "tissue model", choices=MODELS),
-    "color": Param("vec3", [0.75, 0.35, 0.3], "display colour (linear RGB)", lo=0.0, hi=1.0),
+    "appearance": Param("str", "serosa", "render material preset (seed 000 §6.1)",
+                        choices=tuple(PRESETS)),
+    "color": Param("vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0,
+                   hi=1.0),
 }
 GEOMETRY_COMMON = {
     "translate": Param("vec3", [0.0, 0.0, 0.0], "offset applied after rotation", lo=-100, hi=100,

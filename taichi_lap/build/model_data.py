@@ -22,7 +22,6 @@ class OrganRecord:
 
     name: str
     model: str
-    color: tuple[float, float, float]
     particles: tuple[int, int]
     triangles: tuple[int, int]
     surface_vertices: tuple[int, int]

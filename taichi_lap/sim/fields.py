@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import taichi as ti
+from taichi.lang.util import to_numpy_type
 
 
 class FieldGroup:
@@ -48,7 +49,7 @@ class FieldGroup:
         self.tree = self._builder.finalize()
         for f, values in self._uploads:
             if len(values):
-                padded = np.zeros(f.shape + values.shape[1:], dtype=values.dtype)
+                padded = np.zeros(f.shape + values.shape[1:], dtype=to_numpy_type(f.dtype))
                 padded[:len(values)] = values
                 f.from_numpy(padded)
         self._uploads = []

@@ -1,0 +1,448 @@
+"""Visibility buffer and G-buffer resolve of the reduced deferred shading pipeline
+(seed 000 §6.3), rasterized in software so it runs unchanged on every backend.
+
+Two passes (Burns & Hunt 2013, "The Visibility Buffer"):
+
+1. Visibility: each triangle is clipped against the near plane ``w >= near`` (an
+   endoscope sees tissue right at the lens; a crossing triangle leaves one or two),
+   snapped to 1/256 px, and the pixel centres of its bounding box are tested with
+   Pineda (1988) edge functions in exact i64 arithmetic and the top-left rule of
+   Direct3D, so triangles sharing an edge or a vertex cover each centre exactly once.
+   A covered centre takes ``atomic_min`` of one i64 key ``(depth_key << 32) |
+   triangle``: the nearest fragment wins, equal depths go to the lowest triangle id.
+   :func:`rasterize_visibility` walks a triangle's box in one thread (CPU);
+   :func:`rasterize_visibility_by_pixel` gives each box pixel a thread (GPUs, and
+   Mesa's lavapipe, which loses atomics inside loops). Both give the same ids.
+2. :func:`resolve_gbuffer`, per pixel: the pixel's camera ray meets the winning
+   triangle (Möller & Trumbore 1997) for perspective-correct barycentrics.
+
+Conventions. Images are fields of shape ``(width, height)`` indexed ``[x, y]``,
+origin bottom-left, y up (as ``ti.ui.Canvas.set_image`` takes them); pixel (x, y)
+has its centre at NDC ``(2 (x + 0.5) / width - 1, 2 (y + 0.5) / height - 1)``.
+Matrices act on column vectors, OpenGL style (:func:`camera_matrices`). The
+rasterizer's depth is ``1 / w`` (w = view depth [m]): affine in screen space, ordered
+as NDC z, no far plane needed; ``depth_key`` = f32 bits of +inf minus those of 1/w.
+Triangles wholly outside a side or the far plane are skipped (one crossing the far
+plane is drawn whole), back faces are drawn (tissue is seen from both sides), and
+triangles of zero snapped area are skipped. Vertices farther than 2^20 px from the
+image centre are pulled toward it along the line through it, so coordinates stay
+below 2^29 and edge terms below 2^61; the pull depends on the vertex alone, so
+meshes stay watertight.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+SUBPIXEL_BITS = 8
+SUBPIXEL = 1 << SUBPIXEL_BITS  # snapping grid: 1/256 px
+GUARD_BAND = float(2 ** 20)  # [px] from the image centre
+VISIBILITY_CLEAR = 2 ** 63 - 1  # no fragment: larger than every key
+BACKGROUND_DEPTH = 1.0e30  # [m], finite so fast-math arithmetic on it stays defined
+INF_BITS = 0x7F800000  # f32 bits of +inf
+PIXEL_ITEMS = 2 ** 31 - 1  # most box pixels per frame on the by-pixel path
+
+
+def camera_matrices(eye, target, up, fov_deg: float, aspect: float, near: float,
+                    far: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(view, projection)``, float32 4x4, OpenGL conventions.
+
+    View space is right-handed with the camera at the origin looking down -z, y up;
+    positions in [m]. ``fov_deg`` is the vertical field of view [deg], ``aspect`` =
+    width / height, ``near`` < ``far`` [m]. The projection maps view depth d = -z to
+    clip ``w = d`` and z in [-w, w] (near -> -1, far -> +1); the renderer's kernels
+    take ``view_projection = projection @ view`` acting on ``(x, y, z, 1)``.
+    """
+    eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
+    if not 0.0 < near < far or not 0.0 < fov_deg < 180.0 or not aspect > 0.0:
+        raise ValueError("need 0 < near < far, 0 < fov_deg < 180 and aspect > 0")
+    forward = target - eye
+    side = np.cross(forward, up)
+    if np.linalg.norm(forward) == 0.0 or np.linalg.norm(side) < 1e-12 * np.linalg.norm(forward):
+        raise ValueError("target must differ from eye and up must not be parallel to the view")
+    forward /= np.linalg.norm(forward)
+    side /= np.linalg.norm(side)
+    true_up = np.cross(side, forward)
+    view = np.eye(4)
+    view[0, :3], view[1, :3], view[2, :3] = side, true_up, -forward
+    view[:3, 3] = -view[:3, :3] @ eye
+    focal = 1.0 / math.tan(math.radians(fov_deg) / 2.0)
+    projection = np.zeros((4, 4))
+    projection[0, 0], projection[1, 1] = focal / aspect, focal
+    projection[2, 2] = (far + near) / (near - far)
+    projection[2, 3] = 2.0 * far * near / (near - far)
+    projection[3, 2] = -1.0
+    return view.astype(np.float32), projection.astype(np.float32)
+
+
+@ti.func
+def _homogeneous(position):
+    return ti.Vector([position.x, position.y, position.z, 1.0])
+
+
+@ti.func
+def _snap(clip, inv_w, width: ti.template(), height: ti.template()):
+    """Screen position of clip-space ``(x, y, w)`` with ``inv_w`` = 1/w > 0, in 1/256 px
+    as an i32 2-vector, pulled inside the guard band."""
+    centre = ti.Vector([0.5 * width, 0.5 * height])
+    offset = clip.xy * inv_w * centre
+    reach = ti.max(ti.abs(offset.x), ti.abs(offset.y))
+    if reach > GUARD_BAND:
+        offset *= GUARD_BAND / reach
+    return ti.floor((centre + offset) * SUBPIXEL + 0.5).cast(ti.i32)
+
+
+@ti.func
+def _near_crossing(inside, outside, near):
+    """Point where edge inside -> outside (clip ``(x, y, w)``) meets w = near; computed
+    from the inside end so triangles sharing the edge get the same point."""
+    s = (inside.z - near) / (inside.z - outside.z)
+    crossing = inside + s * (outside - inside)
+    crossing.z = near
+    return crossing
+
+
+@ti.func
+def _clip_and_snap(positions: ti.template(), triangles: ti.template(), t, view_projection, near,
+                   width: ti.template(), height: ti.template()):
+    """Triangle t clipped to w >= near: ``(corners, screen, inv_w)`` with corners 3 or 4
+    (0 if it lies outside a frustum plane), screen the 4x2 i32 corner positions
+    [1/256 px] and inv_w their 1/w [1/m]."""
+    c0 = view_projection @ _homogeneous(positions[triangles[3 * t]])
+    c1 = view_projection @ _homogeneous(positions[triangles[3 * t + 1]])
+    c2 = view_projection @ _homogeneous(positions[triangles[3 * t + 2]])
+    x, y = ti.Vector([c0.x, c1.x, c2.x]), ti.Vector([c0.y, c1.y, c2.y])
+    z, w = ti.Vector([c0.z, c1.z, c2.z]), ti.Vector([c0.w, c1.w, c2.w])
+    corners, screen, inv_w = 0, ti.Matrix.zero(ti.i32, 4, 2), ti.Vector.zero(ti.f32, 4)
+    if not ((x > w).all() or (x < -w).all() or (y > w).all() or (y < -w).all() or (z > w).all()
+            or (w < near).all()):
+        p0, p1, p2 = c0.xyw, c1.xyw, c2.xyw
+        in0, in1, in2 = w[0] >= near, w[1] >= near, w[2] >= near
+        inside_count = ti.cast(in0, ti.i32) + ti.cast(in1, ti.i32) + ti.cast(in2, ti.i32)
+        q0, q1, q2, q3 = p0, p1, p2, p2
+        corners = 3
+        if inside_count == 2:  # rotate the outside corner to c: quad a, b, bc, ca
+            a, b, c = p0, p1, p2
+            if not in0:
+                a, b, c = p1, p2, p0
+            elif not in1:
+                a, b, c = p2, p0, p1
+            q0, q1, q2, q3 = a, b, _near_crossing(b, c, near), _near_crossing(a, c, near)
+            corners = 4
+        elif inside_count == 1:  # rotate the inside corner to a: triangle a, ab, ac
+            a, b, c = p2, p0, p1
+            if in0:
+                a, b, c = p0, p1, p2
+            elif in1:
+                a, b, c = p1, p2, p0
+            q0, q1, q2 = a, _near_crossing(a, b, near), _near_crossing(a, c, near)
+        inv_w = 1.0 / ti.Vector([q0.z, q1.z, q2.z, q3.z])
+        s0, s1 = _snap(q0, inv_w[0], width, height), _snap(q1, inv_w[1], width, height)
+        s2 = s3 = _snap(q2, inv_w[2], width, height)
+        if corners == 4:
+            s3 = _snap(q3, inv_w[3], width, height)
+        screen = ti.Matrix([[s0.x, s0.y], [s1.x, s1.y], [s2.x, s2.y], [s3.x, s3.y]], ti.i32)
+    return corners, screen, inv_w
+
+
+@ti.func
+def _corner(screen, k: ti.template()):
+    return ti.Vector([screen[k, 0], screen[k, 1]]).cast(ti.i64)
+
+
+@ti.func
+def _fan_part(screen, inv_w, part):
+    """Fan triangle ``part`` (0: corners 0, 1, 2; 1: corners 0, 2, 3) made counter-
+    clockwise (back faces are drawn): ``(a, b, c, inv_w, area2)``, corners as i64
+    2-vectors, area2 = twice its area [1/256 px]^2."""
+    a, b, c = _corner(screen, 0), _corner(screen, 1), _corner(screen, 2)
+    corner_inv_w = inv_w.xyz
+    if part == 1:
+        b, c, corner_inv_w = c, _corner(screen, 3), inv_w.xzw
+    area2 = _edge(a, b, c)
+    if area2 < 0:
+        b, c = c, b
+        corner_inv_w = corner_inv_w.xzy
+        area2 = -area2
+    return a, b, c, corner_inv_w, area2
+
+
+@ti.func
+def _edge(u, v, p):
+    """Pineda edge function (v - u) x (p - u) [1/256 px]^2, > 0 left of u -> v."""
+    return (v.x - u.x) * (p.y - u.y) - (v.y - u.y) * (p.x - u.x)
+
+
+@ti.func
+def _tie_bias(u, v):
+    """0 if a centre exactly on edge u -> v of a counter-clockwise triangle is inside
+    (a left edge, going down, or a top edge, going in -x), else 1: the top-left rule
+    with y up. Used only in the inside test ``edge >= bias``, never in barycentrics."""
+    d = v - u
+    bias = 1
+    if d.y < 0 or (d.y == 0 and d.x < 0):
+        bias = 0
+    return ti.cast(bias, ti.i64)
+
+
+@ti.func
+def _weights(a, b, c, x, y):
+    """Unnormalised barycentric weights (edge functions opposite a, b, c) at the
+    centre of pixel (x, y), i64."""
+    p = ti.Vector([x, y]).cast(ti.i64) * SUBPIXEL + SUBPIXEL // 2
+    return ti.Vector([_edge(b, c, p), _edge(c, a, p), _edge(a, b, p)])
+
+
+@ti.func
+def _box(a, b, c, width: ti.template(), height: ti.template()):
+    """Pixels whose centres the bounding box of (a, b, c) holds, clamped to the image:
+    ``x0, y0, x1, y1`` (empty when x0 > x1 or y0 > y1)."""
+    low, high, half = ti.min(a, ti.min(b, c)), ti.max(a, ti.max(b, c)), SUBPIXEL // 2
+    first = ((ti.max(low, 0) + half - 1) >> SUBPIXEL_BITS).cast(ti.i32)  # arithmetic shifts: floor
+    last = ((ti.min(high, ti.Vector([width, height]) * SUBPIXEL) - half) >> SUBPIXEL_BITS).cast(ti.i32)
+    return first.x, first.y, last.x, last.y
+
+
+@ti.func
+def _fragment_key(weight, inv_w, inv_area2, triangle):
+    """Visibility key of a covered centre: 1/w interpolated with the exact, unbiased
+    weights (a convex combination, so slivers stay between their corners)."""
+    depth = ti.cast(weight, ti.f32).dot(inv_w) * inv_area2
+    depth_key = ti.max(INF_BITS - ti.bit_cast(depth, ti.i32), 0)
+    return (ti.cast(depth_key, ti.i64) << 32) | ti.cast(triangle, ti.i64)
+
+
+@ti.func
+def _clear(visibility: ti.template()):
+    for x, y in visibility:
+        visibility[x, y] = ti.i64(VISIBILITY_CLEAR)
+
+
+@ti.kernel
+def rasterize_visibility(positions: ti.template(), triangles: ti.template(), triangle_count: ti.i32,
+                         view_projection: ti.math.mat4, near: ti.f32, visibility: ti.template()):
+    """Clear ``visibility`` to VISIBILITY_CLEAR, then for each triangle t < triangle_count
+    (vertex ids ``triangles[3t:3t+3]`` into ``positions`` [m]) write, per covered pixel,
+    ``min(key)`` with key = ``(depth_key << 32) | t`` (i64, see the module docstring).
+    ``near`` [m] > 0 is the clipping distance on w. One thread per triangle walks its
+    bounding box with incremental edge functions (the CPU path). Reads positions,
+    triangles."""
+    _clear(visibility)
+    width, height = ti.static(visibility.shape)
+    for t in range(triangle_count):
+        corners, screen, inv_w = _clip_and_snap(positions, triangles, t, view_projection, near,
+                                                width, height)
+        for part in range(corners - 2):
+            a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part)
+            if area2 > 0:
+                x0, y0, x1, y1 = _box(a, b, c, width, height)
+                bias = ti.Vector([_tie_bias(b, c), _tie_bias(c, a), _tie_bias(a, b)])
+                step = ti.Vector([b.y - c.y, c.y - a.y, a.y - b.y]) * SUBPIXEL
+                inv_area2 = 1.0 / ti.cast(area2, ti.f32)
+                for y in range(y0, y1 + 1):
+                    weight = _weights(a, b, c, x0, y)
+                    for x in range(x0, x1 + 1):
+                        if (weight >= bias).all():
+                            key = _fragment_key(weight, corner_inv_w, inv_area2, t)
+                            if key < visibility[x, y]:  # skips most atomics of hidden fragments
+                                ti.atomic_min(visibility[x, y], key)
+                        weight += step
+
+
+@ti.data_oriented
+class BoxPixels:
+    """Per fan part (two per triangle) of :func:`rasterize_visibility_by_pixel`: snapped
+    corners, their 1/w, pixel box ``(x0, y0, box width)`` and the running end of the
+    box pixel counts; room for ``capacity`` triangles."""
+
+    BLOCK = 512  # parts per block of the prefix sum
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        parts, blocks = 2 * capacity, (2 * capacity + self.BLOCK - 1) // self.BLOCK
+        self.corner = ti.Matrix.field(3, 2, ti.i32)
+        self.inv_w = ti.Vector.field(3, ti.f32)
+        self.box = ti.Vector.field(3, ti.i32)
+        self.count = ti.field(ti.i32)
+        self.end = ti.field(ti.i32)
+        self.block_start = ti.field(ti.i32)
+        self.total = ti.field(ti.i32)
+        builder = ti.FieldsBuilder()  # 32-bit types only: Vulkan misplaces small fields after i64 ones
+        builder.dense(ti.i, parts).place(self.corner, self.inv_w, self.box, self.count, self.end)
+        builder.dense(ti.i, blocks).place(self.block_start)
+        builder.place(self.total)
+        self.tree = builder.finalize()
+
+
+@ti.func
+def _add_counts(a, b):
+    """a + b for counts a, b >= 0, saturating at PIXEL_ITEMS."""
+    return ti.min(a, PIXEL_ITEMS - b) + b
+
+
+@ti.kernel
+def rasterize_visibility_by_pixel(positions: ti.template(), triangles: ti.template(),
+                                  triangle_count: ti.i32, view_projection: ti.math.mat4, near: ti.f32,
+                                  visibility: ti.template(), box_pixels: ti.template()):
+    """The same keys as :func:`rasterize_visibility`, one thread per bounding-box pixel
+    of each fan part (the GPU path: big triangles spread over many threads, and the
+    atomic stays at the top level of its loop, which Mesa's lavapipe needs). A thread
+    finds its part by binary search in the prefix sums of box pixel counts (summed in
+    blocks; at most 2^31 - 1 box pixels in all, the rest is dropped). Writes
+    ``visibility`` and ``box_pixels``."""
+    _clear(visibility)
+    width, height = ti.static(visibility.shape)
+    parts, block = 2 * triangle_count, ti.static(box_pixels.BLOCK)
+    for t in range(triangle_count):
+        corners, screen, inv_w = _clip_and_snap(positions, triangles, t, view_projection, near,
+                                                width, height)
+        for part in ti.static(range(2)):
+            a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part)
+            x0, y0, x1, y1 = _box(a, b, c, width, height)
+            count = 0
+            if part < corners - 2 and area2 > 0 and x0 <= x1 and y0 <= y1:
+                count = (x1 - x0 + 1) * (y1 - y0 + 1)
+            p = 2 * t + part
+            box_pixels.corner[p] = ti.Matrix([[a.x, a.y], [b.x, b.y], [c.x, c.y]], ti.i32)
+            box_pixels.inv_w[p], box_pixels.count[p] = corner_inv_w, count
+            box_pixels.box[p] = ti.Vector([x0, y0, x1 - x0 + 1])
+    blocks = (parts + block - 1) // block
+    for k in range(blocks):  # prefix sums of the counts: per block, over blocks, in each block
+        total = 0
+        for p in range(k * block, ti.min(k * block + block, parts)):
+            total = _add_counts(total, box_pixels.count[p])
+        box_pixels.block_start[k] = total
+    for _ in range(1):  # one thread
+        running = 0
+        for k in range(blocks):
+            running, box_pixels.block_start[k] = _add_counts(running, box_pixels.block_start[k]), running
+        box_pixels.total[None] = running
+    for k in range(blocks):
+        running = box_pixels.block_start[k]
+        for p in range(k * block, ti.min(k * block + block, parts)):
+            running = _add_counts(running, box_pixels.count[p])
+            box_pixels.end[p] = running
+    for item in range(box_pixels.total[None]):
+        low, high = 0, parts - 1  # first part whose end passes item
+        while low < high:
+            middle = (low + high) // 2
+            if box_pixels.end[middle] > item:
+                high = middle
+            else:
+                low = middle + 1
+        start = 0
+        if low > 0:
+            start = box_pixels.end[low - 1]
+        box, corner = box_pixels.box[low], box_pixels.corner[low]
+        x, y = box[0] + (item - start) % box[2], box[1] + (item - start) // box[2]
+        a, b, c = _corner(corner, 0), _corner(corner, 1), _corner(corner, 2)
+        weight = _weights(a, b, c, x, y)
+        if (weight >= ti.Vector([_tie_bias(b, c), _tie_bias(c, a), _tie_bias(a, b)])).all():
+            inv_area2 = 1.0 / ti.cast(_edge(a, b, c), ti.f32)
+            key = _fragment_key(weight, box_pixels.inv_w[low], inv_area2, low // 2)
+            ti.atomic_min(visibility[x, y], key)
+
+
+@ti.kernel
+def resolve_gbuffer(positions: ti.template(), normals: ti.template(), triangles: ti.template(),
+                    visibility: ti.template(), eye: ti.math.vec3, view_projection: ti.math.mat4,
+                    gbuffer_depth: ti.template(), gbuffer_position: ti.template(),
+                    gbuffer_normal: ti.template(), gbuffer_triangle: ti.template()):
+    """Per pixel: the winning triangle t of ``visibility`` (or background), intersected
+    with the ray from ``eye`` [m] through the pixel centre (Möller-Trumbore in f32,
+    vertices taken relative to the eye; barycentrics clamped to [0, 1] and
+    renormalised, so slivers and edge-on hits stay on the triangle). Writes
+    ``gbuffer_depth`` = |hit - eye| [m] (BACKGROUND_DEPTH if none), ``gbuffer_position``
+    = hit [m] (0), ``gbuffer_normal`` = the barycentric mix of ``normals``, normalised
+    and flipped to face the eye (0; the geometric normal if the mix vanishes) and
+    ``gbuffer_triangle`` = t (-1). The ray direction is the cross product of the
+    clip planes x = ndc_x w and y = ndc_y w, pointing to increasing w."""
+    width, height = ti.static(visibility.shape)
+    row_x, row_y, row_w = view_projection[0, :], view_projection[1, :], view_projection[3, :]
+    for x, y in visibility:
+        key = visibility[x, y]
+        triangle, depth = -1, BACKGROUND_DEPTH
+        position, normal = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
+        if key != ti.i64(VISIBILITY_CLEAR):
+            triangle = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
+            ndc_x = (x + 0.5) * (2.0 / width) - 1.0
+            ndc_y = (y + 0.5) * (2.0 / height) - 1.0
+            plane_x, plane_y = row_x - ndc_x * row_w, row_y - ndc_y * row_w
+            ray = plane_x.xyz.cross(plane_y.xyz).normalized()
+            if ray.dot(row_w.xyz) < 0.0:
+                ray = -ray
+            first = 3 * triangle
+            i0, i1, i2 = triangles[first], triangles[first + 1], triangles[first + 2]
+            v0, v1, v2 = positions[i0] - eye, positions[i1] - eye, positions[i2] - eye
+            e1, e2 = v1 - v0, v2 - v0
+            p = ray.cross(e2)
+            det = e1.dot(p)
+            u, v = 1.0 / 3.0, 1.0 / 3.0
+            if ti.abs(det) > 1e-30:
+                q = v0.cross(e1)  # (origin - v0) x e1 with the origin at the eye
+                u = -v0.dot(p) / det
+                v = -ray.dot(q) / det
+            b0 = ti.math.clamp(1.0 - u - v, 0.0, 1.0)
+            b1, b2 = ti.math.clamp(u, 0.0, 1.0), ti.math.clamp(v, 0.0, 1.0)
+            total = b0 + b1 + b2
+            b0, b1, b2 = b0 / total, b1 / total, b2 / total
+            hit = b0 * v0 + b1 * v1 + b2 * v2
+            depth, position = hit.norm(), hit + eye
+            mix = b0 * normals[i0] + b1 * normals[i1] + b2 * normals[i2]
+            if mix.norm_sqr() < 1e-24:
+                mix = e1.cross(e2)
+            normal = mix.normalized()
+            if normal.dot(hit) > 0.0:
+                normal = -normal
+        gbuffer_triangle[x, y], gbuffer_depth[x, y] = triangle, depth
+        gbuffer_position[x, y], gbuffer_normal[x, y] = position, normal
+
+
+class GBuffer:
+    """Visibility buffer and G-buffer of a ``width`` x ``height`` image, fields of shape
+    ``(width, height)`` indexed ``[x, y]`` (origin bottom-left), in one SNode tree:
+    ``visibility`` (i64 keys) and the outputs of :func:`resolve_gbuffer`: ``depth``
+    (f32 [m]), ``position`` (vec3 [m]), ``normal`` (unit vec3) and ``triangle`` (i32,
+    -1 for background). ``by_pixel`` picks :func:`rasterize_visibility_by_pixel` (default:
+    on every backend but the CPU)."""
+
+    def __init__(self, width: int, height: int, *, by_pixel: bool | None = None):
+        if width < 1 or height < 1 or max(width, height) > 16384:
+            raise ValueError(f"image size must lie in 1..16384, got {width} x {height}")
+        self.width, self.height = int(width), int(height)
+        if by_pixel is None:
+            by_pixel = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
+        self.by_pixel, self.box_pixels = by_pixel, None
+        self.visibility = ti.field(ti.i64)
+        self.depth = ti.field(ti.f32)
+        self.position = ti.Vector.field(3, ti.f32)
+        self.normal = ti.Vector.field(3, ti.f32)
+        self.triangle = ti.field(ti.i32)
+        builder = ti.FieldsBuilder()  # the i64 field last (see BoxPixels)
+        for f in (self.depth, self.position, self.normal, self.triangle, self.visibility):
+            builder.dense(ti.ij, (self.width, self.height)).place(f)
+        self.tree = builder.finalize()
+
+    def render(self, positions, normals, triangles, triangle_count: int, eye, view_projection,
+               near: float) -> None:
+        """Rasterize ``triangle_count`` triangles of ``positions`` [m] (flat vertex ids in
+        ``triangles``) seen from ``eye`` [m] through ``view_projection`` (4x4, see
+        :func:`camera_matrices`), clipped at view depth ``near`` [m], and resolve the
+        G-buffer. Two kernel launches."""
+        if not near > 0.0:
+            raise ValueError(f"near must be > 0, got {near}")
+        matrix = np.asarray(view_projection, dtype=np.float32)
+        args = (positions, triangles, int(triangle_count), matrix, float(near), self.visibility)
+        if self.by_pixel:
+            capacity = 0 if self.box_pixels is None else self.box_pixels.capacity
+            if capacity < triangle_count:  # grows by doubling: cutting adds triangles
+                if self.box_pixels is not None:
+                    self.box_pixels.tree.destroy()
+                self.box_pixels = BoxPixels(max(int(triangle_count), 2 * capacity, 1024))
+            rasterize_visibility_by_pixel(*args, self.box_pixels)
+        else:
+            rasterize_visibility(*args)
+        resolve_gbuffer(positions, normals, triangles, self.visibility, np.asarray(eye, np.float32),
+                        matrix, self.depth, self.position, self.normal, self.triangle)
+

@@ -1,0 +1,79 @@
+"""Deferred shading of the G-buffer (seed 000 §6.3, reduced deferred shading):
+per pixel, the material of the visible triangle lit by the endoscope headlight and
+by image-based lighting (seed 000 §6.2), then exposure, tone mapping and sRGB.
+
+The headlight is a spotlight at the scope tip along the view axis with inverse
+square falloff, the dominant light in laparoscopy. Debug views show one G-buffer
+channel instead of the shaded colour.
+"""
+
+import taichi as ti
+
+from taichi_lap.kernels.brdf import surface_brdf_cos
+from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
+
+VIEWS = ("shaded", "albedo", "normal", "depth", "roughness", "metalness", "mucus", "object")
+"""What :func:`shade` writes: the image or one G-buffer channel."""
+
+
+@ti.func
+def tone_map(c):
+    """ACES filmic curve (Narkowicz 2015 fit), then the sRGB transfer function."""
+    mapped = ti.math.clamp((c * (2.51 * c + 0.03)) / (c * (2.43 * c + 0.59) + 0.14), 0.0, 1.0)
+    out = ti.Vector([0.0, 0.0, 0.0])
+    for k in ti.static(range(3)):
+        x = mapped[k]
+        out[k] = 12.92 * x if x <= 0.0031308 else 1.055 * ti.exp(ti.log(x) / 2.4) - 0.055
+    return out
+
+
+@ti.func
+def object_colour(index):
+    """A distinct colour per object index (golden-ratio hue steps)."""
+    h = ti.math.fract(0.61803398875 * index + 0.1)
+    return ti.Vector([0.5 + 0.5 * ti.cos(6.2831853 * (h + k / 3.0)) for k in range(3)])
+
+
+@ti.kernel
+def shade(gbuffer: ti.template(), materials: ti.template(), lighting: ti.template(),
+          light: ti.template(), frame: ti.template(), view: ti.i32):
+    """Write ``frame[x, y]`` from the G-buffer (both ``(width, height)``, x right,
+    y up: GGUI's layout).
+
+    ``light`` holds the camera: ``eye`` [m], ``forward``, ``intensity`` of the
+    headlight [W/sr], its cone ``cos_inner``/``cos_outer``, ``ambient`` (IBL
+    scale), ``exposure``, ``far`` [m] for the depth view and ``background``."""
+    for x, y in frame:
+        triangle = gbuffer.triangle[x, y]
+        colour = light.background[None]
+        if triangle >= 0:
+            m = materials.triangle_material[triangle]
+            albedo, roughness = materials.albedo[m], materials.roughness[m]
+            metalness, mucus = materials.metalness[m], materials.mucus[m]
+            p, n = gbuffer.position[x, y], gbuffer.normal[x, y]
+            to_eye = light.eye[None] - p
+            distance = to_eye.norm(1e-9)
+            v = to_eye / distance
+            if view == 0:
+                spot = ti.math.smoothstep(light.cos_outer[None], light.cos_inner[None],
+                                          -v.dot(light.forward[None]))
+                direct = surface_brdf_cos(n, v, v, albedo, roughness, metalness, mucus) * \
+                    (light.intensity[None] * spot / (distance * distance))
+                ambient = ibl_diffuse(lighting, n, v, albedo, metalness, mucus) + \
+                    ibl_specular(lighting, n, v, albedo, roughness, metalness, mucus)
+                colour = tone_map((direct + light.ambient[None] * ambient) * light.exposure[None])
+            elif view == 1:
+                colour = albedo
+            elif view == 2:
+                colour = 0.5 * n + 0.5
+            elif view == 3:
+                colour = ti.Vector([1.0, 1.0, 1.0]) * (1.0 - ti.min(distance / light.far[None], 1.0))
+            elif view == 4:
+                colour = ti.Vector([roughness, roughness, roughness])
+            elif view == 5:
+                colour = ti.Vector([metalness, metalness, metalness])
+            elif view == 6:
+                colour = ti.Vector([mucus, mucus, mucus])
+            else:
+                colour = object_colour(materials.triangle_object[triangle])
+        frame[x, y] = colour

@@ -1,0 +1,111 @@
+"""Rendering benchmark (issue: rendering).
+
+A deforming blob (a UV sphere with moving bumps, 20k / 100k / 200k triangles)
+filling most of a 640x480 or 1280x720 frame, drawn by the deferred renderer (seed
+000 §6.3): ``vertex`` (gathered vertex normals), ``visibility`` (rasterized
+visibility buffer and G-buffer resolve, near-plane clipping), ``shading`` (BRDF,
+headlight, image-based light, tone mapping). Metric ``ms_per_frame`` (the three
+passes; deforming the blob is not counted) and ``ms_<pass>`` per pass, cases like
+``640x480-100k``.
+
+Usage: python perf/bench_render.py [--quick] [--arch cpu] [--json OUT]
+"""
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import arguments, report, result  # noqa: E402
+
+RADIUS = 0.05  # [m]
+EYE = (0.0, 0.01, 0.085)  # close, as an endoscope: the blob fills most of the frame
+
+
+def uv_sphere(triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """A UV sphere of about ``triangles`` triangles: (positions (V, 3), faces (F, 3))."""
+    rings = max(4, int(round(math.sqrt(triangles / 4.0))))
+    segments = 2 * rings
+    theta = np.linspace(0.0, math.pi, rings + 1)[1:-1]
+    phi = np.linspace(0.0, 2.0 * math.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    body = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], -1).reshape(-1, 3)
+    positions = RADIUS * np.concatenate([[[0.0, 1.0, 0.0]], body, [[0.0, -1.0, 0.0]]])
+    faces = []
+    ring = lambda r, s: 1 + r * segments + s % segments  # noqa: E731
+    for s in range(segments):
+        faces.append((0, ring(0, s + 1), ring(0, s)))
+        faces.append((len(positions) - 1, ring(rings - 2, s), ring(rings - 2, s + 1)))
+    r, s = np.meshgrid(np.arange(rings - 2), np.arange(segments), indexing="ij")
+    a, b, c, d = ring(r, s), ring(r, s + 1), ring(r + 1, s), ring(r + 1, s + 1)
+    quads = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                            np.stack([b, d, c], -1).reshape(-1, 3)])
+    return positions.astype(np.float32), np.concatenate([np.asarray(faces), quads]).astype(np.int32)
+
+
+def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
+    import taichi as ti
+
+    from taichi_lap.render.camera import EndoscopeCamera
+    from taichi_lap.render.materials import PRESETS
+    from taichi_lap.render.renderer import Renderer
+    from taichi_lap.render.scene_mesh import ArrayMesh
+
+    rest, faces = uv_sphere(triangles)
+    mesh = ArrayMesh(faces, np.zeros(len(faces), np.int32), [PRESETS["liver"]],
+                     vertex_count=len(rest), smooth_count=len(rest), positions=rest)
+    rest_field = ti.Vector.field(3, ti.f32, len(rest))
+    rest_field.from_numpy(rest)
+
+    @ti.kernel
+    def deform(phase: ti.f32):
+        for v in rest_field:
+            p = rest_field[v]
+            bump = 0.12 * ti.sin(40.0 * p.x + phase) * ti.sin(35.0 * p.y - phase) \
+                * ti.sin(30.0 * p.z + 0.5 * phase)
+            mesh.positions[v] = p * (1.0 + bump)
+
+    camera = EndoscopeCamera(eye=np.array(EYE), target=np.zeros(3), up=np.array([0.0, 1.0, 0.0]),
+                             fov=60.0, near=0.002, far=1.0)
+    renderer = Renderer(mesh, camera, size=(width, height))
+    passes: dict[str, list[float]] = {}
+    frames = []
+    for k in range(runs + 2):
+        deform(0.3 * k)
+        ti.sync()
+        start = time.perf_counter()
+        renderer.render(None, None)
+        elapsed = (time.perf_counter() - start) * 1e3
+        if k >= 2:  # two warm-up frames (compilation)
+            frames.append(elapsed)
+            for name, ms in renderer.timings.items():
+                passes.setdefault(name, []).append(ms)
+    case = f"{width}x{height}-{triangles // 1000}k"
+    covered = int((renderer.gbuffer.triangle.to_numpy() >= 0).sum())
+    params = {"width": width, "height": height, "triangles": len(faces),
+              "covered_fraction": round(covered / (width * height), 3)}
+    return [result(case, params, "ms_per_frame", frames)] + \
+        [result(case, params, f"ms_{name}", samples) for name, samples in passes.items()]
+
+
+def main():
+    args = arguments("render")
+    from taichi_lap import runtime
+
+    runtime.init(args.arch)
+    runs = args.runs or (5 if args.quick else 20)
+    sizes = [(640, 480)] if args.quick else [(640, 480), (1280, 720)]
+    counts = [20_000, 100_000] if args.quick else [20_000, 100_000, 200_000]
+    results = []
+    for width, height in sizes:
+        for triangles in counts:
+            results += blob_case(width, height, triangles, runs)
+    report("render", args.arch, results, args.json)
+
+
+if __name__ == "__main__":
+    main()

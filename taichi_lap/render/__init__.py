@@ -1,0 +1,1 @@
+"""Deferred physically based rendering of a session (seed 000 §6)."""

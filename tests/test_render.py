@@ -1,0 +1,166 @@
+"""The deferred renderer as a whole: golden images of every material preset under
+the headlight (CPU and Vulkan), scene materials, instruments, tubes, and the GGUI
+window offscreen on Vulkan.
+
+Refresh the golden image after a deliberate change of the look:
+``python -m tests.test_render`` (writes tests/golden/materials.png).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+import trimesh
+
+from taichi_lap.render.camera import EndoscopeCamera
+from taichi_lap.render.materials import PRESETS
+from taichi_lap.render.renderer import Renderer
+from taichi_lap.render.scene_mesh import ArrayMesh, SceneMesh
+from taichi_lap.session import Session
+from tests.archrun import run_on_arch
+
+GOLDEN = Path(__file__).parent / "golden" / "materials.png"
+SIZE = (192, 144)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """Peak signal-to-noise ratio of two uint8 images [dB]."""
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return float("inf") if mse == 0 else 10.0 * np.log10(255.0 ** 2 / mse)
+
+
+def material_spheres() -> dict[str, np.ndarray]:
+    """One sphere per material preset, 4 per row, seen head-on under the headlight
+    and the image-based light: the rendered ``image`` (H, W, 3) uint8."""
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.018)
+    positions, triangles, material = [], [], []
+    for index in range(len(PRESETS)):
+        row, column = divmod(index, 4)
+        offset = np.array([0.045 * (column - 1.5), 0.045 * (1.0 - row), 0.0])
+        triangles.append(sphere.faces + len(sphere.vertices) * index)
+        positions.append(sphere.vertices + offset)
+        material.append(np.full(len(sphere.faces), index))
+    positions = np.concatenate(positions).astype(np.float32)
+    mesh = ArrayMesh(np.concatenate(triangles), np.concatenate(material), list(PRESETS.values()),
+                     vertex_count=len(positions), smooth_count=len(positions), positions=positions)
+    camera = EndoscopeCamera(eye=np.array([0.0, 0.0, 0.2]), target=np.zeros(3),
+                             up=np.array([0.0, 1.0, 0.0]), fov=45.0, near=0.01, far=1.0)
+    renderer = Renderer(mesh, camera, size=SIZE)
+    renderer.render(None, None)
+    return {"image": renderer.image()}
+
+
+def test_material_spheres_match_the_golden_image():
+    image = material_spheres()["image"]
+    golden = imageio.imread(GOLDEN)
+    assert image.shape == golden.shape
+    assert psnr(image, golden) >= 35.0
+
+
+@pytest.mark.vulkan
+def test_vulkan_renders_the_golden_image_like_the_cpu():
+    cpu = material_spheres()["image"]
+    vulkan = run_on_arch("vulkan", "tests.test_render:material_spheres")["image"]
+    assert psnr(cpu, vulkan) >= 35.0
+
+
+def test_every_preset_is_drawn_in_its_own_colour():
+    """A pixel on each sphere, away from the highlight at its centre, is lit (not
+    background), and the spheres differ."""
+    image = material_spheres()["image"].astype(int)
+    height, width = image.shape[:2]
+    centres = []
+    for index in range(len(PRESETS)):
+        row, column = divmod(index, 4)
+        # the sphere centres project 0.045 m apart at 0.2 m with a 45° field of view
+        scale = height / (2 * 0.2 * np.tan(np.radians(22.5)))
+        x = int(width / 2 + scale * (0.045 * (column - 1.5) - 0.008))
+        y = int(height / 2 - scale * (0.045 * (1.0 - row) - 0.008))
+        centres.append(image[y, x])
+    centres = np.array(centres)
+    assert (centres.sum(axis=1) > 60).all(), centres
+    distinct = {tuple(c // 8) for c in centres}
+    assert len(distinct) == len(PRESETS)
+
+
+def small_session(name: str) -> Session:
+    from taichi_lap import scene as scene_mod
+
+    return Session(scene_mod.load(name, {"scene.detail": 0.05}), progress=False)
+
+
+def test_organs_get_their_appearance_and_colour():
+    session = small_session("rectum")
+    mesh = SceneMesh(session.scene, session.data)
+    albedo = mesh.albedo.to_numpy()
+    for index, organ in enumerate(session.scene.organs):
+        expected = organ.color if organ.color is not None else PRESETS[organ.appearance].albedo
+        assert np.allclose(albedo[index], expected)
+    assert np.allclose(albedo[len(session.scene.organs)], PRESETS["metal"].albedo)
+
+
+def objects_seen(renderer: Renderer) -> set[int]:
+    triangles = renderer.gbuffer.triangle.to_numpy()
+    objects = renderer.mesh.triangle_object.to_numpy()
+    return set(objects[triangles[triangles >= 0]].tolist())
+
+
+def test_instrument_is_drawn_where_its_capsule_is_and_hidden_when_inactive():
+    session = small_session("rectum")
+    renderer = Renderer.for_scene(session.scene, session.data, size=(160, 120))
+    tool_object = len(session.data.organs)
+    tip = session.control.tool_a[0].to_numpy()
+    renderer.camera.target = tip  # look straight at the tool tip
+    renderer.render(session.state, session.control)
+    assert tool_object in objects_seen(renderer)
+    triangle = renderer.gbuffer.triangle[80, 60]
+    assert renderer.mesh.triangle_object[triangle] == tool_object
+    depth = renderer.gbuffer.depth[80, 60]
+    assert abs(depth - np.linalg.norm(tip - renderer.camera.eye)) < 0.02
+    session.control.clear_tool(0)
+    renderer.render(session.state, session.control)
+    assert tool_object not in objects_seen(renderer)
+
+
+def test_intestine_is_drawn_as_a_generalized_cylinder():
+    session = small_session("intestine")
+    renderer = Renderer.for_scene(session.scene, session.data, size=(160, 120))
+    renderer.render(session.state, session.control)
+    mesh = renderer.mesh
+    first_tube_triangle = mesh.tube_offsets[0][1] // 3
+    triangles = renderer.gbuffer.triangle.to_numpy()
+    assert (triangles >= first_tube_triangle).sum() > 500
+    normals = renderer.gbuffer.normal.to_numpy()[triangles >= 0]
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-3)
+
+
+def window_screenshot() -> dict[str, np.ndarray]:
+    """A scene drawn into an offscreen GGUI window: its screenshot and the
+    renderer's own image."""
+    from taichi_lap.viewer import Viewer
+
+    session = small_session("rectum")
+    viewer = Viewer(session, Renderer.for_scene(session.scene, session.data, size=(160, 120)),
+                    show_window=False)
+    viewer.draw()
+    return {"screenshot": viewer.screenshot(), "image": viewer.renderer.image()}
+
+
+@pytest.mark.vulkan
+def test_offscreen_window_shows_the_rendered_scene():
+    result = run_on_arch("vulkan", "tests.test_render:window_screenshot")
+    screenshot = result["screenshot"]
+    assert screenshot.std() > 10.0, "blank screenshot"
+    assert psnr(screenshot, result["image"]) >= 30.0
+
+
+if __name__ == "__main__":
+    from taichi_lap import runtime
+
+    runtime.init("cpu", threads=2)
+    GOLDEN.parent.mkdir(exist_ok=True)
+    imageio.imwrite(GOLDEN, material_spheres()["image"])
+    print(f"wrote {GOLDEN}")
