@@ -122,11 +122,15 @@ def surface_brdf_cos(n, v, l, albedo, roughness, metalness, mucus):
         v_dot_h = ti.max(v.dot(h), 0.0)
         alpha = roughness * roughness
         f0 = specular_f0(albedo, metalness)
+        # one Eq. 11 weight per cosine, shared by the base and the film
+        w_l, w_v, w_h = fresnel_weight(nl), fresnel_weight(nv), fresnel_weight(v_dot_h)
         diffuse = albedo * ((1.0 - metalness) * INV_PI * disney_diffuse(nv, nl, v_dot_h, roughness)) \
-            * (1.0 - fresnel(f0, nl)) * (1.0 - fresnel(f0, nv))
-        specular = fresnel(f0, v_dot_h) * (ggx_distance(n_dot_h, alpha) * smith_visibility(nv, nl, alpha))
+            * ((1.0 - f0) * (1.0 - w_l)) * ((1.0 - f0) * (1.0 - w_v))
+        specular = (f0 + (1.0 - f0) * w_h) * (ggx_distance(n_dot_h, alpha) * smith_visibility(nv, nl, alpha))
         coat_alpha = MUCUS_ROUGHNESS * MUCUS_ROUGHNESS
-        coat = mucus_fresnel(v_dot_h) * ggx_distance(n_dot_h, coat_alpha) * smith_visibility(nv, nl, coat_alpha)
-        transmission = (1.0 - mucus * mucus_fresnel(nl)) * (1.0 - mucus * mucus_fresnel(nv))
+        coat = (MUCUS_F0 + (1.0 - MUCUS_F0) * w_h) * ggx_distance(n_dot_h, coat_alpha) \
+            * smith_visibility(nv, nl, coat_alpha)
+        transmission = (1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * w_l)) \
+            * (1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * w_v))
         result = (transmission * (diffuse + specular) + mucus * coat) * n_dot_l
     return result

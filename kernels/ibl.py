@@ -204,20 +204,26 @@ def prefilter_environment(environment: ti.template(), intensity: ti.f32, maps: t
 
 
 @ti.func
-def latlong_sample(maps, level, d):
-    """Bilinear sample of level ``level`` of the prefiltered maps along unit ``d``
-    (wraps in phi, clamps in theta)."""
+def latlong_texel(d):
+    """Continuous texel coordinates (column, row) of unit direction ``d`` in the
+    prefiltered maps (texel centres at integers; rows clamped, columns unwrapped)."""
     theta = ti.acos(ti.math.clamp(d.y, -1.0, 1.0))
     phi = ti.atan2(d.z, d.x)
     phi = ti.select(phi < 0.0, phi + 2.0 * PI, phi)
-    x = phi * (PREFILTER_WIDTH / (2.0 * PI)) - 0.5
-    y = ti.math.clamp(theta * (PREFILTER_HEIGHT / PI) - 0.5, 0.0, PREFILTER_HEIGHT - 1.0)
-    x0 = ti.floor(x)
-    fx = x - x0
+    return ti.Vector([phi * (PREFILTER_WIDTH / (2.0 * PI)) - 0.5,
+                      ti.math.clamp(theta * (PREFILTER_HEIGHT / PI) - 0.5, 0.0, PREFILTER_HEIGHT - 1.0)])
+
+
+@ti.func
+def latlong_sample(maps, level, texel):
+    """Bilinear sample of level ``level`` of the prefiltered maps at ``texel`` (from
+    :func:`latlong_texel`; wraps in phi, clamps in theta)."""
+    x0 = ti.floor(texel.x)
+    fx = texel.x - x0
     c0 = (ti.cast(x0, ti.i32) + PREFILTER_WIDTH) % PREFILTER_WIDTH
     c1 = (c0 + 1) % PREFILTER_WIDTH
-    r0 = ti.min(ti.cast(y, ti.i32), PREFILTER_HEIGHT - 2)
-    fy = y - r0
+    r0 = ti.min(ti.cast(texel.y, ti.i32), PREFILTER_HEIGHT - 2)
+    fy = texel.y - r0
     base = level * PREFILTER_HEIGHT
     top = ti.math.mix(maps[(base + r0) * PREFILTER_WIDTH + c0], maps[(base + r0) * PREFILTER_WIDTH + c1], fx)
     bottom = ti.math.mix(maps[(base + r0 + 1) * PREFILTER_WIDTH + c0],
@@ -226,12 +232,18 @@ def latlong_sample(maps, level, d):
 
 
 @ti.func
-def prefiltered_radiance(maps, direction, roughness):
-    """Prefiltered environment radiance along unit ``direction`` for ``roughness`` in
-    [0, 1]: bilinear in the map, linear between the two nearest levels."""
+def prefiltered_at(maps, texel, roughness):
+    """Prefiltered environment radiance at ``texel`` for ``roughness`` in [0, 1]:
+    bilinear in the map, linear between the two nearest levels."""
     level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
     k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
-    return ti.math.mix(latlong_sample(maps, k0, direction), latlong_sample(maps, k0 + 1, direction), level - k0)
+    return ti.math.mix(latlong_sample(maps, k0, texel), latlong_sample(maps, k0 + 1, texel), level - k0)
+
+
+@ti.func
+def prefiltered_radiance(maps, direction, roughness):
+    """Prefiltered environment radiance along unit ``direction`` for ``roughness``."""
+    return prefiltered_at(maps, latlong_texel(direction), roughness)
 
 
 @ti.func
@@ -256,10 +268,11 @@ def ibl_specular(lighting, n, v, albedo, roughness, metalness, mucus):
     same for the water film (F0 = 0.02, roughness 0.08). RGB, the environment's units."""
     n_dot_v = ti.max(n.dot(v), N_DOT_MIN)
     r = 2.0 * n.dot(v) * n - v
+    texel = latlong_texel(r)
     ab = dfg_lookup(lighting.dfg, n_dot_v, roughness)
-    base = prefiltered_radiance(lighting.prefiltered, r, roughness) * (specular_f0(albedo, metalness) * ab[0] + ab[1])
+    base = prefiltered_at(lighting.prefiltered, texel, roughness) * (specular_f0(albedo, metalness) * ab[0] + ab[1])
     coat_ab = dfg_lookup(lighting.dfg, n_dot_v, MUCUS_ROUGHNESS)
-    coat = prefiltered_radiance(lighting.prefiltered, r, MUCUS_ROUGHNESS) * (MUCUS_F0 * coat_ab[0] + coat_ab[1])
+    coat = prefiltered_at(lighting.prefiltered, texel, MUCUS_ROUGHNESS) * (MUCUS_F0 * coat_ab[0] + coat_ab[1])
     film = 1.0 - mucus * mucus_fresnel(n_dot_v)
     return film * film * base + mucus * coat
 

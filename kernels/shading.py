@@ -17,14 +17,22 @@ VIEWS = ("shaded", "albedo", "normal", "depth", "roughness", "metalness", "mucus
 
 
 @ti.func
+def srgb_encode(x):
+    """The sRGB transfer function of a linear value in [0, 1]; above the linear toe
+    1.055 x^(1/2.4) - 0.055 by Taylor's fit in square roots (within 0.25/255 of the
+    exact curve, tested), which costs far less than exp and log per channel."""
+    s1 = ti.sqrt(x)
+    s2 = ti.sqrt(s1)
+    s3 = ti.sqrt(s2)
+    curve = 0.662002687 * s1 + 0.684122060 * s2 - 0.323583601 * s3 - 0.0225411470 * x
+    return ti.select(x <= 0.0031308, 12.92 * x, curve)
+
+
+@ti.func
 def tone_map(c):
-    """ACES filmic curve (Narkowicz 2015 fit), then the sRGB transfer function."""
+    """ACES filmic curve (Narkowicz 2015 fit), then sRGB encoding."""
     mapped = ti.math.clamp((c * (2.51 * c + 0.03)) / (c * (2.43 * c + 0.59) + 0.14), 0.0, 1.0)
-    out = ti.Vector([0.0, 0.0, 0.0])
-    for k in ti.static(range(3)):
-        x = mapped[k]
-        out[k] = 12.92 * x if x <= 0.0031308 else 1.055 * ti.exp(ti.log(x) / 2.4) - 0.055
-    return out
+    return ti.Vector([srgb_encode(mapped[k]) for k in ti.static(range(3))])
 
 
 @ti.func

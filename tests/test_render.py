@@ -6,15 +6,15 @@ Refresh the golden image after a deliberate change of the look:
 ``python -m tests.test_render`` (writes tests/golden/materials.png).
 """
 
-from __future__ import annotations
-
 from pathlib import Path
 
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+import taichi as ti
 import trimesh
 
+from taichi_lap.kernels.shading import srgb_encode
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.materials import PRESETS
 from taichi_lap.render.renderer import Renderer
@@ -84,6 +84,20 @@ def test_every_preset_is_drawn_in_its_own_colour():
     assert (centres.sum(axis=1) > 60).all(), centres
     distinct = {tuple(c // 8) for c in centres}
     assert len(distinct) == len(PRESETS)
+
+
+@ti.kernel
+def encode_srgb(values: ti.types.ndarray(), out: ti.types.ndarray()):
+    for k in range(values.shape[0]):
+        out[k] = srgb_encode(values[k])
+
+
+def test_srgb_encoding_is_within_a_quarter_level_of_the_standard_curve():
+    x = np.linspace(0.0, 1.0, 100_001).astype(np.float32)
+    out = np.zeros_like(x)
+    encode_srgb(x, out)
+    exact = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x.astype(np.float64) ** (1 / 2.4) - 0.055)
+    assert np.abs(out - exact).max() * 255.0 <= 0.26
 
 
 def small_session(name: str) -> Session:
