@@ -45,7 +45,7 @@ class Renderer:
     frame's milliseconds per pass."""
 
     def __init__(self, mesh, camera: EndoscopeCamera, *, size=(640, 480),
-                 headlight: float = 0.1, ambient: float = 0.2, exposure: float = 1.0,
+                 headlight: float = 0.15, ambient: float = 0.06, exposure: float = 1.0,
                  spot_angle: float = 50.0):
         self.width, self.height = size
         self.mesh = mesh
