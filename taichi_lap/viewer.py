@@ -13,6 +13,10 @@ import taichi as ti
 from taichi_lap.kernels.shading import VIEWS
 from taichi_lap.render.renderer import Renderer
 from taichi_lap.session import Session
+from taichi_lap.tubes import TessellationController
+
+FRAME_TARGET_MS = 1000.0 / 30.0
+"""Frame time the tube tessellation controller holds in the window (≥ 30 Hz)."""
 
 
 class Viewer:
@@ -29,6 +33,9 @@ class Viewer:
         self.paused = False
         self.show_panel = show_window
         self._cursor = None
+        mesh = renderer.mesh
+        self.tessellation = TessellationController(
+            FRAME_TARGET_MS, max_level=mesh.tubes[0].max_level) if mesh.tubes else None
         self._defaults = {"headlight": renderer.params.intensity[None],
                           "ambient": renderer.params.ambient[None]}
 
@@ -38,7 +45,12 @@ class Viewer:
                                                          last_cursor=self._cursor)
 
     def draw(self):
-        """Render the session's state and show it with the panel."""
+        """Render the session's state and show it with the panel. The tubes'
+        tessellation follows the last frame time (seed 001 §5.3)."""
+        if self.tessellation is not None and "frame" in self.session.timings:
+            mesh = self.renderer.mesh
+            mesh.tube_epsilon, mesh.tube_level = self.tessellation.update(
+                self.session.timings["frame"])
         self.renderer.render(self.session.state, self.session.control)
         self.canvas.set_image(self.renderer.frame)
         if self.show_panel:
@@ -53,6 +65,9 @@ class Viewer:
                      f"{1e3 / frame_ms if frame_ms > 0 else 0.0:.0f} fps")
             for stage, ms in {**session.timings, **renderer.timings}.items():
                 gui.text(f"  {stage}: {ms:.1f} ms")
+            if self.tessellation is not None:
+                gui.text(f"tubes: level {renderer.mesh.tube_level}, "
+                         f"epsilon {renderer.mesh.tube_epsilon:.2f}")
             gui.text(f"particles {session.model.particle_count}  "
                      f"clusters {session.model.cluster_total}")
             for index, tool in enumerate(session.scene.tools):
