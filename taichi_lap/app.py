@@ -1,7 +1,8 @@
 """Running a scene: the interactive GGUI window, headless video, and stills.
 
 Headless output is the deferred renderer's own frame; no window (and no Vulkan)
-is needed for it."""
+is needed for it. With ``record`` a run appends its device input and events to a
+session file (:mod:`taichi_lap.recording`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import time
 
 from tqdm import tqdm
 
+from taichi_lap.recording import SessionRecorder, maybe_recording
 from taichi_lap.render.renderer import Renderer
 from taichi_lap.scene import Scene
 from taichi_lap.session import Session, scene_script
@@ -21,38 +23,54 @@ def _render(session: Session, renderer: Renderer):
     session.timings["render"] = (time.perf_counter() - start) * 1e3
 
 
-def run_headless(scene: Scene, device, *, frames: int, out: str, size, use_cache: bool = True):
-    """Simulate ``frames`` frames and write each rendered frame to ``out``."""
+def _advance(session: Session, device, recorder: SessionRecorder | None):
+    """One frame: read the device, record what it gave, step."""
+    poses = device.poses(session.state.time) if device else None
+    if recorder is not None:
+        recorder.record_frame(poses, device)
+    session.step(poses)
+
+
+def run_headless(scene: Scene, device, *, frames: int, out: str, size, use_cache: bool = True,
+                 record: str | None = None) -> Session:
+    """Simulate ``frames`` frames and write each rendered frame to ``out``; with
+    ``record``, append the session to that recording file."""
     session = Session(scene, use_cache=use_cache)
     renderer = Renderer.for_scene(scene, session.data, size=size)
-    with FrameWriter(out, fps=1.0 / session.dt) as writer:
+    with maybe_recording(record, session, device) as recorder, \
+            FrameWriter(out, fps=1.0 / session.dt) as writer:
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
-            session.step(device.poses(session.state.time) if device else None)
+            _advance(session, device, recorder)
             _render(session, renderer)
             writer.write(renderer.image())
+    return session
 
 
-def run_window(scene: Scene, device, *, frames: int | None, size, use_cache: bool = True):
-    """The interactive window: mouse-driven tool, endoscope on keys and right button."""
+def run_window(scene: Scene, device, *, frames: int | None, size, use_cache: bool = True,
+               record: str | None = None) -> Session:
+    """The interactive window: mouse-driven tool, endoscope on keys and right button;
+    with ``record``, append the session to that recording file."""
     from taichi_lap.viewer import Viewer
 
     session = Session(scene, use_cache=use_cache)
     viewer = Viewer(session, Renderer.for_scene(scene, session.data, size=size), show_window=True)
     window, camera = viewer.window, viewer.renderer.camera
-    last = time.perf_counter()
-    while window.running and (frames is None or session.state.frame < frames):
-        now = time.perf_counter()
-        viewer.handle_input(now - last)
-        if hasattr(device, "update"):
-            device.update(window, camera.eye, camera.target, camera.fov, now - last)
-        if not viewer.paused:
-            session.step(device.poses(session.state.time) if device else None)
-        session.timings["frame"] = (now - last) * 1e3
-        last = now
-        start = time.perf_counter()
-        viewer.draw()
-        session.timings["render"] = (time.perf_counter() - start) * 1e3
-        window.show()
+    with maybe_recording(record, session, device) as recorder:
+        last = time.perf_counter()
+        while window.running and (frames is None or session.state.frame < frames):
+            now = time.perf_counter()
+            viewer.handle_input(now - last)
+            if hasattr(device, "update"):
+                device.update(window, camera.eye, camera.target, camera.fov, now - last)
+            if not viewer.paused:
+                _advance(session, device, recorder)
+            session.timings["frame"] = (now - last) * 1e3
+            last = now
+            start = time.perf_counter()
+            viewer.draw()
+            session.timings["render"] = (time.perf_counter() - start) * 1e3
+            window.show()
+    return session
 
 
 def render_still(scene: Scene, *, frames: int, out: str, size, use_cache: bool = True):

@@ -41,8 +41,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--frames", type=int, default=None, help="stop after N frames")
     run.add_argument("--out", default=None, help="headless output: .mp4, .gif or a folder of PNGs")
     run.add_argument("--device", default="auto",
-                     help="mouse, none, script:PATH (default: mouse in a window, the scene's "
-                          "tool scripts headless)")
+                     help="mouse, none, script:PATH, replay:RECORDING (default: mouse in a "
+                          "window, the scene's tool scripts headless)")
+    run.add_argument("--record", default=None, metavar="PATH",
+                     help="append every frame's device input and every event to a new "
+                          "session file (.tlap)")
     run.add_argument("--size", default="1280x720", help="image size WxH")
     run.add_argument("--threads", type=int, default=None, help="CPU threads (reproducible runs)")
 
@@ -128,6 +131,7 @@ def has_display() -> bool:
 
 def _device(args, scene, headless: bool):
     from taichi_lap.devices import MouseDevice, ScriptedDevice
+    from taichi_lap.replay import ReplayDevice, read_recording
     from taichi_lap.session import scene_script
 
     choice = args.device
@@ -135,6 +139,10 @@ def _device(args, scene, headless: bool):
         choice = "scene" if headless else "mouse"
     if choice.startswith("script:"):
         return ScriptedDevice.from_file(choice[len("script:"):], scene.tools)
+    if choice.startswith("replay:"):
+        recording = read_recording(choice[len("replay:"):], ticks=False)
+        recording.check_scene(scene)
+        return ReplayDevice(recording)
     if choice == "scene":
         return scene_script(scene)
     if choice == "mouse":
@@ -144,31 +152,62 @@ def _device(args, scene, headless: bool):
         return MouseDevice(scene.tools[0]) if scene.tools else None
     if choice == "none":
         return None
-    raise InputError("--device", choice, "mouse, none or script:PATH was expected")
+    raise InputError("--device", choice, "mouse, none, script:PATH or replay:PATH was expected")
+
+
+def _replay_settings(args, recording):
+    """A replay runs the recorded number of frames, on the recorded backend and CPU
+    thread count, unless the command line says otherwise."""
+    from taichi_lap.runtime import available_backends
+
+    recorded = len(recording.frames)
+    if args.frames is None:
+        args.frames = recorded
+    elif args.frames > recorded:
+        raise InputError("--frames", str(args.frames), f"at most {recorded} (the frames in "
+                                                       f"{recording.path}) was expected")
+    if args.arch == "auto" and recording.start["arch"] in available_backends():
+        args.arch = recording.start["arch"]
+    if args.threads is None:
+        args.threads = recording.start["threads"]
 
 
 def cmd_run(args) -> int:
     from taichi_lap import app, runtime
+    from taichi_lap.recording import existing_file_error
+    from taichi_lap.replay import ReplayDevice
 
     if args.frames is not None and args.frames < 0:
         raise InputError("--frames", str(args.frames), "a non-negative number was expected")
+    if args.record is not None and os.path.lexists(args.record):
+        raise existing_file_error("--record", args.record)
     headless = args.headless
     if not headless and not has_display():
         print("no display found: running headless", file=sys.stderr)
         headless = True
-    if headless and args.frames is None:
-        args.frames = 120
     scene = _load_scene(args)
     size = _size(args.size)
     device = _device(args, scene, headless)
+    replay = device.recording if isinstance(device, ReplayDevice) else None
+    if replay is not None:
+        _replay_settings(args, replay)
+    if headless and args.frames is None:
+        args.frames = 120
     runtime.init(args.arch, threads=args.threads, random_seed=scene.settings["seed"])
     if headless:
         out = args.out or f"{scene.settings['name']}.mp4"
-        app.run_headless(scene, device, frames=args.frames, out=out, size=size,
-                         use_cache=not args.no_cache)
+        session = app.run_headless(scene, device, frames=args.frames, out=out, size=size,
+                                   use_cache=not args.no_cache, record=args.record)
         print(f"wrote {out}")
     else:
-        app.run_window(scene, device, frames=args.frames, size=size, use_cache=not args.no_cache)
+        session = app.run_window(scene, device, frames=args.frames, size=size,
+                                 use_cache=not args.no_cache, record=args.record)
+    if args.record is not None:
+        print(f"recorded {args.record}")
+    if replay is not None:
+        matches, report = replay.compare_final_state(session.state)
+        print(report if matches else f"error: {report}", file=sys.stdout if matches else sys.stderr)
+        return 0 if matches else 1
     return 0
 
 

@@ -1,8 +1,11 @@
-"""Input devices that place the instruments: scripted keyframes and the mouse.
+"""Input devices that place the instruments: scripted keyframes and the mouse
+(a recorded session is fed back by :class:`taichi_lap.replay.ReplayDevice`).
 
 A device gives, for each tool it drives, a pose: the tip position [m] and the
-direction from the tip towards the handle. :func:`apply_poses` turns poses into
-the capsules of :class:`~taichi_lap.sim.control.Control`.
+direction from the tip towards the handle; a device with buttons also gives
+``buttons(time)``, a bitmask per tool (bit k set while button k+1 is pressed).
+:func:`apply_poses` turns poses into the capsules of
+:class:`~taichi_lap.sim.control.Control`.
 
 Script files (``--device script:PATH``) are TOML::
 
@@ -52,10 +55,12 @@ def _unit(v) -> np.ndarray:
 
 
 class ScriptedDevice:
-    """Poses interpolated from keyframes per tool."""
+    """Poses interpolated from keyframes per tool; ``source`` names the script."""
 
-    def __init__(self, keyframes: dict[str, list[tuple[float, np.ndarray, np.ndarray]]]):
+    def __init__(self, keyframes: dict[str, list[tuple[float, np.ndarray, np.ndarray]]],
+                 source: str = ""):
         self.keyframes = keyframes
+        self.source = source
 
     @classmethod
     def from_file(cls, path: str | Path, tools: list[dict]) -> "ScriptedDevice":
@@ -93,7 +98,7 @@ class ScriptedDevice:
             direction = frame["direction"] or (track[-1][2] if track else
                                                names[frame["tool"]]["direction"])
             track.append((frame["time"], np.asarray(frame["tip"], float), _unit(direction)))
-        return cls(keyframes)
+        return cls(keyframes, source)
 
     def poses(self, time: float) -> dict[str, Pose]:
         out = {}
@@ -147,9 +152,18 @@ class MouseDevice:
         return {self.name: self.pose}
 
 
+def applied_poses(tools: list[dict], poses: dict[str, Pose]) -> dict[str, Pose]:
+    """Every placed tool's pose, in scene order: the device's, or the scene pose for a
+    tool no device drives."""
+    return {tool["name"]: poses.get(tool["name"]) or Pose(np.asarray(tool["tip"], float),
+                                                          _unit(tool["direction"]))
+            for tool in tools[:MAX_TOOLS]}
+
+
 def apply_poses(control: Control, tools: list[dict], poses: dict[str, Pose]):
     """Write each tool's capsule (tip to tip + length·direction) into ``control``;
     a tool no device drives keeps its scene pose."""
+    placed = applied_poses(tools, poses)
     for index, tool in enumerate(tools[:MAX_TOOLS]):
-        pose = poses.get(tool["name"]) or Pose(np.asarray(tool["tip"], float), _unit(tool["direction"]))
+        pose = placed[tool["name"]]
         control.set_tool(index, pose.tip, pose.tip + tool["length"] * pose.direction, tool["radius"])

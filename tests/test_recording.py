@@ -1,0 +1,222 @@
+"""Session recording and replay: a recorded run replays bit for bit, a cut or
+killed recording reads up to its last complete record, and bad files are named."""
+
+import logging
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from taichi_lap import scene as scene_mod
+from taichi_lap.cli import main
+from taichi_lap.devices import Pose
+from taichi_lap.errors import InputError
+from taichi_lap.recording import (CRC, HEADER, RECORD_HEAD, RecordStream, SessionRecorder,
+                                  encode_event, encode_record, state_checksum)
+from taichi_lap.replay import ReplayDevice, read_recording
+from taichi_lap.session import Session, scene_script
+
+SMALL = ["--set", "scene.detail=0.03"]
+RUN = ["run", "intestine", "--headless", "--size", "64x48", *SMALL]
+FRAMES = 64  # the probe's script reaches the intestine at frame 56
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return scene_mod.load("intestine", {"scene.detail": 0.03})
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """A recording of the intestine scene's own tool script, made through the CLI."""
+    folder = tmp_path_factory.mktemp("recorded")
+    path = folder / "session.tlap"
+    status = main([*RUN, "--frames", str(FRAMES), "--out", str(folder / "frames"),
+                   "--record", str(path)])
+    assert status == 0
+    return path
+
+
+def record_bounds(data: bytes) -> list[tuple[int, int]]:
+    """(start, end) byte offsets of each record, parsed from the documented framing."""
+    bounds, offset = [], HEADER.size
+    while offset < len(data):
+        _, length = RECORD_HEAD.unpack_from(data, offset)
+        end = offset + RECORD_HEAD.size + length + CRC.size
+        bounds.append((offset, end))
+        offset = end
+    return bounds
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    status = main(list(argv))
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def test_replay_reproduces_the_recorded_final_state(recorded, tmp_path, capsys):
+    status, out, err = run_cli(capsys, *RUN, "--out", str(tmp_path / "r"),
+                               "--device", f"replay:{recorded}")
+    assert status == 0, err
+    assert f"replay matches {recorded}" in out and f"after {FRAMES} frames" in out
+
+
+def test_replayed_state_arrays_equal_a_scripted_run(recorded, scene):
+    recording = read_recording(recorded)
+    assert len(recording.frames) == FRAMES and recording.end["status"] == "complete"
+    scripted, replayed = Session(scene, progress=False), Session(scene, progress=False)
+    script, replay = scene_script(scene), ReplayDevice(recording)
+    touched = False
+    for _ in range(FRAMES):
+        scripted.step(script.poses(scripted.state.time))
+        replayed.step(replay.poses(replayed.state.time))
+        touched |= bool(scripted.state.collided.to_numpy().any())
+    assert touched
+    expected, found = scripted.state.snapshot(), replayed.state.snapshot()
+    for name in expected:
+        np.testing.assert_array_equal(found[name], expected[name], err_msg=name)
+    assert state_checksum(replayed.state) == recording.end["checksum"]
+
+
+def test_a_diverging_replay_is_reported_with_status_1(recorded, tmp_path, capsys):
+    data = recorded.read_bytes()
+    frames = 5
+    cut = record_bounds(data)[2 + frames - 1][1]  # session_start, device, five frames
+    forged = tmp_path / "forged.tlap"
+    forged.write_bytes(data[:cut] + encode_event(
+        "session_end", time=0.0, frame=frames, status="complete", frames=frames,
+        checksum="0" * 64))
+    status, _, err = run_cli(capsys, *RUN, "--out", str(tmp_path / "r"), "--device",
+                             f"replay:{forged}")
+    assert status == 1
+    assert f"error: {forged}: session_end.checksum: the recorded final state 0000" in err
+    assert "same backend, threads and versions" in err
+
+
+def test_a_cut_file_reads_up_to_its_last_complete_record_and_warns(recorded, tmp_path, caplog):
+    data = recorded.read_bytes()
+    bounds = record_bounds(data)
+    cut_file = tmp_path / "cut.tlap"
+    for cut in (bounds[1][0] + 3, bounds[10][0] + 30, bounds[-2][0] + 50, len(data) - 1):
+        cut_file.write_bytes(data[:cut])
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="taichi_lap"):
+            recording = read_recording(cut_file)
+        complete = [b for b in bounds if b[1] <= cut]
+        assert len(recording.events) + len(recording.frames) == len(complete)
+        assert recording.truncated_at == complete[-1][1]
+        assert f"truncated at byte {recording.truncated_at}" in caplog.text
+    cut_file.write_bytes(data[:bounds[20][1]] + bytes(500))  # power cut: a zero-filled tail
+    assert read_recording(cut_file).truncated_at == bounds[20][1]
+    cut_file.write_bytes(data[:bounds[20][1]])  # a cut between records is a shorter recording
+    assert read_recording(cut_file).truncated_at is None
+    for cut, key in ((5, "header"), (bounds[0][1] - 1, "record 0")):
+        cut_file.write_bytes(data[:cut])
+        with pytest.raises(InputError, match=key):
+            read_recording(cut_file)
+
+
+def test_a_killed_recording_leaves_a_readable_file(tmp_path, capsys):
+    path = tmp_path / "killed.tlap"
+    child = subprocess.Popen([sys.executable, "-m", "taichi_lap", *RUN, "--frames", "100000",
+                              "--out", str(tmp_path / "f"), "--record", str(path)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while not (path.exists() and len(read_recording(path).frames) >= 10):
+            assert child.poll() is None and time.monotonic() < deadline
+            time.sleep(0.2)
+    finally:
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait()
+    recording = read_recording(path)
+    assert recording.end is None and len(recording.frames) >= 10
+    assert [f.frame for f in recording.frames] == list(range(len(recording.frames)))
+    status, out, err = run_cli(capsys, *RUN, "--frames", "10", "--out", str(tmp_path / "r"),
+                               "--device", f"replay:{path}")
+    assert status == 0, err
+    assert "no session_end record: final state not compared" in out
+
+
+def _foreign(data: bytes) -> bytes:
+    return b"PK\x03\x04" + data[4:]
+
+
+def _version_7(data: bytes) -> bytes:
+    return data[:8] + struct.pack("<I", 7) + data[12:]
+
+
+def _damaged_middle(data: bytes) -> bytes:
+    start, end = record_bounds(data)[10]
+    return data[:start + 20] + bytes([data[start + 20] ^ 0xFF]) + data[start + 21:]
+
+
+@pytest.mark.parametrize("damage, message", [
+    (_foreign, "header: a taichi-lap recording (magic 89 54 4c 41 50 0d 0a 1a) was expected, "
+               "found 50 4b 03 04"),
+    (_version_7, "header.version: version 1 was expected, found 7"),
+    (_damaged_middle, "record 10 (byte "),
+])
+def test_bad_recordings_are_named_with_status_2(recorded, tmp_path, capsys, damage, message):
+    bad = tmp_path / "bad.tlap"
+    bad.write_bytes(damage(recorded.read_bytes()))
+    status, _, err = run_cli(capsys, *RUN, "--out", str(tmp_path / "r"), "--device",
+                             f"replay:{bad}")
+    assert status == 2
+    assert err.strip().splitlines() == [err.strip()]  # one line, no traceback
+    assert err.startswith(f"error: {bad}: {message}")
+    assert "expected" in err and "found" in err
+
+
+def test_replay_of_another_scene_names_what_differs(recorded, tmp_path, capsys):
+    status, _, err = run_cli(capsys, "run", "intestine", "--headless", "--set", "scene.detail=0.04",
+                             "--out", str(tmp_path / "r"), "--device", f"replay:{recorded}")
+    assert status == 2
+    assert f"error: {recorded}: session_start.digest: the recorded scene 'intestine' was expected" \
+           in err and "scene.detail = 0.04 (recorded: 0.03)" in err
+    status, _, err = run_cli(capsys, *RUN, "--frames", str(FRAMES + 1), "--out",
+                             str(tmp_path / "r"), "--device", f"replay:{recorded}")
+    assert status == 2 and f"at most {FRAMES}" in err
+
+
+def test_a_recording_is_never_overwritten(recorded, tmp_path, capsys):
+    before = recorded.read_bytes()
+    status, _, err = run_cli(capsys, *RUN, "--frames", "1", "--out", str(tmp_path / "r"),
+                             "--record", str(recorded))
+    assert status == 2 and "--record" in err and "never overwritten" in err
+    assert recorded.read_bytes() == before
+
+
+def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scene, tmp_path):
+    path = tmp_path / "events.tlap"
+    session = Session(scene, progress=False)
+    grasp = {"tool": "probe", "particles": np.array([3, 5, 8]), "force": np.float32(0.25)}
+    force = np.array([0.5, -1.0, 2.0])
+    with SessionRecorder(path, session, scene_script(scene)) as recorder:
+        recorder.record_event("grasp", **grasp)
+        servo = RecordStream.open_existing(path)  # what the haptics process does
+        for k in range(3):
+            servo.tick(100.0 + k * 1e-3, {"probe": (Pose(np.array([0.0, 0.01 * k, 0.0]),
+                                                           np.array([0.0, 1.0, 0.0])), 1, force)})
+        servo.append(encode_record(ord("Z"), b"a record type of a later writer"))
+        servo.close()
+        recorder.record_event("release", tool="probe")
+        with pytest.raises(ValueError, match="event kind"):
+            recorder.record_event("grasp_typo")
+    recording = read_recording(path)
+    kinds = [e["kind"] for e in recording.events]
+    assert kinds == ["session_start", "device", "grasp", "release", "session_end"]
+    assert recording.events[2] == {"kind": "grasp", "time": 0.0, "frame": 0, "tool": "probe",
+                                   "particles": [3, 5, 8], "force": 0.25}
+    assert recording.events[1]["device"] == "ScriptedDevice"
+    assert recording.start["digest"] and recording.start["raw_scene"]["scene"]["detail"] == 0.03
+    assert [t.clock for t in recording.ticks] == [100.0 + k * 1e-3 for k in range(3)]
+    last = recording.ticks[-1]
+    assert last.buttons == {"probe": 1}
+    np.testing.assert_array_equal(last.forces["probe"], force.astype(np.float32))
+    np.testing.assert_array_equal(last.poses["probe"].tip, np.float32([0.0, 0.02, 0.0]))
