@@ -12,3 +12,13 @@ from taichi_lap.haptics.safety import ForceSafety
 
 __all__ = ["ForceSafety", "HDError", "HapticDevice", "OpenHapticsDevice", "OpenHapticsError",
            "WorkspaceMapping"]
+from taichi_lap.haptics.proxy import (HapticProxy, ProxySettings, ProxyStatus,  # noqa: E402
+                                      SurfaceClusters, ToolCapsule, grasp_edges, pull_force)
+from taichi_lap.haptics.servo import ScriptedHapticDevice, ServoProcess, ServoSettings  # noqa: E402
+from taichi_lap.haptics.snapshot import (HapticScene, SceneSnapshot, ServoFeedback,  # noqa: E402
+                                         ServoState, SnapshotCapacityError, ToolFeedback)
+
+__all__ += ["HapticProxy", "HapticScene", "ProxySettings", "ProxyStatus", "SceneSnapshot",
+            "ScriptedHapticDevice", "ServoFeedback", "ServoProcess", "ServoSettings", "ServoState",
+            "SnapshotCapacityError", "SurfaceClusters", "ToolCapsule", "ToolFeedback",
+            "grasp_edges", "pull_force"]
