@@ -7,6 +7,7 @@ session file (:mod:`taichi_lap.recording`)."""
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 
 from tqdm import tqdm
 
@@ -31,13 +32,27 @@ def _advance(session: Session, device, recorder: SessionRecorder | None):
     session.step(poses)
 
 
+@contextmanager
+def _connected(device, session: Session):
+    """A device that needs the running session (a haptic bridge publishes its surface
+    to the servo process) is attached to it, and closed when the run ends."""
+    if not hasattr(device, "attach"):
+        yield
+        return
+    device.attach(session)
+    try:
+        yield
+    finally:
+        device.close()
+
+
 def run_headless(scene: Scene, device, *, frames: int, out: str, size, use_cache: bool = True,
                  record: str | None = None) -> Session:
     """Simulate ``frames`` frames and write each rendered frame to ``out``; with
     ``record``, append the session to that recording file."""
     session = Session(scene, use_cache=use_cache)
     renderer = Renderer.for_scene(scene, session.data, size=size)
-    with maybe_recording(record, session, device) as recorder, \
+    with _connected(device, session), maybe_recording(record, session, device) as recorder, \
             FrameWriter(out, fps=1.0 / session.dt) as writer:
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
             _advance(session, device, recorder)
@@ -55,7 +70,7 @@ def run_window(scene: Scene, device, *, frames: int | None, size, use_cache: boo
     session = Session(scene, use_cache=use_cache)
     viewer = Viewer(session, Renderer.for_scene(scene, session.data, size=size), show_window=True)
     window, camera = viewer.window, viewer.renderer.camera
-    with maybe_recording(record, session, device) as recorder:
+    with _connected(device, session), maybe_recording(record, session, device) as recorder:
         last = time.perf_counter()
         while window.running and (frames is None or session.state.frame < frames):
             now = time.perf_counter()

@@ -41,8 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--frames", type=int, default=None, help="stop after N frames")
     run.add_argument("--out", default=None, help="headless output: .mp4, .gif or a folder of PNGs")
     run.add_argument("--device", default="auto",
-                     help="mouse, none, script:PATH, replay:RECORDING (default: mouse in a "
-                          "window, the scene's tool scripts headless)")
+                     help="mouse, none, openhaptics[:NAME], script:PATH, replay:RECORDING "
+                          "(default: mouse in a window, the scene's tool scripts headless)")
     run.add_argument("--record", default=None, metavar="PATH",
                      help="append every frame's device input and every event to a new "
                           "session file (.tlap)")
@@ -150,9 +150,24 @@ def _device(args, scene, headless: bool):
             raise InputError("--device", choice, "a device that works headless (none, "
                                                  "script:PATH) was expected")
         return MouseDevice(scene.tools[0]) if scene.tools else None
+    if choice == "openhaptics" or choice.startswith("openhaptics:"):
+        return _openhaptics(choice, scene)
     if choice == "none":
         return None
-    raise InputError("--device", choice, "mouse, none, script:PATH or replay:PATH was expected")
+    raise InputError("--device", choice, "mouse, none, openhaptics[:NAME], script:PATH or "
+                                         "replay:PATH was expected")
+
+
+def _openhaptics(choice: str, scene):
+    """The scene's first tool on an OpenHaptics device (``openhaptics:NAME`` for a named
+    one); the library is found as libHD, or at $TAICHI_LAP_LIBHD."""
+    from taichi_lap.haptics.bridge import openhaptics_bridge
+
+    if not scene.tools:
+        raise InputError(scene.source, "tools", "a tool for the haptic device was expected, "
+                                                "the scene has none")
+    name = choice.partition(":")[2] or None
+    return openhaptics_bridge(scene.tools[0], name, os.environ.get("TAICHI_LAP_LIBHD"))
 
 
 def _replay_settings(args, recording):

@@ -54,6 +54,9 @@ TOOL_PARAMS = {
     "tip": Param("vec3", [0.0, 0.08, 0.0], "initial tip position", lo=-100, hi=100, unit="m"),
     "direction": Param("vec3", [0.0, 1.0, 0.0], "from the tip towards the handle", lo=-1e3,
                        hi=1e3),
+    "workspace_scale": Param("float", 0.001, "haptic device: scene metres per device "
+                                             "millimetre; the device origin maps to the tip",
+                             lo=1e-6, hi=1.0, unit="m/mm"),
 }
 ORGAN_PARAMS = {
     "name": Param("str", REQUIRED, "organ name, unique in the scene"),
