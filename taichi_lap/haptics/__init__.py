@@ -15,8 +15,9 @@ __all__ = ["ForceSafety", "HDError", "HapticDevice", "OpenHapticsDevice", "OpenH
 from taichi_lap.haptics.proxy import (HapticProxy, ProxySettings, ProxyStatus,  # noqa: E402
                                       SurfaceClusters, ToolCapsule, grasp_edges, pull_force)
 from taichi_lap.haptics.servo import ScriptedHapticDevice, ServoProcess, ServoSettings  # noqa: E402
-from taichi_lap.haptics.snapshot import (HapticScene, SceneSnapshot, ServoFeedback,  # noqa: E402
-                                         ServoState, SnapshotCapacityError, ToolFeedback)
+from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback  # noqa: E402
+from taichi_lap.haptics.snapshot import (HapticScene, SceneSnapshot,  # noqa: E402
+                                         SnapshotCapacityError)
 
 __all__ += ["HapticProxy", "HapticScene", "ProxySettings", "ProxyStatus", "SceneSnapshot",
             "ScriptedHapticDevice", "ServoFeedback", "ServoProcess", "ServoSettings", "ServoState",

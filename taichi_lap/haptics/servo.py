@@ -10,7 +10,7 @@ simulation: :class:`ServoProcess` runs it in a child process started with the
 4. filters the force (:class:`~taichi_lap.haptics.safety.ForceSafety`; the watchdog
    watches the snapshot's timestamp: older than 100 ms fades to zero in 50 ms),
 5. sends it to the device,
-6. writes poses, forces and counters back (:class:`~taichi_lap.haptics.snapshot.ServoFeedback`)
+6. writes poses, forces and counters back (:class:`~taichi_lap.haptics.feedback.ServoFeedback`)
    and records the tick's period and compute time in the feedback ring.
 
 Timing: the process asks for SCHED_FIFO (priority 80) and warns once when refused;
@@ -38,7 +38,8 @@ import numpy as np
 from taichi_lap.haptics.device import HapticDevice
 from taichi_lap.haptics.proxy import HapticProxy, ProxySettings, ProxyStatus
 from taichi_lap.haptics.safety import ForceSafety
-from taichi_lap.haptics.snapshot import SceneSnapshot, ServoFeedback, ServoState, ToolFeedback
+from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
+from taichi_lap.haptics.snapshot import SceneSnapshot
 
 log = logging.getLogger("taichi_lap.haptics")
 
