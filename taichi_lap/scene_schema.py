@@ -32,6 +32,15 @@ SCENE_PARAMS = {
                     lo=1e-3, hi=8.0),
     "speed_limit": Param("float", 50.0, "particle speed reported as a simulation fault",
                          lo=1e-3, hi=1e6, unit="m/s"),
+    "self_collision": Param("bool", True, "intestine and mesentery self-collision (seed 001 §4)"),
+    "collision_threshold": Param("float", 0.02, "self-collision: pairs are tracked while their "
+                                                "gap is below this", lo=1e-5, hi=1.0, unit="m"),
+    "collision_random_pairs": Param("int", 0, "self-collision: new random pairs per substep "
+                                              "(0: max(64, segments / 2))", lo=0, hi=1_000_000),
+    "collision_passes": Param("int", 8, "self-collision: response sweeps per substep", lo=1,
+                              hi=200),
+    "collision_skin": Param("float", 0.001, "self-collision: gap counted as contact", lo=0.0,
+                            hi=0.1, unit="m"),
 }
 CAMERA_PARAMS = {
     "position": Param("vec3", [0.0, 0.1, 0.35], "endoscope tip", lo=-100, hi=100, unit="m"),

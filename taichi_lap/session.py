@@ -47,6 +47,8 @@ class Session:
     def reset(self):
         """Back to the rest state, tools at their scene poses, surface skinned."""
         self.state.reset(self.model)
+        if self.solver.self_collision is not None:
+            self.solver.self_collision.reset()
         apply_poses(self.control, self.scene.tools, {})
         skin_surface(self.model, self.state)
 

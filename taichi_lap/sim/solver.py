@@ -9,7 +9,9 @@ A frame of length dt runs ``substeps`` substeps of h = dt / substeps, each:
 3. **shape matching** — ``shape_iterations`` passes of Alg. 1 lines 7-23 (A, polar
    decomposition per cluster, limited goals); all passes but the last move p
    towards the goals;
-4. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
+4. **self-collision** — intestine and mesentery (seed 001 §4: stochastic detection,
+   displacement-velocity response Eq. 2-9) on the predicted positions;
+5. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
 
 After the substeps the render surface is skinned to the particles and the health
 flag is read: a non-finite or exploding particle raises :class:`SimulationFault`.
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 from taichi_lap.errors import SimulationFault
 from taichi_lap.kernels import distance, shape_matching, skinning
 from taichi_lap.sim.control import Control
+from taichi_lap.sim.intestine_collision import IntestineCollision
 from taichi_lap.sim.model import Model
 from taichi_lap.sim.state import State
 
@@ -39,6 +42,12 @@ class SolverSettings:
     over_relaxation: float = 1.5
     gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
     speed_limit: float = 50.0
+    self_collision: bool = False
+    collision_threshold: float = 0.02    # [m]
+    collision_random_pairs: int = 0      # 0: chosen from the segment count
+    collision_passes: int = 8
+    collision_skin: float = 0.001        # [m]
+    seed: int = 0
 
     @classmethod
     def from_scene(cls, settings: dict) -> "SolverSettings":
@@ -46,7 +55,12 @@ class SolverSettings:
                    iterations=settings["iterations"],
                    constraint_solver=settings["constraint_solver"],
                    over_relaxation=settings["over_relaxation"],
-                   gravity=tuple(settings["gravity"]), speed_limit=settings["speed_limit"])
+                   gravity=tuple(settings["gravity"]), speed_limit=settings["speed_limit"],
+                   self_collision=settings["self_collision"],
+                   collision_threshold=settings["collision_threshold"],
+                   collision_random_pairs=settings["collision_random_pairs"],
+                   collision_passes=settings["collision_passes"],
+                   collision_skin=settings["collision_skin"], seed=settings["seed"])
 
 
 class Solver:
@@ -60,6 +74,13 @@ class Solver:
         self._has_constraints = model.distance_count > 0 or model.lra_count > 0
         self._has_clusters = model.cluster_total > 0
         self._has_springs = model.spring_count > 0
+        self.self_collision = None
+        if settings.self_collision and any(o.row_length for o in model.data.organs):
+            self.self_collision = IntestineCollision(
+                model, threshold=settings.collision_threshold,
+                random_pairs=settings.collision_random_pairs or None,
+                passes=settings.collision_passes, skin=settings.collision_skin,
+                seed=settings.seed)
 
     def step(self, state: State, control: Control, dt: float):
         """Advance one frame of ``dt`` [s]; raise :class:`SimulationFault` on a fault."""
@@ -88,6 +109,8 @@ class Solver:
                 shape_matching.match_clusters(model, state)
                 shape_matching.project_to_goals(model, state, control)
             shape_matching.match_clusters(model, state)
+        if self.self_collision is not None:
+            self.self_collision.step(state, h)
         shape_matching.update_goals(model, state, control, h, settings.speed_limit,
                                     settings.gravity, int(not last))
 
