@@ -1,0 +1,341 @@
+"""Tissue collision (seed 000 §4): adaptive circumspheres (Eq. 4-6), the lazy update
+(§4.2.3), the impulse response (§4.3) and both baselines, as promises."""
+
+import math
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_lap.kernels import circumsphere, shape_matching, tissue_collision
+from taichi_lap.sim import Control
+from taichi_lap.sim.collision import TissueCollision, bounding_radii
+from tests.archrun import assert_vulkan_matches_cpu
+from tests.helpers import BOX, simulation
+
+DT = 1.0 / 60.0
+METHODS = ("circumsphere", "bounding_sphere", "polygon")
+
+
+@pytest.fixture(scope="module")
+def box():
+    """(data, model, state) of the test block, a geometry-only TissueCollision and an
+    empty Control (created once: kernels compile per Control instance)."""
+    _, data, model, state, control, _ = simulation([BOX], gravity=[0, 0, 0])
+    return data, model, state, TissueCollision(model, tools=False, tissue_pairs=False), control
+
+
+def skinned(data, x):
+    return (data.surface_weight[..., None] * x[data.surface_index]).sum(axis=1)
+
+
+def triangle_areas(data, x):
+    c = skinned(data, x)[data.surface_triangles]
+    return 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+
+
+def counted(collision, name, action):
+    before = collision.counters()[name]
+    action()
+    return np.int32(collision.counters()[name] - before)
+
+
+def test_circumsphere_centre_lies_on_the_normal_at_the_stated_depth_through_the_vertices(box):
+    data, model, state, collision, no_tools = box
+    state.reset(model)
+    rng = np.random.default_rng(1)
+    p = data.rest_position + rng.normal(0.0, 3e-4, data.rest_position.shape)
+    state.p.from_numpy(p.astype(np.float32))
+    collision.reset()
+    collision.step(state, no_tools)
+    corners = skinned(data, p)[data.surface_triangles]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    radius_b = bounding_radii(corners)
+    goal = skinned(data, data.rest_position)[data.surface_triangles]
+    recovery = np.linalg.norm(corners - goal, axis=2).mean(axis=1)  # ε of §4.2.2
+    hermite = collision.curvature_factor.to_numpy()
+    assert np.allclose(collision.recovery.to_numpy(), recovery, atol=1e-6)
+    depth = collision.scale_phi * radius_b / math.tan(collision.safe_angle) * hermite + recovery
+    center, radius = collision.sphere_center.to_numpy(), collision.sphere_radius.to_numpy()
+    bound_center = collision.bound_center.to_numpy()
+    assert np.allclose(center, bound_center - normal * depth[:, None], atol=2e-6)
+    assert np.all((hermite > 0.0) & (hermite <= 1.0))
+    distance = np.linalg.norm(corners - center[:, None, :], axis=2)
+    edge2 = np.sort(np.linalg.norm(corners - np.roll(corners, -1, axis=1), axis=2) ** 2, axis=1)
+    acute = edge2[:, 2] < edge2[:, 0] + edge2[:, 1]
+    assert acute.sum() > len(acute) // 2
+    assert np.allclose(distance[acute], radius[acute, None], rtol=1e-4)  # through all three
+    assert np.all(distance <= radius[:, None] * (1 + 1e-4))  # obtuse: the third one inside
+
+
+@ti.kernel
+def evaluate_hermite(table: ti.template(), curvature: ti.types.ndarray(), out: ti.types.ndarray()):
+    for i in range(curvature.shape[0]):
+        out[i] = circumsphere.curvature_factor(table, curvature[i], 1.0)
+
+
+def test_hermite_factor_is_one_when_flat_zero_when_sharp_with_zero_end_slopes(box):
+    collision = box[3]
+    k = np.array([0.0, 1e-3, 1.0, 1.001, 1e3, 1e3 + 1.0, 1e7], dtype=np.float32)
+    h = np.zeros_like(k)
+    evaluate_hermite(collision.hermite, k, h)
+    assert h[0] == 1.0 and h[-1] < 1e-4
+    assert h[2] == pytest.approx(0.5, abs=1e-3)  # H3(K_ref) = 1/2
+    middle_slope = (h[3] - h[2]) / 1e-3
+    assert abs((h[1] - h[0]) / 1e-3) < 0.05 * abs(middle_slope)  # flat at K = 0
+    assert abs(h[5] - h[4]) < 1e-5  # flat as K grows
+    assert np.all(np.diff(h) <= 0.0)
+
+
+def dual_curvature_of(organ):
+    """Curvature K [1/m²], triangle areas [m²] and neighbour table of an organ's surface."""
+    _, data, model, state, _, _ = simulation([organ], gravity=[0, 0, 0])
+    collision = TissueCollision(model, tools=False, tissue_pairs=False)
+    circumsphere.update_spheres(model, state, collision)
+    return (collision.curvature.to_numpy(), triangle_areas(data, data.rest_position),
+            collision.tri_neighbour.to_numpy())
+
+
+def test_dual_curvature_is_zero_on_a_flat_patch_and_one_over_r_squared_on_a_sphere():
+    sheet = {"name": "fascia", "model": "fascia_lra",
+             "geometry": {"generator": "sheet", "width": 0.04, "depth": 0.04, "resolution_x": 8,
+                          "resolution_z": 8, "sag": 0.0}}
+    k, area, neighbour = dual_curvature_of(sheet)
+    interior = (neighbour >= 0).all(axis=1)
+    assert interior.sum() > 50
+    assert np.abs(k * area).max() < 1e-5  # angle deficit [rad]
+    radius = 0.02
+    ball = {"name": "ball", "model": "shape_matching",
+            "geometry": {"generator": "icosphere", "radius": radius, "subdivisions": 3}}
+    k, area, _ = dual_curvature_of(ball)
+    assert np.median(k * radius**2) == pytest.approx(1.0, abs=0.05)
+    assert (k * area).sum() == pytest.approx(4.0 * math.pi, rel=0.02)  # Gauss-Bonnet
+
+
+def test_lazy_update_skips_recomputation_under_delta_and_recomputes_above(box):
+    data, model, state, collision, no_tools = box
+    state.reset(model)
+    collision.reset()
+    step = lambda: collision.step(state, no_tools)  # noqa: E731
+    assert counted(collision, "recomputed", step) == model.surface_triangle_count
+    assert counted(collision, "recomputed", step) == 0
+    center, recovery = collision.sphere_center.to_numpy(), collision.recovery.to_numpy()
+    shift = np.float32([0.001, 0.002, 0.0])
+    state.p.from_numpy((data.rest_position + shift).astype(np.float32))
+    assert counted(collision, "recomputed", step) == 0  # rigid motion: same areas
+    assert np.allclose(collision.sphere_center.to_numpy(), center + shift, atol=1e-6)
+    assert np.array_equal(collision.recovery.to_numpy(), recovery)  # ε kept, not |p - g|
+    rest_area = triangle_areas(data, data.rest_position)
+    delta = collision.lazy_delta
+    for stretch in (0.25 * delta, 3.0 * delta):
+        state.reset(model)
+        collision.reset()
+        step()
+        x = data.rest_position * np.array([1.0 + stretch, 1.0, 1.0])
+        state.p.from_numpy(x.astype(np.float32))
+        expected = int((np.abs(triangle_areas(data, x) / rest_area - 1.0) >= delta).sum())
+        assert counted(collision, "recomputed", step) == expected
+        assert (expected == 0) == (stretch < delta)
+
+
+@ti.kernel
+def exchange(v_t: ti.types.ndarray(dtype=ti.math.vec3), v_u: ti.types.ndarray(dtype=ti.math.vec3),
+             normal: ti.types.ndarray(dtype=ti.math.vec3), w_t: ti.types.ndarray(),
+             w_u: ti.types.ndarray(), out_t: ti.types.ndarray(dtype=ti.math.vec3),
+             out_u: ti.types.ndarray(dtype=ti.math.vec3)):
+    for i in range(v_t.shape[0]):
+        out_t[i], out_u[i] = tissue_collision.exchange_impulse(v_t[i], v_u[i], normal[i], w_t[i],
+                                                               w_u[i])
+
+
+@ti.kernel
+def pair_translation(c: ti.types.ndarray(dtype=ti.math.vec3), r: ti.types.ndarray(),
+                     disp: ti.types.ndarray(dtype=ti.math.vec3), w: ti.types.ndarray(),
+                     out: ti.types.ndarray(dtype=ti.math.vec3)):
+    for i in range(c.shape[0] // 2):
+        a, b = 2 * i, 2 * i + 1
+        up = ti.Vector([0.0, 1.0, 0.0])
+        _, out[a] = tissue_collision.sphere_pair_translation(c[a], r[a], disp[a], w[a], c[b], r[b],
+                                                             disp[b], w[b], up)
+        _, out[b] = tissue_collision.sphere_pair_translation(c[b], r[b], disp[b], w[b], c[a], r[a],
+                                                             disp[a], w[a], up)
+
+
+def test_impulse_exchange_conserves_momentum_and_a_tool_takes_none_of_it():
+    rng = np.random.default_rng(3)
+    n = 200
+    v_t, v_u = (rng.normal(0, 1, (n, 3)).astype(np.float32) for _ in range(2))
+    normal = rng.normal(0, 1, (n, 3))
+    normal = (normal / np.linalg.norm(normal, axis=1, keepdims=True)).astype(np.float32)
+    w_t = rng.uniform(0.5, 2.0, n).astype(np.float32)
+    w_u = np.where(np.arange(n) % 4 == 0, 0.0, rng.uniform(0.5, 2.0, n)).astype(np.float32)
+    out_t, out_u = np.zeros_like(v_t), np.zeros_like(v_u)
+    exchange(v_t, v_u, normal, w_t, w_u, out_t, out_u)
+    tool = w_u == 0.0
+    m_t, m_u = 1.0 / w_t[~tool, None], 1.0 / w_u[~tool, None]
+    assert np.allclose(m_t * out_t[~tool] + m_u * out_u[~tool], m_t * v_t[~tool] + m_u * v_u[~tool],
+                       atol=1e-4)
+    assert np.array_equal(out_u[tool], v_u[tool])  # the kinematic tool keeps its velocity
+    approach = np.einsum("ij,ij->i", out_t - out_u, normal)
+    assert approach.min() > -1e-5  # no approaching normal velocity is left
+    receding = np.einsum("ij,ij->i", v_t - v_u, normal) >= 0
+    assert np.array_equal(out_t[receding], v_t[receding])
+    # sphere pairs: translations carry no momentum and leave the spheres apart
+    c = rng.uniform(-0.01, 0.01, (2 * n, 3)).astype(np.float32)
+    r = rng.uniform(0.002, 0.006, 2 * n).astype(np.float32)
+    disp = rng.normal(0, 0.002, (2 * n, 3)).astype(np.float32)
+    w = rng.uniform(0.5, 2.0, 2 * n).astype(np.float32)
+    out = np.zeros_like(c)
+    pair_translation(c, r, disp, w, out)
+    a, b = slice(0, None, 2), slice(1, None, 2)
+    assert np.abs(out[a] / w[a, None] + out[b] / w[b, None]).max() < 1e-6
+    gap = np.linalg.norm((c[a] + out[a]) - (c[b] + out[b]), axis=1) - (r[a] + r[b])
+    assert gap.min() > -1e-6
+
+
+def substep_with_collision(model, state, solver, collision, no_tools, tools, iterations: int):
+    """One substep of 1/60 s with a collision step after every shape-matching pass (the
+    wiring proposed for Solver.substep); the solver's particle contacts get ``no_tools``."""
+    settings = solver.settings
+    shape_matching.predict(model, state, no_tools, settings.gravity, DT, 0)
+    for it in range(iterations):
+        shape_matching.match_clusters(model, state)
+        if it < iterations - 1:
+            shape_matching.project_to_goals(model, state, no_tools)
+        collision.step(state, tools)
+    shape_matching.update_goals(model, state, no_tools, DT, settings.speed_limit,
+                                settings.gravity, 0)
+
+
+def sheet_run(method: str, speed: float):
+    """A 2 mm tissue sheet, pinned at two edges, met by a capsule (radius 2.5 mm) moving
+    down at ``speed`` [m/s] until its axis is 3 mm below the sheet's rest top, then
+    held; returns the final axis height and the heights of the top-face particles
+    under the axis [m]."""
+    sheet = {"name": "sheet", "model": "tet_clusters",
+             "geometry": {"generator": "box", "half_extents": [0.02, 0.001, 0.015]},
+             "material": {"particle_spacing": 0.001, "stiffness": 0.5, "damping": 1.0,
+                          "recover_rate": 0.05, "eta_on_contact": 0.7},
+             "attachments": [{"kind": "fixed", "box_min": [-1, -1, -1], "box_max": [-0.018, 1, 1]},
+                             {"kind": "fixed", "box_min": [0.018, -1, -1], "box_max": [1, 1, 1]}]}
+    _, data, model, state, no_tools, solver = simulation([sheet], gravity=[0, 0, 0])
+    collision = TissueCollision(model, method=method, tissue_pairs=False)
+    tools = Control()
+    radius, y, y_end = 0.0025, 0.001 + 0.0025 + 0.0005, -0.002
+    x0 = data.rest_position
+    under = (np.abs(x0[:, 0]) < 6e-4) & (x0[:, 1] > 9e-4) & (np.abs(x0[:, 2]) < 0.012)
+    held = 0
+    while held < 3:
+        tools.set_tool(0, [0.0, y, -0.03], [0.0, y, 0.03], radius)
+        collision.begin_frame(tools)
+        substep_with_collision(model, state, solver, collision, no_tools, tools, 5)
+        held += y == y_end
+        y = max(y - speed * DT, y_end)
+    return y, state.x.to_numpy()[under, 1]
+
+
+def test_capsule_at_quarter_metre_per_second_does_not_tunnel_through_a_2mm_sheet():
+    """dt = 1/60 s, 1 substep: 4.2 mm per step against triangles of R_b ≈ 0.7 mm. The
+    circumsphere holds while the step stays under r + (φ cot θ / 2) R_b ≈ 4.3 mm (the
+    line to the tool must pass through the triangle's cap); the bounding-sphere and
+    polygon methods let the sheet through from about r ≈ 3 mm per step (0.2 m/s)."""
+    axis, heights = sheet_run("circumsphere", 0.25)
+    assert len(heights) > 20
+    assert heights.max() < axis - 0.001  # the sheet stays below the capsule's axis
+
+
+def two_blocks():
+    """Two blocks 0.5 mm apart, one above the other: (data, model, state, empty Control)."""
+    lower = {**BOX, "name": "lower", "geometry": {"generator": "box",
+                                                  "half_extents": [0.012, 0.006, 0.01]}}
+    upper = {**lower, "name": "upper", "geometry": {**lower["geometry"],
+                                                    "translate": [0.0, 0.0125, 0.0]}}
+    _, data, model, state, control, _ = simulation([lower, upper], gravity=[0, 0, 0])
+    return data, model, state, control
+
+
+@pytest.fixture(scope="module")
+def blocks():
+    return two_blocks()
+
+
+def pressed_blocks(data, model, state, no_tools, method: str, steps: int):
+    """The upper block moved 2.5 mm down within one substep (2 mm into the lower one,
+    0.5 mm apart at the start), then ``steps`` collision steps; returns p [m] and the
+    upper block's particle mask."""
+    x = data.rest_position
+    upper = data.organ == 1
+    state.reset(model)
+    state.p.from_numpy((x - np.outer(upper, [0.0, 0.0025, 0.0])).astype(np.float32))
+    collision = TissueCollision(model, method=method, tools=False)
+    for _ in range(steps):
+        collision.step(state, no_tools)
+    return state.p.to_numpy(), upper
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_tissue_pairs_are_separated_after_the_response(blocks, method):
+    data, model, state, no_tools = blocks
+    p, upper = pressed_blocks(data, model, state, no_tools, method, 4)
+    x0 = data.rest_position
+    inner = (np.abs(x0[:, 0]) < 0.009) & (np.abs(x0[:, 2]) < 0.007)
+    penetration = p[~upper & inner, 1].max() - p[upper & inner, 1].min()
+    assert penetration < 1e-4, f"{method}: {penetration * 1e3:.2f} mm"
+    assert not np.array_equal(p[~upper], x0[~upper])  # both blocks took part
+
+
+UNION = [("control",), ("sphere", [0.0, -0.004, 0.015], 0.004),
+         ("box", [0.006, -0.002, 0.03], [0.003, 0.003, 0.004])]
+"""A tool as a union: the Control capsule, a sphere and a box in the tool frame [m]."""
+
+
+def union_distances(x, tip, tail, radius):
+    """NumPy signed distances [m] of points ``x`` to each shape of :data:`UNION` (in the
+    tool frame of kernels.tool_shapes), shape (3, n)."""
+    z = (tail - tip) / np.linalg.norm(tail - tip)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[1]) > 0.9 else np.array([0.0, 1.0, 0.0])
+    ex = np.cross(helper, z) / np.linalg.norm(np.cross(helper, z))
+    frame = np.stack([ex, np.cross(z, ex), z], axis=1)
+
+    def capsule(a, b, r):
+        t = np.clip((x - a) @ (b - a) / max((b - a) @ (b - a), 1e-30), 0.0, 1.0)
+        return np.linalg.norm(x - (a + t[:, None] * (b - a)), axis=1) - r
+
+    sphere = tip + frame @ np.asarray(UNION[1][1])
+    q = np.abs((x - tip - frame @ np.asarray(UNION[2][1])) @ frame) - np.asarray(UNION[2][2])
+    box = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+    return np.stack([capsule(tip, tail, radius), capsule(sphere, sphere, UNION[1][2]), box])
+
+
+def compute_collision_case(method: str = "circumsphere") -> dict:
+    """A union-of-shapes tool pressed into the test block (particles and triangles
+    pushed out), and two blocks pressed together, a few collision steps each (also run
+    on Vulkan)."""
+    _, data, model, state, _, _ = simulation([BOX], gravity=[0, 0, 0])
+    collision = TissueCollision(model, method=method, tool_particles=True)
+    collision.set_tool_shapes(0, UNION)
+    tools = Control()
+    for k in range(3):
+        y = 0.012 + 0.004 - 0.001 * k
+        tools.set_tool(0, [-0.03, y, 0.0], [0.03, y, 0.0], 0.005)
+        collision.begin_frame(tools)
+        collision.step(state, tools)
+    p2, _ = pressed_blocks(*two_blocks(), method, 2)
+    return {"p": state.p.to_numpy(), "collided": state.collided.to_numpy(), "p_blocks": p2,
+            "tool": np.float32([-0.03, y, 0.0, 0.03, y, 0.0])}
+
+
+def test_a_union_of_implicit_shapes_pushes_particles_and_triangles_out():
+    result = compute_collision_case()
+    tip, tail = result["tool"][:3].astype(float), result["tool"][3:].astype(float)
+    distance = union_distances(result["p"].astype(float), tip, tail, 0.005)
+    assert distance.min() > -1e-5  # nothing left inside any shape
+    assert np.all(distance.min(axis=1) < 2.5e-3)  # and every shape pushed some of it
+    assert result["collided"].sum() > 10
+
+
+@pytest.mark.vulkan
+def test_vulkan_matches_cpu():
+    result = assert_vulkan_matches_cpu("tests.test_circumsphere:compute_collision_case", 2e-5)
+    assert result["collided"].sum() > 10
