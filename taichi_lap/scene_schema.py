@@ -32,6 +32,10 @@ SCENE_PARAMS = {
                     lo=1e-3, hi=8.0),
     "speed_limit": Param("float", 50.0, "particle speed reported as a simulation fault",
                          lo=1e-3, hi=1e6, unit="m/s"),
+    "collision": Param("str", "off", "tissue collision of surface triangles (seed 000 §4)",
+                       choices=("off", "circumsphere", "bounding_sphere", "polygon")),
+    "collision_scale_phi": Param("float", 3.0, "tissue collision: φ of Eq. 4 (seed 000 §7: 3)",
+                                 lo=0.0, hi=100.0),
     "self_collision": Param("bool", True, "intestine and mesentery self-collision (seed 001 §4)"),
     "collision_threshold": Param("float", 0.02, "self-collision: pairs are tracked while their "
                                                 "gap is below this", lo=1e-5, hi=1.0, unit="m"),

@@ -47,8 +47,9 @@ class Session:
     def reset(self):
         """Back to the rest state, tools at their scene poses, surface skinned."""
         self.state.reset(self.model)
-        if self.solver.self_collision is not None:
-            self.solver.self_collision.reset()
+        for collision in (self.solver.collision, self.solver.self_collision):
+            if collision is not None:
+                collision.reset()
         apply_poses(self.control, self.scene.tools, {})
         skin_surface(self.model, self.state)
 

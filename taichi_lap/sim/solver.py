@@ -9,7 +9,9 @@ A frame of length dt runs ``substeps`` substeps of h = dt / substeps, each:
 3. **shape matching** — ``shape_iterations`` passes of Alg. 1 lines 7-23 (A, polar
    decomposition per cluster, limited goals); all passes but the last move p
    towards the goals;
-4. **self-collision** — intestine and mesentery (seed 001 §4: stochastic detection,
+4. **collision** — surface triangles against each other and the tools by adaptive
+   circumspheres or a baseline (seed 000 §4, chosen per scene), after each shape-matching
+   pass; self-collision of the intestine and mesentery (seed 001 §4: stochastic detection,
    displacement-velocity response Eq. 2-9) on the predicted positions;
 5. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
 
@@ -23,6 +25,7 @@ from dataclasses import dataclass
 
 from taichi_lap.errors import SimulationFault
 from taichi_lap.kernels import distance, shape_matching, skinning
+from taichi_lap.sim.collision import TissueCollision
 from taichi_lap.sim.control import Control
 from taichi_lap.sim.intestine_collision import IntestineCollision
 from taichi_lap.sim.model import Model
@@ -42,6 +45,8 @@ class SolverSettings:
     over_relaxation: float = 1.5
     gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
     speed_limit: float = 50.0
+    collision: str = "off"
+    collision_scale_phi: float = 3.0
     self_collision: bool = False
     collision_threshold: float = 0.02    # [m]
     collision_random_pairs: int = 0      # 0: chosen from the segment count
@@ -56,6 +61,8 @@ class SolverSettings:
                    constraint_solver=settings["constraint_solver"],
                    over_relaxation=settings["over_relaxation"],
                    gravity=tuple(settings["gravity"]), speed_limit=settings["speed_limit"],
+                   collision=settings["collision"],
+                   collision_scale_phi=settings["collision_scale_phi"],
                    self_collision=settings["self_collision"],
                    collision_threshold=settings["collision_threshold"],
                    collision_random_pairs=settings["collision_random_pairs"],
@@ -74,6 +81,10 @@ class Solver:
         self._has_constraints = model.distance_count > 0 or model.lra_count > 0
         self._has_clusters = model.cluster_total > 0
         self._has_springs = model.spring_count > 0
+        self.collision = None
+        if settings.collision != "off" and len(model.data.surface_triangles):
+            self.collision = TissueCollision(model, method=settings.collision,
+                                             scale_phi=settings.collision_scale_phi)
         self.self_collision = None
         if settings.self_collision and any(o.row_length for o in model.data.organs):
             self.self_collision = IntestineCollision(
@@ -86,6 +97,8 @@ class Solver:
         """Advance one frame of ``dt`` [s]; raise :class:`SimulationFault` on a fault."""
         h = dt / self.settings.substeps
         state.fault_particle[None] = NO_FAULT
+        if self.collision is not None:
+            self.collision.begin_frame(control)
         for k in range(self.settings.substeps):
             self.substep(state, control, h, first=k == 0,
                          last=k == self.settings.substeps - 1)
@@ -108,11 +121,18 @@ class Solver:
             for _ in range(settings.shape_iterations - 1):
                 shape_matching.match_clusters(model, state)
                 shape_matching.project_to_goals(model, state, control)
+                self._collide(state, control)
             shape_matching.match_clusters(model, state)
+        self._collide(state, control)
         if self.self_collision is not None:
             self.self_collision.step(state, h)
         shape_matching.update_goals(model, state, control, h, settings.speed_limit,
                                     settings.gravity, int(not last))
+
+    def _collide(self, state: State, control: Control):
+        """Tissue collision (seed 000 §4), the last move of p before the goal update."""
+        if self.collision is not None:
+            self.collision.step(state, control)
 
     def _solve_constraints(self, state: State, control: Control):
         model, settings = self.model, self.settings
