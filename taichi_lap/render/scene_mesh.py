@@ -44,19 +44,18 @@ class ArrayMesh:
         triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
         self.vertex_count, self.smooth_count = vertex_count, smooth_count
         self.triangle_count = len(triangles)
-        smooth = triangles[np.all(triangles < smooth_count, axis=1)]
-        start, rows = incidence(smooth.reshape(-1), smooth_count)
+        smooth = np.nonzero(np.all(triangles < smooth_count, axis=1))[0]
+        start, rows = incidence(triangles[smooth].reshape(-1), smooth_count)
         table = material_table(materials)
         group = FieldGroup()
         self.positions = group.field(ti.f32, vertex_count, vector=3, values=positions)
         self.normals = group.field(ti.f32, vertex_count, vector=3)
         self.triangles = group.field(ti.i32, 3 * self.triangle_count, values=triangles.reshape(-1))
-        self.smooth_triangles = group.field(ti.i32, 3 * len(smooth), values=smooth.reshape(-1))
         self.triangle_material = group.field(ti.i32, self.triangle_count, values=triangle_material)
         self.triangle_object = group.field(ti.i32, self.triangle_count, values=(
             triangle_material if triangle_object is None else triangle_object))
         self.incident_start = group.field(ti.i32, smooth_count + 1, values=start.astype(np.int32))
-        self.incident = group.field(ti.i32, len(rows), values=(rows // 3).astype(np.int32))
+        self.incident = group.field(ti.i32, len(rows), values=smooth[rows // 3].astype(np.int32))
         self.albedo = group.field(ti.f32, len(materials), vector=3, values=table["albedo"])
         self.roughness = group.field(ti.f32, len(materials), values=table["roughness"])
         self.metalness = group.field(ti.f32, len(materials), values=table["metalness"])
@@ -65,7 +64,7 @@ class ArrayMesh:
 
     def update(self, state=None, control=None):
         """Gather the normals of the smooth vertices from the current positions."""
-        vertex_normals(self.positions, self.smooth_triangles, self.incident_start,
+        vertex_normals(self.positions, self.triangles, self.incident_start,
                        self.incident, self.smooth_count, self.normals)
 
 
