@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
 
@@ -26,3 +28,14 @@ BOX = {"name": "block", "model": "tet_clusters",
        "geometry": {"generator": "box", "half_extents": [0.02, 0.012, 0.015]},
        "material": {"particle_spacing": 0.004, "stiffness": 0.5, "damping": 0.0,
                     "recover_rate": 0.05, "eta_on_contact": 1.0}}
+
+
+def wait_for(predicate, timeout: float) -> bool:
+    """Poll ``predicate`` every millisecond until it holds (True) or ``timeout`` [s]
+    passes (False): for devices and processes that tick on their own."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.001)
+    return True

@@ -6,6 +6,7 @@ C compiler; it runs its own 1 kHz servo thread and records what the binding did.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 
@@ -14,7 +15,7 @@ import pytest
 
 from taichi_lap.haptics import OpenHapticsDevice, OpenHapticsError, WorkspaceMapping
 from taichi_lap.haptics import openhaptics
-from tests import fake_hd
+from tests import fake_hd, helpers
 
 HD_FORCE_OUTPUT = 0x4000
 HD_DEVICE_FAULT = 0x300
@@ -38,13 +39,7 @@ def fake(fake_library):
     controls.reset()
 
 
-def wait_for(predicate, timeout: float = 1.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.002)
-    return True
+wait_for = functools.partial(helpers.wait_for, timeout=1.0)
 
 
 def last_force(fake, handle: int) -> np.ndarray:

@@ -19,7 +19,7 @@ from taichi_lap.haptics import (OpenHapticsDevice, ProxySettings, SceneSnapshot,
                                 ServoSettings, ServoState, WorkspaceMapping)
 from taichi_lap.haptics import servo as servo_module
 from taichi_lap.haptics.servo import scripted_device
-from tests import fake_hd
+from tests import fake_hd, helpers
 from tests.test_proxy import TOOL, plane, scene_of
 
 UPRIGHT = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0))  # tool +z along scene +y
@@ -71,13 +71,7 @@ def servo_for(publisher: Publisher, keyframes, **device) -> ServoProcess:
                         ServoSettings(max_rate=1000.0))
 
 
-def wait_for(predicate, timeout: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.001)
-    return True
+wait_for = functools.partial(helpers.wait_for, timeout=5.0)
 
 
 def test_servo_ticks_at_about_1khz_in_a_child_process(snapshot):
