@@ -36,7 +36,7 @@ def finish_particle(model: ti.template(), state: ti.template(), control: ti.temp
                     source: ti.template(), i, p):
     """LRA then contacts for particle ``i``; flags the collision."""
     p += lra_correction(model, source, i, p)
-    p, hit = resolve_contacts(model, control, i, p, state.x[i])
+    p, hit = resolve_contacts(model, state, control, i, p, state.x[i])
     if hit:
         state.collided[i] = 1
     return p

@@ -31,7 +31,7 @@ vertex exactly). Both are the ``eta_on_contact`` material parameter.
 
 import taichi as ti
 
-from taichi_lap.kernels.contact import resolve_contacts
+from taichi_lap.kernels.contact import hold_grasped, resolve_contacts
 from taichi_lap.kernels.health import report_fault
 from taichi_lap.kernels.mass_spring import spring_force
 from taichi_lap.kernels.rotation import extract_rotation, quaternion_to_matrix
@@ -49,7 +49,7 @@ def predict_particle(model: ti.template(), state: ti.template(), control: ti.tem
         if ti.static(model.spring_count > 0):
             v += h * spring_force(model, state, i) * model.inv_mass[i]
         v *= ti.max(1.0 - model.damping[i] * h, 0.0)
-        p, hit = resolve_contacts(model, control, i, x + h * v, x)
+        p, hit = resolve_contacts(model, state, control, i, x + h * v, x)
     state.p[i] = p
     state.collided[i] = hit
 
@@ -153,8 +153,8 @@ def project_to_goals(model: ti.template(), state: ti.template(), control: ti.tem
         if model.inv_mass[i] > 0.0 and model.membership_start[i + 1] > model.membership_start[i]:
             p = state.p[i]
             goal, _ = limited_goal(model, state, i, p)
-            p, hit = resolve_contacts(model, control, i, p + model.stiffness[i] * (goal - p),
-                                      state.x[i])
+            p, hit = resolve_contacts(model, state, control, i,
+                                      p + model.stiffness[i] * (goal - p), state.x[i])
             state.p[i] = p
             if hit:
                 state.collided[i] = 1
@@ -168,7 +168,7 @@ def update_goals(model: ti.template(), state: ti.template(), control: ti.templat
     every particle without springs (those need all neighbours updated first). Reads
     p, collided, eta, cluster frames; writes eta, goal, v, x, fault (and p, collided)."""
     for i in range(model.particle_count):
-        p = state.p[i]
+        p, _ = hold_grasped(state, control, i, state.p[i])  # collisions may have moved it
         goal, eta = limited_goal(model, state, i, p)
         state.eta[i] = eta
         state.goal[i] = goal

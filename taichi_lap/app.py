@@ -25,11 +25,19 @@ def _render(session: Session, renderer: Renderer):
 
 
 def _advance(session: Session, device, recorder: SessionRecorder | None):
-    """One frame: read the device, record what it gave, step."""
-    poses = device.poses(session.state.time) if device else None
+    """One frame: read the device (poses first: a replay advances on them), record
+    what it gave, step, record the step's events."""
+    time = session.state.time
+    poses = device.poses(time) if device else None
+    buttons = device.buttons(time) if hasattr(device, "buttons") else None
     if recorder is not None:
-        recorder.record_frame(poses, device)
-    session.step(poses)
+        if hasattr(device, "drain_ticks"):
+            recorder.record_ticks(device.drain_ticks())
+        recorder.record_frame(poses, buttons)
+    session.step(poses, buttons)
+    if recorder is not None:
+        for event in session.events:
+            recorder.record_event(**event)
 
 
 @contextmanager
@@ -93,7 +101,7 @@ def render_still(scene: Scene, *, frames: int, out: str, size, use_cache: bool =
     session = Session(scene, use_cache=use_cache)
     device = scene_script(scene)
     for _ in range(frames):
-        session.step(device.poses(session.state.time) if device else None)
+        _advance(session, device, None)
     renderer = Renderer.for_scene(scene, session.data, size=size)
     renderer.render(session.state, session.control)
     write_png(out, renderer.image())

@@ -5,7 +5,8 @@ A device gives, for each tool it drives, a pose: the tip position [m] and the
 direction from the tip towards the handle; a device with buttons also gives
 ``buttons(time)``, a bitmask per tool (bit k set while button k+1 is pressed).
 :func:`apply_poses` turns poses into the capsules of
-:class:`~taichi_lap.sim.control.Control`.
+:class:`~taichi_lap.sim.control.Control`; button 1 (``GRASP_BUTTON``) closes a
+grasper's jaws.
 
 Script files (``--device script:PATH``) are TOML::
 
@@ -15,8 +16,10 @@ Script files (``--device script:PATH``) are TOML::
     tool = "probe"        # a tool of the scene
     tip = [0.0, 0.1, 0.0] # m
     direction = [0, 1, 0] # optional, kept from the previous keyframe
+    grasp = true          # optional: jaws closed from here on (kept; open at first)
 
-Between keyframes the tip moves linearly; after the last it stays.
+Between keyframes the tip moves linearly; after the last it stays. The jaws change
+at a keyframe's time.
 """
 
 from __future__ import annotations
@@ -30,14 +33,17 @@ import numpy as np
 from taichi_lap.errors import InputError
 from taichi_lap.schema import REQUIRED, check_table
 from taichi_lap.scenes.anatomy.params import Param
-from taichi_lap.sim.control import MAX_TOOLS, Control
+from taichi_lap.sim.control import JAW_LENGTH, MAX_TOOLS, Control
 
 KEYFRAME_PARAMS = {
     "time": Param("float", REQUIRED, "time of the keyframe", lo=0.0, hi=1e6, unit="s"),
     "tool": Param("str", REQUIRED, "name of a tool of the scene"),
     "tip": Param("vec3", REQUIRED, "tip position", lo=-100, hi=100, unit="m"),
     "direction": Param("vec3", None, "from the tip towards the handle", lo=-1e3, hi=1e3),
+    "grasp": Param("bool", None, "a grasper's jaws closed from this keyframe on"),
 }
+GRASP_BUTTON = 1
+"""Bitmask of the button that closes a grasper's jaws (button 1, as on a stylus)."""
 
 
 @dataclass
@@ -57,7 +63,7 @@ def _unit(v) -> np.ndarray:
 class ScriptedDevice:
     """Poses interpolated from keyframes per tool; ``source`` names the script."""
 
-    def __init__(self, keyframes: dict[str, list[tuple[float, np.ndarray, np.ndarray]]],
+    def __init__(self, keyframes: dict[str, list[tuple[float, np.ndarray, np.ndarray, bool]]],
                  source: str = ""):
         self.keyframes = keyframes
         self.source = source
@@ -97,20 +103,31 @@ class ScriptedDevice:
                                                         f"found {frame['time']} after {track[-1][0]}")
             direction = frame["direction"] or (track[-1][2] if track else
                                                names[frame["tool"]]["direction"])
-            track.append((frame["time"], np.asarray(frame["tip"], float), _unit(direction)))
+            closed = frame["grasp"] if frame["grasp"] is not None else \
+                (track[-1][3] if track else False)
+            track.append((frame["time"], np.asarray(frame["tip"], float), _unit(direction),
+                          closed))
         return cls(keyframes, source)
+
+    def _after(self, track, time: float) -> int:
+        """How many keyframes of ``track`` lie at or before ``time``."""
+        return int(np.searchsorted([frame[0] for frame in track], time, side="right"))
+
+    def buttons(self, time: float) -> dict[str, int]:
+        """Per tool the grasp button of the last keyframe at or before ``time``."""
+        return {name: GRASP_BUTTON if track[max(self._after(track, time) - 1, 0)][3] else 0
+                for name, track in self.keyframes.items()}
 
     def poses(self, time: float) -> dict[str, Pose]:
         out = {}
         for name, track in self.keyframes.items():
-            times = [t for t, _, _ in track]
-            k = int(np.searchsorted(times, time, side="right"))
+            k = self._after(track, time)
             if k == 0:
-                _, tip, direction = track[0]
+                _, tip, direction, _ = track[0]
             elif k == len(track):
-                _, tip, direction = track[-1]
+                _, tip, direction, _ = track[-1]
             else:
-                (t0, a0, d0), (t1, a1, d1) = track[k - 1], track[k]
+                (t0, a0, d0, _), (t1, a1, d1, _) = track[k - 1], track[k]
                 s = (time - t0) / (t1 - t0) if t1 > t0 else 1.0
                 tip, direction = a0 + s * (a1 - a0), _unit(d0 + s * (d1 - d0))
             out[name] = Pose(tip=tip, direction=direction)
@@ -119,13 +136,16 @@ class ScriptedDevice:
 
 class MouseDevice:
     """Moves one tool in the camera's image plane with the cursor while the left
-    button is held; ``q`` / ``e`` push and pull it along the view direction."""
+    button is held; ``q`` / ``e`` push and pull it along the view direction; ``g``
+    closes or opens a grasper's jaws."""
 
     def __init__(self, tool: dict, speed: float = 0.1):
         self.name = tool["name"]
         self.pose = Pose(tip=np.asarray(tool["tip"], float), direction=_unit(tool["direction"]))
         self.speed = speed  # [m/s] along the view axis
+        self.grasp = False
         self._last_cursor = None
+        self._grasp_key_down = False
 
     def update(self, window, camera_position, camera_target, fov_deg: float, dt: float):
         """Read the window's cursor and keys; move the tip (GGUI window)."""
@@ -147,6 +167,16 @@ class MouseDevice:
             self.pose.tip = self.pose.tip + forward * self.speed * dt
         if window.is_pressed("e"):
             self.pose.tip = self.pose.tip - forward * self.speed * dt
+        self.toggle_grasp(window.is_pressed("g"))
+
+    def toggle_grasp(self, key_down: bool):
+        """Flip the jaws when the grasp key goes down."""
+        if key_down and not self._grasp_key_down:
+            self.grasp = not self.grasp
+        self._grasp_key_down = key_down
+
+    def buttons(self, time: float) -> dict[str, int]:
+        return {self.name: GRASP_BUTTON if self.grasp else 0}
 
     def poses(self, time: float) -> dict[str, Pose]:
         return {self.name: self.pose}
@@ -160,10 +190,65 @@ def applied_poses(tools: list[dict], poses: dict[str, Pose]) -> dict[str, Pose]:
             for tool in tools[:MAX_TOOLS]}
 
 
-def apply_poses(control: Control, tools: list[dict], poses: dict[str, Pose]):
+def apply_poses(control: Control, tools: list[dict], poses: dict[str, Pose],
+                buttons: dict[str, int] | None = None):
     """Write each tool's capsule (tip to tip + length·direction) into ``control``;
-    a tool no device drives keeps its scene pose."""
+    a tool no device drives keeps its scene pose. A grasper's jaws are closed while
+    its ``GRASP_BUTTON`` is pressed."""
     placed = applied_poses(tools, poses)
+    buttons = buttons or {}
     for index, tool in enumerate(tools[:MAX_TOOLS]):
         pose = placed[tool["name"]]
-        control.set_tool(index, pose.tip, pose.tip + tool["length"] * pose.direction, tool["radius"])
+        grasper = tool["kind"] == "grasper"
+        control.set_tool(index, pose.tip, pose.tip + tool["length"] * pose.direction,
+                         tool["radius"], grasp=grasper and bool(buttons.get(tool["name"], 0)
+                                                                & GRASP_BUTTON),
+                         jaw_length=JAW_LENGTH * tool["radius"] if grasper else 0.0)
+
+
+class DeviceSet:
+    """Several devices driving the scene at once, as two haptic devices for two hands:
+    their poses and buttons merged (a later device wins a tool two devices drive),
+    each attached to the session and closed with it when it needs that."""
+
+    def __init__(self, devices: list):
+        self.devices = devices
+        self.source = ", ".join(f"{type(d).__name__}" + (f"({d.source})" if getattr(
+            d, "source", "") else "") for d in devices)
+
+    def poses(self, time: float) -> dict[str, Pose]:
+        return {name: pose for device in self.devices for name, pose in device.poses(time).items()}
+
+    def buttons(self, time: float) -> dict[str, int]:
+        return {name: value for device in self.devices if hasattr(device, "buttons")
+                for name, value in device.buttons(time).items()}
+
+    def drain_ticks(self) -> list[tuple[float, dict]]:
+        """The haptic ticks of every device since the last call, in clock order."""
+        ticks = [tick for device in self.devices if hasattr(device, "drain_ticks")
+                 for tick in device.drain_ticks()]
+        return sorted(ticks, key=lambda tick: tick[0])
+
+    def update(self, *args):
+        for device in self.devices:
+            if hasattr(device, "update"):
+                device.update(*args)
+
+    def attach(self, session):
+        """Attach every device that needs the session; on a failure close those
+        already attached, then raise."""
+        attached = []
+        try:
+            for device in self.devices:
+                if hasattr(device, "attach"):
+                    device.attach(session)
+                    attached.append(device)
+        except BaseException:
+            for device in reversed(attached):
+                device.close()
+            raise
+
+    def close(self):
+        for device in reversed(self.devices):
+            if hasattr(device, "close"):
+                device.close()

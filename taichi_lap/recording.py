@@ -34,16 +34,15 @@ layout changes).
 Crash safety: the header and ``session_start`` go to a temporary file that is
 fsynced and then linked to the final name (never over an existing file), so a
 recording on disk always starts complete. The file is opened with ``O_APPEND`` and
-every flush is one ``write`` of whole records (a second appender, the haptics
-process, never splits one); frames and events are flushed at once, ``fsync`` runs
-at most once a second. A killed run leaves its records up to the last complete one:
+every flush is one ``write`` of whole records; frames and events are flushed at
+once, ``fsync`` runs at most once a second. A killed run leaves its records up to the last complete one:
 the reader (:mod:`taichi_lap.replay`) warns that the file is truncated and keeps what
 precedes the cut.
 
-The simulation writes through :class:`SessionRecorder`; the haptics process appends
-its ticks to the same file with ``RecordStream.open_existing(path)``, then
-``tick(clock, {tool: (pose, buttons, force)})`` per servo tick and ``flush()`` when its
-loop has time (``close()`` at the end).
+The simulation writes through :class:`SessionRecorder`. The haptic servo keeps its
+ticks in the ring of its feedback region; every frame the simulation drains the ring
+(``drain_ticks`` of the haptic bridge) and appends the ticks before the frame record,
+so the 1 kHz loop never waits on the file.
 """
 
 from __future__ import annotations
@@ -170,15 +169,6 @@ class RecordStream:
         return cls(str(path), os.open(path, os.O_WRONLY | os.O_APPEND | getattr(os, "O_BINARY", 0)),
                    tools)
 
-    @classmethod
-    def open_existing(cls, path: str | Path) -> "RecordStream":
-        """Append to a recording another process created (the haptic servo's ticks)."""
-        from taichi_lap.replay import read_recording
-
-        recording = read_recording(path, ticks=False)
-        fd = os.open(path, os.O_WRONLY | os.O_APPEND | getattr(os, "O_BINARY", 0))
-        return cls(str(path), fd, recording.tools)
-
     def append(self, record: bytes):
         """Buffer one encoded record; written at the next flush."""
         self._buffer += record
@@ -277,11 +267,17 @@ class SessionRecorder:
         """Record which device drives the tools (at start and when it changes)."""
         self.record_event("device", **describe_device(device))
 
-    def record_frame(self, poses: dict[str, Pose] | None, device):
+    def record_ticks(self, ticks: list[tuple[float, dict]]):
+        """Buffer haptic servo ticks ``(clock, {tool: (pose, buttons, force)})``; they
+        are written with the next frame."""
+        for clock, tools in ticks:
+            self.stream.tick(clock, tools)
+
+    def record_frame(self, poses: dict[str, Pose] | None, buttons: dict[str, int] | None):
         """Append the poses about to be applied (every tool, as :func:`applied_poses`
-        places it) and the device's buttons, then flush."""
+        places it) and the buttons per tool name, then flush."""
         state = self.session.state
-        buttons = device.buttons(state.time) if hasattr(device, "buttons") else {}
+        buttons = buttons or {}
         placed = applied_poses(self.session.scene.tools, poses or {})
         payload = FRAME_HEAD.pack(state.time, state.frame, monotonic(), len(placed))
         payload += b"".join(FRAME_TOOL.pack(index, *pose.tip, *pose.direction, buttons.get(name, 0))

@@ -29,7 +29,8 @@ def scene_script(scene: Scene) -> ScriptedDevice | None:
 
 class Session:
     """Owns everything one running scene needs. ``timings`` holds the last frame's
-    milliseconds per stage (``physics``; renderers add theirs)."""
+    milliseconds per stage (``physics``; renderers add theirs); ``events`` the last
+    step's simulation events (grasp, release), each with the tool's name."""
 
     def __init__(self, scene: Scene, *, use_cache: bool = True, progress: bool = True):
         start = time.perf_counter()
@@ -42,21 +43,26 @@ class Session:
         self.solver = Solver(self.model, SolverSettings.from_scene(scene.settings))
         self.dt = scene.settings["dt"]
         self.timings: dict[str, float] = {}
+        self.events: list[dict] = []
         self.reset()
 
     def reset(self):
         """Back to the rest state, tools at their scene poses, surface skinned."""
         self.state.reset(self.model)
+        self.control.reset()
         for collision in (self.solver.collision, self.solver.self_collision):
             if collision is not None:
                 collision.reset()
         apply_poses(self.control, self.scene.tools, {})
         skin_surface(self.model, self.state)
 
-    def step(self, poses: dict[str, Pose] | None = None):
-        """Place the tools, advance one frame of ``dt``, time it."""
+    def step(self, poses: dict[str, Pose] | None = None, buttons: dict[str, int] | None = None):
+        """Place the tools (``buttons`` per tool name close graspers), advance one
+        frame of ``dt``, time it."""
         start = time.perf_counter()
-        apply_poses(self.control, self.scene.tools, poses or {})
+        apply_poses(self.control, self.scene.tools, poses or {}, buttons)
         self.solver.step(self.state, self.control, self.dt)
         ti.sync()
         self.timings["physics"] = (time.perf_counter() - start) * 1e3
+        names = [tool["name"] for tool in self.scene.tools]
+        self.events = [dict(event, tool=names[event["tool"]]) for event in self.solver.events]

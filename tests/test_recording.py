@@ -16,7 +16,7 @@ from taichi_lap import scene as scene_mod
 from taichi_lap.cli import main
 from taichi_lap.devices import Pose
 from taichi_lap.errors import InputError
-from taichi_lap.recording import (CRC, HEADER, RECORD_HEAD, RecordStream, SessionRecorder,
+from taichi_lap.recording import (CRC, HEADER, RECORD_HEAD, SessionRecorder,
                                   encode_event, encode_record, state_checksum)
 from taichi_lap.replay import ReplayDevice, read_recording
 from taichi_lap.session import Session, scene_script
@@ -199,12 +199,10 @@ def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scen
     force = np.array([0.5, -1.0, 2.0])
     with SessionRecorder(path, session, scene_script(scene)) as recorder:
         recorder.record_event("grasp", **grasp)
-        servo = RecordStream.open_existing(path)  # what the haptics process does
-        for k in range(3):
-            servo.tick(100.0 + k * 1e-3, {"probe": (Pose(np.array([0.0, 0.01 * k, 0.0]),
-                                                           np.array([0.0, 1.0, 0.0])), 1, force)})
-        servo.append(encode_record(ord("Z"), b"a record type of a later writer"))
-        servo.close()
+        recorder.record_ticks([(100.0 + k * 1e-3, {"probe": (
+            Pose(np.array([0.0, 0.01 * k, 0.0]), np.array([0.0, 1.0, 0.0])), 1, force)})
+            for k in range(3)])
+        recorder.stream.append(encode_record(ord("Z"), b"a record type of a later writer"))
         recorder.record_event("release", tool="probe")
         with pytest.raises(ValueError, match="event kind"):
             recorder.record_event("grasp_typo")

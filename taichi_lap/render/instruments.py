@@ -1,4 +1,4 @@
-"""Instrument meshes in the tool frame of :mod:`taichi_lap.kernels.instrument_mesh`:
+"""Instrument meshes in the tool frame of :class:`~taichi_lap.sim.control.Control`:
 the shaft as a capsule, and for graspers and scissors two jaws past the tip."""
 
 from __future__ import annotations
@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-JAW_LENGTH = 4.0   # jaw length in shaft radii
+from taichi_lap.sim.control import JAW_LENGTH
+
 SHAFT_SECTIONS = 16
 
 

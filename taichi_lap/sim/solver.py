@@ -15,6 +15,11 @@ A frame of length dt runs ``substeps`` substeps of h = dt / substeps, each:
    displacement-velocity response Eq. 2-9) on the predicted positions;
 5. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
 
+Before the substeps a grasper whose jaws just closed captures the particles between
+them and one whose jaws opened releases them (seed 002 §3.4); every projection then
+holds captured particles in the tool frame. Each capture and release is appended to
+``events`` (cleared every step) for the session record.
+
 After the substeps the render surface is skinned to the particles and the health
 flag is read: a non-finite or exploding particle raises :class:`SimulationFault`.
 """
@@ -24,9 +29,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from taichi_lap.errors import SimulationFault
-from taichi_lap.kernels import distance, shape_matching, skinning
+from taichi_lap.kernels import distance, grasp, shape_matching, skinning
 from taichi_lap.sim.collision import TissueCollision
-from taichi_lap.sim.control import Control
+from taichi_lap.sim.control import JAW_REACH, MAX_TOOLS, Control
 from taichi_lap.sim.intestine_collision import IntestineCollision
 from taichi_lap.sim.model import Model
 from taichi_lap.sim.state import State
@@ -92,11 +97,14 @@ class Solver:
                 random_pairs=settings.collision_random_pairs or None,
                 passes=settings.collision_passes, skin=settings.collision_skin,
                 seed=settings.seed)
+        self.events: list[dict] = []
 
     def step(self, state: State, control: Control, dt: float):
         """Advance one frame of ``dt`` [s]; raise :class:`SimulationFault` on a fault."""
         h = dt / self.settings.substeps
         state.fault_particle[None] = NO_FAULT
+        self.events = []
+        self.update_grasps(state, control)
         if self.collision is not None:
             self.collision.begin_frame(control)
         for k in range(self.settings.substeps):
@@ -106,6 +114,22 @@ class Solver:
         state.time += dt
         state.frame += 1
         self.check_health(state)
+
+    def update_grasps(self, state: State, control: Control):
+        """Capture for jaws that closed since the last step, release for jaws that
+        opened; one event per change (``kind`` grasp or release, ``tool``, ``particles``)."""
+        for tool in range(MAX_TOOLS):
+            closed = control.grasp[tool] and control.jaw_length[tool] > 0.0
+            if closed == state.jaws_closed[tool]:
+                continue
+            if closed:
+                count = grasp.capture(self.model, state, control, tool, control.jaw_length[tool],
+                                      JAW_REACH * float(control.tool_radius[tool]))
+            else:
+                count = grasp.release(self.model, state, tool)
+            state.jaws_closed[tool] = closed
+            self.events.append({"kind": "grasp" if closed else "release", "tool": tool,
+                                "particles": count})
 
     def substep(self, state: State, control: Control, h: float, *, first: bool = True,
                 last: bool = True):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
+from taichi_lap.kernels.contact import FREE, MAX_TOOLS
 from taichi_lap.sim.fields import FieldGroup
 from taichi_lap.sim.model import Model
 
@@ -18,7 +19,10 @@ class State:
     for Jacobi sweeps), shape-matching ``goal`` [m], recovery factor ``eta`` and
     ``collided`` flag (seed 000 Alg. 1); per-cluster rotation and mass centre; the
     skinned surface vertices; ``fault`` (non-zero after a non-finite or exploding
-    particle, the first such particle in ``fault_particle``)."""
+    particle, the first such particle in ``fault_particle``); the grasp: per particle
+the holding tool (``grasp_tool``, -1 for none) and its place in that tool's frame
+(``grasp_local`` [m]); per tool on the Python side whether its jaws are closed
+(``jaws_closed``)."""
 
     def __init__(self, model: Model):
         n = model.particle_count
@@ -36,12 +40,15 @@ class State:
         self.cluster_center = group.field(ti.f32, c, vector=3)
         self.chunk_first = group.field(ti.f32, model.chunk_total, vector=3)
         self.chunk_moment = group.field(ti.f32, model.chunk_total, matrix=(3, 3))
+        self.grasp_tool = group.field(ti.i32, n)
+        self.grasp_local = group.field(ti.f32, n, vector=3)
         self.surface_position = group.field(ti.f32, model.surface_vertex_count, vector=3)
         self.fault = group.field(ti.i32, None)
         self.fault_particle = group.field(ti.i32, None)
         group.finalize()
         self.time = 0.0
         self.frame = 0
+        self.jaws_closed = [False] * MAX_TOOLS
 
     def reset(self, model: Model):
         """Return to the rest configuration."""
@@ -59,8 +66,11 @@ class State:
         self.cluster_center.copy_from(model.cluster_rest_center)
         self.fault[None] = 0
         self.fault_particle[None] = 2**31 - 1
+        self.grasp_tool.fill(FREE)
+        self.grasp_local.fill(0.0)
         self.time = 0.0
         self.frame = 0
+        self.jaws_closed = [False] * MAX_TOOLS
 
     def positions(self) -> np.ndarray:
         """Particle positions (N, 3) [m] as a NumPy copy."""
@@ -69,4 +79,6 @@ class State:
     def snapshot(self) -> dict[str, np.ndarray]:
         """Everything that evolves, as NumPy copies (for determinism checks)."""
         return {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "goal": self.goal.to_numpy(),
-                "eta": self.eta.to_numpy(), "collided": self.collided.to_numpy()}
+                "eta": self.eta.to_numpy(), "collided": self.collided.to_numpy(),
+                "grasp_tool": self.grasp_tool.to_numpy(),
+                "grasp_local": self.grasp_local.to_numpy()}
