@@ -40,9 +40,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--headless", action="store_true", help="never open a window")
     run.add_argument("--frames", type=int, default=None, help="stop after N frames")
     run.add_argument("--out", default=None, help="headless output: .mp4, .gif or a folder of PNGs")
-    run.add_argument("--device", default="auto",
+    run.add_argument("--device", action="append", default=None,
                      help="mouse, none, openhaptics[:NAME], script:PATH, replay:RECORDING "
-                          "(default: mouse in a window, the scene's tool scripts headless)")
+                          "(default: mouse in a window, the scene's tool scripts headless); "
+                          "repeat for several at once: each mouse or openhaptics device "
+                          "drives the next tool of the scene")
     run.add_argument("--record", default=None, metavar="PATH",
                      help="append every frame's device input and every event to a new "
                           "session file (.tlap)")
@@ -130,11 +132,31 @@ def has_display() -> bool:
 
 
 def _device(args, scene, headless: bool):
+    """The device of ``--device``, or a :class:`DeviceSet` when it is given more than
+    once: each mouse or openhaptics device then drives the next tool in scene order."""
+    from taichi_lap.devices import DeviceSet
+
+    choices = args.device or ["auto"]
+    if len(choices) == 1:
+        return _one_device(choices[0], scene, headless, 0)
+    for choice in choices:
+        if choice.startswith("replay:") or choice in ("auto", "none"):
+            raise InputError("--device", choice, "devices that can share the scene (mouse, "
+                                                 "openhaptics[:NAME], script:PATH) were expected "
+                                                 "when --device is given more than once")
+    devices, next_tool = [], 0
+    for choice in choices:
+        devices.append(_one_device(choice, scene, headless, next_tool))
+        next_tool += choice == "mouse" or choice.partition(":")[0] == "openhaptics"
+    return DeviceSet(devices)
+
+
+def _one_device(choice: str, scene, headless: bool, tool: int):
+    """One device; a mouse or haptic device drives ``scene.tools[tool]``."""
     from taichi_lap.devices import MouseDevice, ScriptedDevice
     from taichi_lap.replay import ReplayDevice, read_recording
     from taichi_lap.session import scene_script
 
-    choice = args.device
     if choice == "auto":
         choice = "scene" if headless else "mouse"
     if choice.startswith("script:"):
@@ -149,25 +171,25 @@ def _device(args, scene, headless: bool):
         if headless:
             raise InputError("--device", choice, "a device that works headless (none, "
                                                  "script:PATH) was expected")
-        return MouseDevice(scene.tools[0]) if scene.tools else None
+        return MouseDevice(_tool_for(choice, scene, tool)) if scene.tools else None
     if choice == "openhaptics" or choice.startswith("openhaptics:"):
-        return _openhaptics(choice, scene)
+        from taichi_lap.haptics.bridge import openhaptics_bridge
+
+        return openhaptics_bridge(_tool_for(choice, scene, tool), choice.partition(":")[2] or None,
+                                  os.environ.get("TAICHI_LAP_LIBHD"))
     if choice == "none":
         return None
     raise InputError("--device", choice, "mouse, none, openhaptics[:NAME], script:PATH or "
                                          "replay:PATH was expected")
 
 
-def _openhaptics(choice: str, scene):
-    """The scene's first tool on an OpenHaptics device (``openhaptics:NAME`` for a named
-    one); the library is found as libHD, or at $TAICHI_LAP_LIBHD."""
-    from taichi_lap.haptics.bridge import openhaptics_bridge
-
-    if not scene.tools:
-        raise InputError(scene.source, "tools", "a tool for the haptic device was expected, "
-                                                "the scene has none")
-    name = choice.partition(":")[2] or None
-    return openhaptics_bridge(scene.tools[0], name, os.environ.get("TAICHI_LAP_LIBHD"))
+def _tool_for(choice: str, scene, index: int) -> dict:
+    """The tool a mouse or haptic device drives: the scene's tool ``index``."""
+    if index >= len(scene.tools):
+        raise InputError(scene.source, "tools", f"a tool for --device {choice} was expected "
+                                                f"(tool {index + 1} in scene order), the scene "
+                                                f"has {len(scene.tools)}")
+    return scene.tools[index]
 
 
 def _replay_settings(args, recording):

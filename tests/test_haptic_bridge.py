@@ -1,6 +1,8 @@
 """A haptic device drives the scene's tool through the servo process: the HDAPI
 binding against the fake libHD (tests/fake_hd), in the servo's own process."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -57,3 +59,84 @@ def test_missing_libhd_is_a_clear_error(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "error: --device: openhaptics: a working haptic device was expected" in err
     assert "libHD" in err and "Traceback" not in err
+
+
+def test_stylus_button_grasps_and_the_servo_feels_the_pull():
+    """Button 1 held on a grasper: the first step takes the tissue between the jaws;
+    lifting the stylus stretches the grasped edges and the servo's pull force points
+    back down to the tissue."""
+    from taichi_lap.haptics.bridge import HapticBridge
+    from taichi_lap.haptics.servo import scripted_device
+    from taichi_lap.scene import from_tables
+    from tests.test_grasp import GRASPER, HELD_BLOCK
+
+    up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # stylus +z to scene +y
+    tool = dict(GRASPER, grasp_stiffness=5.0)
+    scene = from_tables([HELD_BLOCK], tools=[tool], gravity=[0, 0, 0])
+    session = Session(scene, use_cache=False, progress=False)
+    tip = np.asarray(GRASPER["tip"])
+    device = scripted_device([(0.0, tip), (0.3, tip), (1.0, tip + [0.0, 0.015, 0.0])],
+                             rotation=up, buttons=1)
+    bridge = HapticBridge(scene.tools[0], device)
+    bridge.attach(session)
+    events, pulls = [], []
+    try:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and not (pulls and pulls[-1][1] < -1e-4):
+            now = session.state.time
+            session.step(bridge.poses(now), bridge.buttons(now))
+            events += session.events
+            feedback = bridge.servo.feedback.read()
+            pulls.append(feedback.pull_force if feedback is not None else np.zeros(3))
+    finally:
+        bridge.close()
+    assert events and events[0]["kind"] == "grasp" and events[0]["particles"] > 0
+    held = session.state.grasp_tool.to_numpy() == 0
+    assert held.sum() == events[0]["particles"]
+    assert pulls[-1][1] < -1e-4, f"no downward pull within 20 s: last {pulls[-1]}"
+    assert abs(pulls[-1][1]) > np.abs(pulls[-1][[0, 2]]).max()
+
+
+def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeypatch, capsys):
+    """Two hands: each --device openhaptics:NAME drives the next tool of the scene; the
+    recording names both and places each tool at its scene tip (the device origin)."""
+    from pathlib import Path
+
+    import taichi_lap.scenes
+    from taichi_lap.replay import read_recording
+
+    second = {"name": "probe", "kind": "probe", "tip": [0.03, 0.06, 0.0]}
+    scene = tmp_path / "two_hands.toml"
+    scene.write_text(Path(taichi_lap.scenes.__file__).with_name("rectum.toml").read_text() + "\n[[tools]]\n" + "".join(
+        f"{key} = {value!r}\n".replace("'", '"') for key, value in second.items()))
+    monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
+    record = tmp_path / "s.tlap"
+    status = main(["run", str(scene), "--headless", "--device", "openhaptics:Left Device",
+                   "--device", "openhaptics:Right Device", "--frames", "3", "--size", "64x48",
+                   "--out", str(tmp_path / "frames"), "--record", str(record),
+                   "--set", "scene.detail=0.03"])
+    assert status == 0, capsys.readouterr().err
+    recording = read_recording(str(record))
+    device = next(e for e in recording.events if e["kind"] == "device")
+    assert "openhaptics:Left Device" in device["source"]
+    assert "openhaptics:Right Device" in device["source"]
+    last = recording.frames[-1].poses
+    assert np.allclose(last["grasper"].tip, [-0.04, 0.07, 0.0], atol=1e-6)
+    assert np.allclose(last["probe"].tip, second["tip"], atol=1e-6)
+    # every servo tick of both devices is in the record, each device's in clock order
+    for name in ("grasper", "probe"):
+        ticks = [t for t in recording.ticks if name in t.poses]
+        clocks = np.array([t.clock for t in ticks])
+        assert len(ticks) > 10 and np.all(np.diff(clocks) > 0)
+        assert np.median(np.diff(clocks)) < 0.002  # about 1 kHz
+
+
+def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
+    status = main(["run", "rectum", "--headless", "--device", "openhaptics:Left Device",
+                   "--device", "openhaptics:Right Device", "--frames", "1", "--size", "64x48",
+                   "--out", str(tmp_path / "f"), "--set", "scene.detail=0.03"])
+    assert status == 2
+    err = capsys.readouterr().err
+    assert "tools: a tool for --device openhaptics:Right Device was expected (tool 2 in " \
+           "scene order), the scene has 1" in err

@@ -168,10 +168,19 @@ def test_feedback_round_trips_tool_state_and_the_tick_ring_keeps_the_latest():
         np.testing.assert_array_equal(tool.force, [0.1, 0.2, 0.3])
         assert tool.time == 1.5 and tool.max_force_sent == 0.4 and tool.missed_2ms == 2
         for i in range(20):
-            servo_side.record_tick(0.001 * i, 1e-4, 1e-5)
+            servo_side.record_tick(0.001 * i, 1e-4, 1e-5, clock=100.0 + i, tip=[0.0, i, 0.0],
+                                   direction=[0.0, 0.0, 1.0], buttons=i % 2, force=[i, 0.0, 0.0])
         history = feedback.tick_history()
         assert history["count"] == 20
         np.testing.assert_allclose(history["period"], 0.001 * np.arange(12, 20))
+        ticks, count, lost = feedback.ticks_since(15)
+        assert (count, lost) == (20, 0)
+        np.testing.assert_array_equal(ticks["clock"], 100.0 + np.arange(15, 20))
+        np.testing.assert_array_equal(ticks["tip"][:, 1], np.arange(15, 20))
+        np.testing.assert_array_equal(ticks["buttons"], np.arange(15, 20) % 2)
+        ticks, count, lost = feedback.ticks_since(5)  # the ring of 8 kept ticks 12-19
+        assert (count, lost) == (20, 7)
+        np.testing.assert_array_equal(ticks["force"][:, 0], np.arange(12, 20))
         servo_side.fifo_granted = True
         servo_side.set_state(ServoState.FAULTED, "RuntimeError: device unplugged")
         assert feedback.fifo_granted is True and feedback.state == ServoState.FAULTED

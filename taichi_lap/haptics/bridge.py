@@ -1,24 +1,34 @@
-"""A haptic device as a simulation input: the scene's first tool follows the
-graphical (non-penetrating) tool of the servo process (seed 002 §3.4).
+"""A haptic device as a simulation input: a scene tool follows the graphical
+(non-penetrating) tool of the servo process (seed 002 §3.4).
 
 The simulation publishes its surface every frame (``poses`` is called once per
 frame before the step); the servo process runs the proxy at 1 kHz and writes the
-graphical tool pose back. The tool's shaft is the stylus's +z axis, as in
-OpenHaptics, mapped into the scene by the device's :class:`WorkspaceMapping`.
+graphical tool pose and the stylus buttons back. The tool's shaft is the stylus's
++z axis, as in OpenHaptics, mapped into the scene by the device's
+:class:`WorkspaceMapping`. While the tool's jaws hold particles, the published
+snapshot carries their edges to free neighbours (the grasped end in the stylus
+frame), from which the servo adds the pull force of Hooke's law.
 """
 
 from __future__ import annotations
 
 import functools
+import logging
 
 import numpy as np
 
 from taichi_lap.devices import Pose
 from taichi_lap.errors import InputError
 from taichi_lap.haptics.device import WorkspaceMapping
-from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, ToolCapsule
+from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, ToolCapsule, grasp_edges
 from taichi_lap.haptics.servo import ServoProcess, ServoSettings
 from taichi_lap.haptics.snapshot import SceneSnapshot
+
+
+log = logging.getLogger("taichi_lap.haptics")
+
+GRASP_EDGE_CAPACITY = 4096
+"""Grasp edges one snapshot carries to the servo."""
 
 
 class HapticBridge:
@@ -28,34 +38,75 @@ class HapticBridge:
     def __init__(self, tool: dict, device_factory, *, label: str = "haptic device",
                  settings: ServoSettings = ServoSettings()):
         self.name, self.device_label = tool["name"], label
+        self.source = label  # what the session record names
         self.capsule = ToolCapsule(length=tool["length"], radius=tool["radius"])
+        self.grasp_stiffness = tool["grasp_stiffness"]
         self._factory, self._settings = device_factory, settings
-        self.session = self.surface = self.snapshot = self.servo = None
+        self.session = self.surface = self.snapshot = self.servo = self.feedback = None
+        self.tool_index = -1
+        self._ticks_seen = 0
 
     def attach(self, session):
         """Start the servo for ``session``: publish its surface, then open the device."""
         self.session = session
+        self.tool_index = [tool["name"] for tool in session.scene.tools].index(self.name)
         self.surface = SurfaceClusters(session.data)
         self.snapshot = SceneSnapshot.create(clusters=self.surface.cluster_count,
-                                             particles=self.surface.particle_count)
+                                             particles=self.surface.particle_count,
+                                             grasp_edges=GRASP_EDGE_CAPACITY)
         self.surface.publish(self.snapshot, session.state.x.to_numpy())
         try:
-            self.servo = ServoProcess(self.snapshot.name, self._factory,
-                                      ProxySettings(self.capsule), self._settings).start()
+            proxy = ProxySettings(self.capsule, grasp_stiffness=self.grasp_stiffness)
+            self.servo = ServoProcess(self.snapshot.name, self._factory, proxy,
+                                      self._settings).start()
         except RuntimeError as exc:
             self.snapshot.close()
             raise InputError("--device", self.device_label, f"a working haptic device was "
                                                             f"expected: {exc}") from None
 
     def poses(self, time: float) -> dict[str, Pose]:
-        """Publish the current surface; the tool at the servo's graphical pose."""
-        self.surface.publish(self.snapshot, self.session.state.x.to_numpy())
-        feedback = self.servo.feedback.read()
-        if feedback is None:
+        """Publish the current surface and grasp; the tool at the servo's graphical pose."""
+        state = self.session.state
+        x = state.x.to_numpy()
+        self.surface.publish(self.snapshot, x, **self._grasp(x, state.grasp_tool.to_numpy()))
+        self.feedback = self.servo.feedback.read()
+        if self.feedback is None:
             return {}
-        pose = feedback.graphic_pose
+        pose = self.feedback.graphic_pose
         direction = pose[:3, :3] @ np.asarray(self.capsule.axis)
         return {self.name: Pose(tip=pose[:3, 3].copy(), direction=direction)}
+
+    def buttons(self, time: float) -> dict[str, int]:
+        """The stylus buttons of the servo tick :meth:`poses` read."""
+        return {self.name: self.feedback.buttons if self.feedback is not None else 0}
+
+    def drain_ticks(self) -> list[tuple[float, dict]]:
+        """The servo ticks since the last call, oldest first, each as ``(clock, {tool:
+        (pose, buttons, force)})`` for :meth:`RecordStream.tick`."""
+        ticks, self._ticks_seen, lost = self.servo.feedback.ticks_since(self._ticks_seen)
+        if lost:
+            log.warning("%d servo ticks of %s were overwritten before they were recorded",
+                        lost, self.device_label)
+        return [(float(clock), {self.name: (Pose(tip, direction), int(buttons), force)})
+                for clock, tip, direction, buttons, force in
+                zip(ticks["clock"], ticks["tip"], ticks["direction"], ticks["buttons"],
+                    ticks["force"])]
+
+    def _grasp(self, x: np.ndarray, holder: np.ndarray) -> dict:
+        """The grasp edges of the particles this tool holds (at most the snapshot's
+        capacity, nearest the tip first), the grasped end in the stylus frame."""
+        grasped = np.flatnonzero(holder == self.tool_index)
+        if self.feedback is None or not len(grasped):
+            return {}
+        data = self.session.data
+        edges = grasp_edges(data.tets, grasped, data.distance_pair)
+        pose = self.feedback.graphic_pose
+        local = (x[edges[:, 0]] - pose[:3, 3]) @ pose[:3, :3]
+        order = np.argsort(np.linalg.norm(local, axis=1), kind="stable")[:GRASP_EDGE_CAPACITY]
+        rest = data.rest_position
+        return {"grasp_local": local[order], "grasp_neighbor": x[edges[order, 1]],
+                "grasp_rest": np.linalg.norm(rest[edges[order, 1]] - rest[edges[order, 0]],
+                                             axis=1)}
 
     def close(self):
         """Stop the servo (zero force first), then free the shared memory."""

@@ -1,6 +1,7 @@
 """The servo's feedback region (servo → simulation, 1 kHz; seed 002 §3.4): haptic and
 graphical tool poses, buttons, forces, counters, the servo state and a ring of
-per-tick times, behind the two-slot seqlock of :mod:`taichi_lap.haptics.snapshot`."""
+ticks (times, device pose, buttons, force sent), behind the two-slot seqlock of
+:mod:`taichi_lap.haptics.snapshot`."""
 
 from __future__ import annotations
 
@@ -62,18 +63,25 @@ _FEEDBACK_FIELDS = [("ints", np.int64, (len(_INT_FIELDS),)),
 CAPACITY_WORD, STATE_WORD, FIFO_WORD, RING_WORD, MESSAGE_WORD = 2, 3, 4, 5, 6
 
 
+RING_TIMES = ("period", "compute", "qp")
+RING_INPUT = ("clock", "tip", "direction", "buttons", "force")
+
+
 def _ring_fields(ticks: int):
-    return [("period", np.float64, (ticks,)), ("compute", np.float64, (ticks,)),
-            ("qp", np.float64, (ticks,)), ("message", np.uint8, (MESSAGE_BYTES,))]
+    return [(name, np.float64, (ticks,)) for name in RING_TIMES + ("clock",)] + \
+        [("tip", np.float64, (ticks, 3)), ("direction", np.float64, (ticks, 3)),
+         ("buttons", np.int64, (ticks,)), ("force", np.float64, (ticks, 3)),
+         ("message", np.uint8, (MESSAGE_BYTES,))]
 
 
 class ServoFeedback:
     """The feedback region (one writer: the servo process).
 
-    Tool state goes through two seqlock slots (:meth:`write`, :meth:`read`); per-tick
-    period, compute and QP times [s] go into a ring of ``ticks`` entries
-    (:meth:`record_tick`, :meth:`tick_history`); the servo state, whether SCHED_FIFO
-    was granted and a fault message are single words.
+    Tool state goes through two seqlock slots (:meth:`write`, :meth:`read`); every
+    tick's period, compute and QP times [s], clock [s], device tip [m] and shaft
+    direction, buttons and force sent [N] go into a ring of ``ticks`` entries
+    (:meth:`record_tick`; read with :meth:`tick_history` and :meth:`ticks_since`); the
+    servo state, whether SCHED_FIFO was granted and a fault message are single words.
     """
 
     def __init__(self, region: _Region):
@@ -120,22 +128,39 @@ class ServoFeedback:
         return ToolFeedback(**{k: int(v) for k, v in zip(_INT_FIELDS, ints)},
                             **{k: float(v) for k, v in zip(_FLOAT_FIELDS, floats)}, **out)
 
-    def record_tick(self, period: float, compute: float, qp: float):
-        """Append one tick's period, compute time and QP time [s] to the ring."""
+    def record_tick(self, period: float, compute: float, qp: float, *, clock: float, tip,
+                    direction, buttons: int, force):
+        """Append one tick to the ring: its period, compute time and QP time [s], its
+        ``clock`` [s] (``time.monotonic()``), the device's ``tip`` [m] and shaft
+        ``direction``, ``buttons`` and the ``force`` sent [N]. The count is published
+        after the entry, so a reader never sees a half-written tick."""
         count = int(self._header[RING_WORD])
         i = count % self.ticks_capacity
         extra = self._region.extra
         extra["period"][i], extra["compute"][i], extra["qp"][i] = period, compute, qp
+        extra["clock"][i], extra["buttons"][i] = clock, buttons
+        extra["tip"][i], extra["direction"][i], extra["force"][i] = tip, direction, force
         self._header[RING_WORD] = count + 1
+
+    def _ring(self, names, begin: int, count: int) -> dict[str, np.ndarray]:
+        order = np.arange(begin, count) % self.ticks_capacity
+        return {k: self._region.extra[k][order] for k in names}
 
     def tick_history(self) -> dict[str, np.ndarray]:
         """The ring's ``period``, ``compute`` and ``qp`` times [s], oldest first, and
         ``count``: ticks recorded in all (the ring keeps the last ``ticks``)."""
         count = int(self._header[RING_WORD])
-        order = np.arange(count - min(count, self.ticks_capacity), count) % self.ticks_capacity
-        out = {k: self._region.extra[k][order] for k in ("period", "compute", "qp")}
+        out = self._ring(RING_TIMES, count - min(count, self.ticks_capacity), count)
         out["count"] = count
         return out
+
+    def ticks_since(self, seen: int) -> tuple[dict[str, np.ndarray], int, int]:
+        """The device input of the ticks after the first ``seen`` (``clock``, ``tip``,
+        ``direction``, ``buttons``, ``force``, oldest first), the new count, and how
+        many of those ticks the ring no longer holds."""
+        count = int(self._header[RING_WORD])
+        begin = max(seen, count - self.ticks_capacity)
+        return self._ring(RING_INPUT, begin, count), count, begin - seen
 
     @property
     def state(self) -> ServoState:

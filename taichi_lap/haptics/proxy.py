@@ -170,13 +170,18 @@ def pull_force(grasped: np.ndarray, neighbor: np.ndarray, rest: np.ndarray,
     return stiffness * (scale[:, None] * e).sum(axis=0)
 
 
-def grasp_edges(tets: np.ndarray, grasped: np.ndarray) -> np.ndarray:
-    """Unique tet edges (E, 2) from a grasped particle (column 0) to a neighbour that is
-    not grasped (column 1); ``tets`` (T, 4) and ``grasped`` are particle indices."""
-    tets = np.asarray(tets, dtype=np.int64)
-    pairs = tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1)
-    pairs = np.concatenate([pairs.reshape(-1, 2), pairs.reshape(-1, 2)[:, ::-1]])
-    mark = np.zeros(int(tets.max(initial=-1)) + 1, dtype=bool)
+def grasp_edges(tets: np.ndarray, grasped: np.ndarray, pairs: np.ndarray | None = None) \
+        -> np.ndarray:
+    """Unique edges (E, 2) from a grasped particle (column 0) to a neighbour that is
+    not grasped (column 1): the edges of ``tets`` (T, 4) and the ``pairs`` (P, 2) of
+    organs without tets (struts, sheet edges); all are particle indices."""
+    tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
+    pairs = np.concatenate([tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6)
+                            .transpose(0, 2, 1).reshape(-1, 2),
+                            np.asarray(pairs if pairs is not None else np.zeros((0, 2)),
+                                       dtype=np.int64).reshape(-1, 2)])
+    pairs = np.concatenate([pairs, pairs[:, ::-1]])
+    mark = np.zeros(int(pairs.max(initial=-1)) + 1, dtype=bool)
     grasped = np.asarray(grasped, dtype=np.int64)
     mark[grasped[grasped < len(mark)]] = True
     keep = mark[pairs[:, 0]] & ~mark[pairs[:, 1]]

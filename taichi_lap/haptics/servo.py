@@ -11,7 +11,8 @@ simulation: :class:`ServoProcess` runs it in a child process started with the
    watches the snapshot's timestamp: older than 100 ms fades to zero in 50 ms),
 5. sends it to the device,
 6. writes poses, forces and counters back (:class:`~taichi_lap.haptics.feedback.ServoFeedback`)
-   and records the tick's period and compute time in the feedback ring.
+   and records the tick in the feedback ring: period, compute time, device pose,
+   buttons and the force sent (the simulation appends these to a session record).
 
 Timing: the process asks for SCHED_FIFO (priority 80) and warns once when refused;
 it sleeps until ~300 µs before each deadline and busy-waits the rest; the garbage
@@ -159,6 +160,8 @@ class _Servo:
         self.tick = self.missed = self.fallbacks = self.failures = self.buttons = 0
         self.max_sent = 0.0
         self.haptic = np.eye(4)  # the last device pose [m]
+        self.force = np.zeros(3)  # the last force sent [N]
+        self.axis = np.asarray(proxy.tool.axis, dtype=np.float64)
         self.terminated = False  # set by SIGTERM
 
     def on_signal(self, signum, _frame):
@@ -182,7 +185,10 @@ class _Servo:
                 if self.tick == 1:
                     ready.set()
                 self.missed += start - previous > late
-                self.feedback.record_tick(start - previous, time.monotonic() - start, qp)
+                self.feedback.record_tick(
+                    start - previous, time.monotonic() - start, qp, clock=start,
+                    tip=self.haptic[:3, 3], direction=self.haptic[:3, :3] @ self.axis,
+                    buttons=self.buttons, force=self.force)
                 previous = start
                 deadline += period
                 now = time.monotonic()
@@ -202,6 +208,7 @@ class _Servo:
         stamp = -math.inf if scene is None else scene.timestamp
         force = self.safety.filter(result.contact_force + result.pull_force, now, stamp)
         self.device.set_force(force, snapshot_time=stamp)
+        self.force = force
         self.fallbacks += result.status == ProxyStatus.RELAXED
         self.failures += result.status == ProxyStatus.HELD
         self.max_sent = max(self.max_sent, float(np.linalg.norm(force)))
@@ -224,7 +231,7 @@ class _Servo:
         """Stop force output: latch the safety filter, send zero, then record it."""
         self.safety.fault()
         self.device.set_force(np.zeros(3), snapshot_time=time.monotonic())
-        zero = np.zeros(3)
+        self.force = zero = np.zeros(3)
         self.write(self.haptic, self.haptic, self.buttons, zero, zero, zero, 0,
                    int(ProxyStatus.FREE), -1)
 
