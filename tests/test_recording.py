@@ -218,3 +218,20 @@ def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scen
     assert last.buttons == {"probe": 1}
     np.testing.assert_array_equal(last.forces["probe"], force.astype(np.float32))
     np.testing.assert_array_equal(last.poses["probe"].tip, np.float32([0.0, 0.02, 0.0]))
+
+
+def test_a_grasping_session_replays_to_the_same_state(tmp_path, capsys):
+    """The rectum scene's script closes the grasper on the wall at 0.9 s: the grasp is
+    an event of the record, and the replay (poses and buttons) ends in the same state."""
+    path, frames = tmp_path / "grasp.tlap", 58
+    run = ["run", "rectum", "--headless", "--size", "64x48", *SMALL, "--set",
+           "scene.collision=off"]
+    status, _, err = run_cli(capsys, *run, "--frames", str(frames), "--out",
+                             str(tmp_path / "a"), "--record", str(path))
+    assert status == 0, err
+    grasps = [e for e in read_recording(path).events if e["kind"] == "grasp"]
+    assert len(grasps) == 1 and grasps[0]["tool"] == "grasper" and grasps[0]["particles"] > 0
+    status, out, err = run_cli(capsys, *run, "--out", str(tmp_path / "b"), "--device",
+                               f"replay:{path}")
+    assert status == 0, err
+    assert f"after {frames} frames" in out
