@@ -133,26 +133,26 @@ def has_display() -> bool:
 
 def _device(args, scene, headless: bool):
     """The device of ``--device``, or a :class:`DeviceSet` when it is given more than
-    once: each mouse or openhaptics device then drives the next tool in scene order."""
+    once. A mouse or openhaptics device drives the tool whose ``device`` key names it,
+    else the first tool no other device drives."""
     from taichi_lap.devices import DeviceSet
 
     choices = args.device or ["auto"]
     if len(choices) == 1:
-        return _one_device(choices[0], scene, headless, 0)
+        return _one_device(choices[0], scene, headless, set())
     for choice in choices:
         if choice.startswith("replay:") or choice in ("auto", "none"):
             raise InputError("--device", choice, "devices that can share the scene (mouse, "
                                                  "openhaptics[:NAME], script:PATH) were expected "
                                                  "when --device is given more than once")
-    devices, next_tool = [], 0
+    devices, taken = [], set()
     for choice in choices:
-        devices.append(_one_device(choice, scene, headless, next_tool))
-        next_tool += choice == "mouse" or choice.partition(":")[0] == "openhaptics"
+        devices.append(_one_device(choice, scene, headless, taken))
     return DeviceSet(devices)
 
 
-def _one_device(choice: str, scene, headless: bool, tool: int):
-    """One device; a mouse or haptic device drives ``scene.tools[tool]``."""
+def _one_device(choice: str, scene, headless: bool, taken: set[int]):
+    """One device; a mouse or haptic device drives a tool not in ``taken`` (then added)."""
     from taichi_lap.devices import MouseDevice, ScriptedDevice
     from taichi_lap.replay import ReplayDevice, read_recording
     from taichi_lap.session import scene_script
@@ -171,11 +171,11 @@ def _one_device(choice: str, scene, headless: bool, tool: int):
         if headless:
             raise InputError("--device", choice, "a device that works headless (none, "
                                                  "script:PATH) was expected")
-        return MouseDevice(_tool_for(choice, scene, tool)) if scene.tools else None
+        return MouseDevice(_tool_for(choice, scene, taken)) if scene.tools else None
     if choice == "openhaptics" or choice.startswith("openhaptics:"):
         from taichi_lap.haptics.bridge import openhaptics_bridge
 
-        return openhaptics_bridge(_tool_for(choice, scene, tool), choice.partition(":")[2] or None,
+        return openhaptics_bridge(_tool_for(choice, scene, taken), choice.partition(":")[2] or None,
                                   os.environ.get("TAICHI_LAP_LIBHD"))
     if choice == "none":
         return None
@@ -183,13 +183,20 @@ def _one_device(choice: str, scene, headless: bool, tool: int):
                                          "replay:PATH was expected")
 
 
-def _tool_for(choice: str, scene, index: int) -> dict:
-    """The tool a mouse or haptic device drives: the scene's tool ``index``."""
-    if index >= len(scene.tools):
+def _tool_for(choice: str, scene, taken: set[int]) -> dict:
+    """The tool a mouse or haptic device drives: the one whose ``device`` key is
+    ``choice``, else the first one free of both ``taken`` and a ``device`` key."""
+    tools = scene.tools
+    bound = [k for k, tool in enumerate(tools) if tool["device"] == choice and k not in taken]
+    free = [k for k, tool in enumerate(tools) if not tool["device"] and k not in taken]
+    if not bound and not free:
         raise InputError(scene.source, "tools", f"a tool for --device {choice} was expected "
-                                                f"(tool {index + 1} in scene order), the scene "
-                                                f"has {len(scene.tools)}")
-    return scene.tools[index]
+                                                f"(one whose device is {choice!r} or one with no "
+                                                f"device), the scene has {len(tools)} and other "
+                                                f"devices drive {len(taken)}")
+    index = (bound or free)[0]
+    taken.add(index)
+    return tools[index]
 
 
 def _replay_settings(args, recording):

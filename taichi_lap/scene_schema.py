@@ -70,6 +70,8 @@ TOOL_PARAMS = {
     "workspace_scale": Param("float", 0.001, "haptic device: scene metres per device "
                                              "millimetre; the device origin maps to the tip",
                              lo=1e-6, hi=1.0, unit="m/mm"),
+    "device": Param("str", "", "the device that drives this tool (mouse, openhaptics or "
+                               "openhaptics:NAME); other tools take the devices left, in order"),
     "grasp_stiffness": Param("float", 0.001, "haptic device: k of the grasp pull force, Hooke's "
                                              "law over the grasped tet edges (seed 002 §3.4)",
                              lo=0.0, hi=1e4, unit="N/m"),

@@ -98,14 +98,16 @@ def test_stylus_button_grasps_and_the_servo_feels_the_pull():
 
 
 def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeypatch, capsys):
-    """Two hands: each --device openhaptics:NAME drives the next tool of the scene; the
-    recording names both and places each tool at its scene tip (the device origin)."""
+    """Two hands: the probe's `device` key binds it to the left device, so the right
+    one takes the free tool (the grasper); the recording names both devices, places each
+    tool at its scene tip (the device origin) and holds every servo tick."""
     from pathlib import Path
 
     import taichi_lap.scenes
     from taichi_lap.replay import read_recording
 
-    second = {"name": "probe", "kind": "probe", "tip": [0.03, 0.06, 0.0]}
+    second = {"name": "probe", "kind": "probe", "tip": [0.03, 0.06, 0.0],
+              "device": "openhaptics:Left Device"}
     scene = tmp_path / "two_hands.toml"
     scene.write_text(Path(taichi_lap.scenes.__file__).with_name("rectum.toml").read_text() + "\n[[tools]]\n" + "".join(
         f"{key} = {value!r}\n".replace("'", '"') for key, value in second.items()))
@@ -120,6 +122,9 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
     device = next(e for e in recording.events if e["kind"] == "device")
     assert "openhaptics:Left Device" in device["source"]
     assert "openhaptics:Right Device" in device["source"]
+    right_first = [t for t in recording.ticks if "grasper" in t.poses][0].clock
+    left_first = [t for t in recording.ticks if "probe" in t.poses][0].clock
+    assert left_first < right_first  # the left device was opened first, for the probe
     last = recording.frames[-1].poses
     assert np.allclose(last["grasper"].tip, [-0.04, 0.07, 0.0], atol=1e-6)
     assert np.allclose(last["probe"].tip, second["tip"], atol=1e-6)
@@ -138,5 +143,6 @@ def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, t
                    "--out", str(tmp_path / "f"), "--set", "scene.detail=0.03"])
     assert status == 2
     err = capsys.readouterr().err
-    assert "tools: a tool for --device openhaptics:Right Device was expected (tool 2 in " \
-           "scene order), the scene has 1" in err
+    assert "tools: a tool for --device openhaptics:Right Device was expected (one whose " \
+           "device is 'openhaptics:Right Device' or one with no device), the scene has 1 and " \
+           "other devices drive 1" in err
