@@ -31,23 +31,37 @@ def closest_on_segment(a, b, q):
 
 
 @ti.func
+def push_out_of_capsule(a, b, reach, p):
+    """``p`` moved to distance ``reach`` from the segment ``a``-``b`` when closer, and 1
+    when it was moved."""
+    hit = 0
+    c = closest_on_segment(a, b, p)
+    d = p - c
+    dist = d.norm()
+    if dist < reach:
+        normal = ti.Vector([0.0, 1.0, 0.0])
+        if dist > 1e-9:
+            normal = d / dist
+        p = c + normal * reach
+        hit = 1
+    return p, hit
+
+
+@ti.func
 def push_out_of_tools(control: ti.template(), p, r):
-    """Move a particle at ``p`` [m] of radius ``r`` [m] out of every active tool
-    capsule. Returns the new position and 1 when a tool touched it."""
+    """Move a particle at ``p`` [m] of radius ``r`` [m] out of every active tool: the
+    jaws' capsule ahead of the tip (graspers, scissors), then the shaft's. Returns the
+    new position and 1 when a tool touched it."""
     hit = 0
     for k in ti.static(range(MAX_TOOLS)):
         if control.tool_active[k]:
-            a, b = control.tool_a[k], control.tool_b[k]
-            c = closest_on_segment(a, b, p)
-            reach = control.tool_radius[k] + r
-            d = p - c
-            dist = d.norm()
-            if dist < reach:
-                normal = ti.Vector([0.0, 1.0, 0.0])
-                if dist > 1e-9:
-                    normal = d / dist
-                p = c + normal * reach
-                hit = 1
+            a = control.tool_a[k]
+            if control.tool_jaw_radius[k] > 0.0:
+                p, jaws = push_out_of_capsule(control.tool_jaw[k], a,
+                                              control.tool_jaw_radius[k] + r, p)
+                hit |= jaws
+            p, shaft = push_out_of_capsule(a, control.tool_b[k], control.tool_radius[k] + r, p)
+            hit |= shaft
     return p, hit
 
 

@@ -88,7 +88,8 @@ def rows(case: str, params: dict, samples: dict) -> list[dict]:
 def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     from taichi_lap.devices import Pose
     from taichi_lap.haptics import (ProxySettings, SceneSnapshot, ServoProcess, ServoSettings,
-                                    SurfaceClusters, ToolCapsule)
+                                    SurfaceClusters)
+    from taichi_lap.haptics.bridge import tool_capsule
     from taichi_lap.haptics.servo import scripted_device
 
     tool = session.scene.tools[0]
@@ -100,7 +101,7 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     direction = np.asarray(tool["direction"], dtype=np.float64)
     rotation = rotation_towards(direction)
     device = scripted_device(press_path(x[surface.particles]), rotation=rotation, loop=True)
-    capsule = ToolCapsule(length=float(tool["length"]), radius=float(tool["radius"]))
+    capsule = tool_capsule(tool)
     settings = ServoSettings(ticks=int(duration * 1000 * 1.5) + 10_000)
     frame_ms, publish_ms, contact_ticks = [], [], 0
     try:

@@ -33,7 +33,7 @@ import numpy as np
 from taichi_lap.errors import InputError
 from taichi_lap.schema import REQUIRED, check_table
 from taichi_lap.scenes.anatomy.params import Param
-from taichi_lap.sim.control import JAW_LENGTH, MAX_TOOLS, Control
+from taichi_lap.sim.control import JAW_KINDS, JAW_LENGTH, MAX_TOOLS, Control
 
 KEYFRAME_PARAMS = {
     "time": Param("float", REQUIRED, "time of the keyframe", lo=0.0, hi=1e6, unit="s"),
@@ -193,17 +193,17 @@ def applied_poses(tools: list[dict], poses: dict[str, Pose]) -> dict[str, Pose]:
 def apply_poses(control: Control, tools: list[dict], poses: dict[str, Pose],
                 buttons: dict[str, int] | None = None):
     """Write each tool's capsule (tip to tip + length·direction) into ``control``;
-    a tool no device drives keeps its scene pose. A grasper's jaws are closed while
-    its ``GRASP_BUTTON`` is pressed."""
+    a tool no device drives keeps its scene pose. Graspers and scissors have jaws; a
+    grasper's are closed while its ``GRASP_BUTTON`` is pressed."""
     placed = applied_poses(tools, poses)
     buttons = buttons or {}
     for index, tool in enumerate(tools[:MAX_TOOLS]):
         pose = placed[tool["name"]]
-        grasper = tool["kind"] == "grasper"
+        jaws = tool["kind"] in JAW_KINDS
         control.set_tool(index, pose.tip, pose.tip + tool["length"] * pose.direction,
-                         tool["radius"], grasp=grasper and bool(buttons.get(tool["name"], 0)
-                                                                & GRASP_BUTTON),
-                         jaw_length=JAW_LENGTH * tool["radius"] if grasper else 0.0)
+                         tool["radius"], grasp=tool["kind"] == "grasper" and bool(
+                             buttons.get(tool["name"], 0) & GRASP_BUTTON),
+                         jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0)
 
 
 class DeviceSet:

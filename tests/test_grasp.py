@@ -8,13 +8,15 @@ from taichi_lap.devices import GRASP_BUTTON, MouseDevice, ScriptedDevice
 from taichi_lap.kernels.contact import FREE
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
+from taichi_lap.sim.control import JAW_LENGTH, JAW_RADIUS
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX
 
 TOP = BOX["geometry"]["half_extents"][1]
 RADIUS = 0.003
 GRASPER = {"name": "forceps", "kind": "grasper", "radius": RADIUS, "length": 0.1,
-           "tip": [0.0, TOP + RADIUS, 0.0], "direction": [0.0, 1.0, 0.0]}
+           "tip": [0.0, TOP + (JAW_LENGTH - 0.5) * RADIUS, 0.0], "direction": [0.0, 1.0, 0.0]}
+"""Upright, its jaws pressing half a shaft radius into the block's top."""
 HELD_BLOCK = dict(BOX, attachments=[{"kind": "fixed", "box_min": [-1, -1, -1],
                                      "box_max": [1, -TOP + 0.001, 1]}])
 LIFT = 0.015
@@ -116,3 +118,25 @@ def test_mouse_grasp_key_toggles_the_jaws_once_per_press():
         mouse.toggle_grasp(key_down)
         pressed.append(mouse.buttons(0.0)["forceps"])
     assert pressed == [0, GRASP_BUTTON, GRASP_BUTTON, GRASP_BUTTON, 0, 0]
+
+
+def test_jaws_collide_as_a_second_capsule_ahead_of_the_tip():
+    """A grasper held with its tip two radii above the block pushes the particles out of
+    its jaws' capsule (which reaches two radii into the block); a probe at the same pose,
+    a capsule of the shaft alone, leaves particles there."""
+    tip = np.array([0.0, TOP + 2.0 * RADIUS, 0.0])
+    jaw_end = tip - [0.0, JAW_LENGTH * RADIUS, 0.0]
+    clearance = {}
+    for kind in ("grasper", "probe"):
+        tool = dict(GRASPER, kind=kind, tip=list(tip))
+        session = Session(from_tables([HELD_BLOCK], tools=[tool], gravity=[0, 0, 0]),
+                          use_cache=False, progress=False)
+        for _ in range(10):
+            session.step()
+        x = session.state.x.to_numpy()
+        along = np.clip((x[:, 1] - jaw_end[1]) / (tip[1] - jaw_end[1]), 0.0, 1.0)
+        axis_point = jaw_end + along[:, None] * (tip - jaw_end)
+        distance = np.linalg.norm(x - axis_point, axis=1)
+        clearance[kind] = (distance - JAW_RADIUS * RADIUS - session.data.radius).min()
+    assert clearance["grasper"] > -1e-5
+    assert clearance["probe"] < -0.5 * RADIUS

@@ -203,3 +203,16 @@ def test_surface_clusters_bound_their_particles_and_the_proxy_touches_them(box_d
         assert np.all(np.sqrt(d2) >= r - 1e-6)
     finally:
         snapshot.close()
+
+
+def test_jaws_keep_the_graphical_tool_off_particles_ahead_of_the_tip():
+    """A grasper's jaws reach ahead of its tip: pushed down onto the plane, the proxy
+    stops where the jaws' capsule touches, not where the shaft's tip would."""
+    jaws = ToolCapsule(length=0.05, radius=0.003, jaw_length=0.012, jaw_radius=0.002)
+    proxy = HapticProxy(ProxySettings(jaws, gain=GAIN))
+    result = descend(proxy, scene_of(plane()), 0.0, 0.0, 0.03, 0.005)  # the shaft's tip
+    jaw_end = result.graphic_position[1] - jaws.jaw_length            # stays 5 mm up
+    assert jaw_end - jaws.jaw_radius > PARTICLE_RADIUS - 1e-5
+    assert result.graphic_position[1] > 0.005 + 0.008
+    assert result.status == ProxyStatus.CONTACT
+    assert result.contact_force[1] > 0.0  # pushes the stylus back up

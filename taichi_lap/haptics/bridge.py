@@ -21,6 +21,7 @@ from taichi_lap.devices import Pose
 from taichi_lap.errors import InputError
 from taichi_lap.haptics.device import WorkspaceMapping
 from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, ToolCapsule, grasp_edges
+from taichi_lap.sim.control import JAW_KINDS, JAW_LENGTH, JAW_RADIUS
 from taichi_lap.haptics.servo import ServoProcess, ServoSettings
 from taichi_lap.haptics.snapshot import SceneSnapshot
 
@@ -31,6 +32,15 @@ GRASP_EDGE_CAPACITY = 4096
 """Grasp edges one snapshot carries to the servo."""
 
 
+def tool_capsule(tool: dict) -> ToolCapsule:
+    """The proxy's shape of a scene tool: its shaft, and its jaws when it has them (as
+    the simulation's contacts, :class:`~taichi_lap.sim.control.Control`)."""
+    jaws = tool["kind"] in JAW_KINDS
+    return ToolCapsule(length=tool["length"], radius=tool["radius"],
+                       jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0,
+                       jaw_radius=JAW_RADIUS * tool["radius"] if jaws else 0.0)
+
+
 class HapticBridge:
     """Drives ``tool`` (a scene tool table) from the device ``device_factory``
     (a picklable callable opening a :class:`HapticDevice` in the servo process)."""
@@ -39,7 +49,7 @@ class HapticBridge:
                  settings: ServoSettings = ServoSettings()):
         self.name, self.device_label = tool["name"], label
         self.source = label  # what the session record names
-        self.capsule = ToolCapsule(length=tool["length"], radius=tool["radius"])
+        self.capsule = tool_capsule(tool)
         self.grasp_stiffness = tool["grasp_stiffness"]
         self._factory, self._settings = device_factory, settings
         self.session = self.surface = self.snapshot = self.servo = self.feedback = None

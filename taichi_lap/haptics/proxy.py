@@ -71,15 +71,20 @@ def _positive(owner: str, name: str, value, allow_zero: bool = False) -> float:
 class ToolCapsule:
     """The tool shaft: a segment from the tip (the pose's origin) ``length`` [m] along
     ``axis`` (tool frame, tip towards handle; the stylus +z in OpenHaptics), swept by
-    a sphere of ``radius`` [m]."""
+    a sphere of ``radius`` [m]; graspers and scissors add their closed jaws, a segment
+    ``jaw_length`` [m] ahead of the tip swept by ``jaw_radius`` [m]."""
 
     length: float
     radius: float
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    jaw_length: float = 0.0
+    jaw_radius: float = 0.0
 
     def __post_init__(self):
         _positive("ToolCapsule", "length", self.length, allow_zero=True)
         _positive("ToolCapsule", "radius", self.radius)
+        _positive("ToolCapsule", "jaw_length", self.jaw_length, allow_zero=True)
+        _positive("ToolCapsule", "jaw_radius", self.jaw_radius, allow_zero=True)
         axis = np.asarray(self.axis, dtype=np.float64)
         if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9:
             raise ValueError(f"ToolCapsule.axis: a non-zero 3-vector was expected, found "
@@ -144,6 +149,22 @@ def capsule_distance_sq(points: np.ndarray, tip: np.ndarray, axis: np.ndarray,
     offset = np.multiply.outer(s, axis)
     offset -= w
     return np.einsum("ij,ij->i", offset, offset), offset
+
+
+def tool_gap(tool: ToolCapsule, points: np.ndarray, tip: np.ndarray, axis: np.ndarray) \
+        -> tuple[np.ndarray, np.ndarray]:
+    """Distances [m] of ``points`` (n, 3) from the surface of ``tool`` at ``tip`` with the
+    unit shaft ``axis`` (the nearer of shaft and jaws; negative inside), and the vectors
+    from each point to the closest axis point of that part (n, 3) [m]."""
+    d2, offset = capsule_distance_sq(points, tip, axis, tool.length)
+    gap = np.sqrt(d2) - tool.radius
+    if tool.jaw_length > 0.0:
+        jaw_d2, jaw_offset = capsule_distance_sq(points, tip - tool.jaw_length * axis, axis,
+                                                 tool.jaw_length)
+        jaw_gap = np.sqrt(jaw_d2) - tool.jaw_radius
+        nearer = jaw_gap < gap
+        gap[nearer], offset[nearer] = jaw_gap[nearer], jaw_offset[nearer]
+    return gap, offset
 
 
 def ranges(start: np.ndarray, which: np.ndarray) -> np.ndarray:
@@ -235,22 +256,21 @@ class HapticProxy:
         """Indices of the particles within contact (plus the margin) of the capsule at
         ``q_p``: capsule-sphere tests on the clusters, then capsule-particle tests on
         the particles of the clusters hit."""
-        tool = self.settings.tool
-        reach = tool.radius + self.settings.contact_margin
-        d2, _ = capsule_distance_sq(scene.cluster_center, q_p, axis, tool.length)
-        hit = np.flatnonzero(d2 < (scene.cluster_radius + reach) ** 2)
+        tool, margin = self.settings.tool, self.settings.contact_margin
+        gap, _ = tool_gap(tool, scene.cluster_center, q_p, axis)
+        hit = np.flatnonzero(gap < scene.cluster_radius + margin)
         if not len(hit):
             return hit
         candidates = ranges(scene.cluster_start, hit)
         points = scene.particle_position[candidates].astype(np.float64)
-        d2, _ = capsule_distance_sq(points, q_p, axis, tool.length)
-        return candidates[d2 < (scene.particle_radius[candidates] + reach) ** 2]
+        gap, _ = tool_gap(tool, points, q_p, axis)
+        return candidates[gap < scene.particle_radius[candidates] + margin]
 
     def _solve(self, q_h, q_prev, axis, scene, found):
         """The QP in Δ = q - q_g(t-1): min ½ (Δ - e)ᵀ K (Δ - e), nᵢᵀ Δ ≥ bᵢ."""
         points = scene.particle_position[found].astype(np.float64)
-        d2, offset = capsule_distance_sq(points, q_prev, axis, self.settings.tool.length)
-        distance = np.sqrt(d2)
+        gap, offset = tool_gap(self.settings.tool, points, q_prev, axis)
+        distance = np.linalg.norm(offset, axis=1)
         normal = offset / np.maximum(distance, 1e-12)[:, None]
         on_axis = distance < 1e-9
         if np.any(on_axis):  # no normal: push back towards where q_h came from
@@ -259,8 +279,8 @@ class HapticProxy:
                 normal[on_axis] = back / np.linalg.norm(back)
             else:
                 keep = ~on_axis
-                normal, distance, found = normal[keep], distance[keep], found[keep]
-        b = self.settings.tool.radius + scene.particle_radius[found].astype(np.float64) - distance
+                normal, gap, found = normal[keep], gap[keep], found[keep]
+        b = scene.particle_radius[found].astype(np.float64) - gap
         if len(b) > self.settings.max_contacts:
             deepest = np.argpartition(-b, self.settings.max_contacts - 1)
             keep = deepest[:self.settings.max_contacts]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from taichi_lap.sim.control import JAW_LENGTH
+from taichi_lap.sim.control import JAW_KINDS, JAW_LENGTH
 
 SHAFT_SECTIONS = 16
 
@@ -31,7 +31,7 @@ def instrument_mesh(tool: dict) -> trimesh.Trimesh:
                                      count=[SHAFT_SECTIONS, SHAFT_SECTIONS])
     shaft.apply_translation((0.0, 0.0, 0.5 * length))
     parts = [shaft]
-    if tool["kind"] in ("grasper", "scissors"):
+    if tool["kind"] in JAW_KINDS:
         parts += _jaws(radius)
     return trimesh.util.concatenate(parts)
 

@@ -17,12 +17,16 @@ import taichi as ti
 from taichi_lap.kernels.contact import MAX_TOOLS
 from taichi_lap.sim.fields import FieldGroup
 
-__all__ = ["Control", "MAX_TOOLS", "JAW_LENGTH", "JAW_REACH", "frame_towards"]
+__all__ = ["Control", "MAX_TOOLS", "JAW_KINDS", "JAW_LENGTH", "JAW_RADIUS", "JAW_REACH", "frame_towards"]
 
+JAW_KINDS = ("grasper", "scissors")
+"""Instruments with two closed jaws ahead of the tip, a second capsule (seed 002 §3.4)."""
 JAW_LENGTH = 4.0
 """Length of a grasper's jaws ahead of its tip, in shaft radii (drawn and grasping)."""
 JAW_REACH = 1.5
 """How far from their axis the open jaws take tissue, in shaft radii."""
+JAW_RADIUS = 0.7
+"""Radius of the closed jaws' capsule, in shaft radii (half the drawn jaws' width)."""
 
 
 def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
@@ -45,9 +49,11 @@ def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
 
 @ti.data_oriented
 class Control:
-    """Tool capsules: ``tool_a`` (tip), ``tool_b`` [m], ``tool_radius`` [m],
-    ``tool_active``, ``tool_frame`` (columns x, y, tip-to-handle); per tool on the
-    Python side ``grasp`` (jaws closed) and ``jaw_length`` [m] (0: cannot grasp)."""
+    """Tool capsules: the shaft from ``tool_a`` (tip) to ``tool_b`` [m] of ``tool_radius``
+    [m], the jaws from ``tool_jaw`` [m] (ahead of the tip) to the tip of
+    ``tool_jaw_radius`` [m] (0: no jaws), ``tool_active``, ``tool_frame`` (columns x, y,
+    tip-to-handle); per tool on the Python side ``grasp`` (jaws closed) and
+    ``jaw_length`` [m]."""
 
     def __init__(self):
         group = FieldGroup()
@@ -56,6 +62,8 @@ class Control:
         self.tool_radius = group.field(ti.f32, MAX_TOOLS)
         self.tool_active = group.field(ti.i32, MAX_TOOLS)
         self.tool_frame = group.field(ti.f32, MAX_TOOLS, matrix=(3, 3))
+        self.tool_jaw = group.field(ti.f32, MAX_TOOLS, vector=3)
+        self.tool_jaw_radius = group.field(ti.f32, MAX_TOOLS)
         group.finalize()
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
@@ -65,8 +73,8 @@ class Control:
                  grasp: bool = False, jaw_length: float = 0.0):
         """Place tool ``index`` as a capsule from ``tip`` to ``tail`` [m]; its frame is
         the previous one turned onto the new axis (the roll follows from the path of
-        the axis alone, so a replayed run rebuilds it). ``grasp`` closes jaws of
-        ``jaw_length`` [m]."""
+        the axis alone, so a replayed run rebuilds it). Jaws of ``jaw_length`` [m] (0:
+        none) collide as a capsule ahead of the tip; ``grasp`` closes them."""
         if not 0 <= index < MAX_TOOLS:
             raise IndexError(f"tool index {index} outside 0..{MAX_TOOLS - 1}")
         tip, tail = np.asarray(tip, dtype=np.float64), np.asarray(tail, dtype=np.float64)
@@ -78,6 +86,8 @@ class Control:
         self.tool_radius[index] = float(radius)
         self.tool_active[index] = int(active)
         self.tool_frame[index] = frame.astype(np.float32)
+        self.tool_jaw[index] = (tip - jaw_length * frame[:, 2]).astype(np.float32)
+        self.tool_jaw_radius[index] = JAW_RADIUS * float(radius) if jaw_length > 0.0 else 0.0
         self.grasp[index] = bool(grasp and active)
         self.jaw_length[index] = float(jaw_length)
 
