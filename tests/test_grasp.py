@@ -4,7 +4,7 @@ the tool frame as hard position constraints, and freed when the jaws open."""
 import numpy as np
 import pytest
 
-from taichi_lap.devices import GRASP_BUTTON, MouseDevice, ScriptedDevice
+from taichi_lap.devices import GRASP_BUTTON, ScriptedDevice
 from taichi_lap.kernels.contact import FREE
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
@@ -109,15 +109,6 @@ def lifted_block() -> dict[str, np.ndarray]:
 @pytest.mark.vulkan
 def test_grasp_vulkan_matches_cpu():
     assert_vulkan_matches_cpu("tests.test_grasp:lifted_block", 1e-4)
-
-
-def test_mouse_grasp_key_toggles_the_jaws_once_per_press():
-    mouse = MouseDevice(GRASPER)
-    pressed = []
-    for key_down in (False, True, True, False, True, False):
-        mouse.toggle_grasp(key_down)
-        pressed.append(mouse.buttons(0.0)["forceps"])
-    assert pressed == [0, GRASP_BUTTON, GRASP_BUTTON, GRASP_BUTTON, 0, 0]
 
 
 def test_jaws_collide_as_a_second_capsule_ahead_of_the_tip():
