@@ -1,12 +1,14 @@
 """Adaptive circumspheres of surface triangles: seed 000 §4.2 (Qian et al., VRST 2015,
 Eq. 4-6, lazy update of §4.2.3), and the bounding spheres of the baseline (Mendoza and
-O'Sullivan 2006). First step of :class:`taichi_lap.sim.collision.TissueCollision`;
-:mod:`kernels.tissue_collision` detects and responds with these spheres.
+O'Sullivan 2006), for :class:`taichi_lap.sim.collision.TissueCollision`:
+:mod:`kernels.tissue_collision` finds the triangles that need them and detects and
+responds with them.
 
-:func:`update_spheres` skins the surface vertices from the predicted positions p and
-the substep's start positions x, then computes per triangle its smallest bounding
-sphere (centre m_b, radius R_b; Ericson 2004 §4.3), unit normal N_c, area S, the
-displacement of its centroid over the substep, and the collision sphere:
+:func:`update_spheres` computes, for the triangles the broad phase of
+:mod:`kernels.tissue_collision` found near something (``active``), from the skinned
+predicted positions p and the substep's start positions x: the smallest bounding
+sphere (centre m_b, radius R_b; Ericson 2004 §4.3), the displacement of the centroid
+over the substep, unit normal N_c, area S and the collision sphere:
 
 * circumsphere (Eq. 4-6): centre C = x_c - N_c (φ R_b cot θ H3(K) + ε), radius
   sqrt(R_b² + depth²): the sphere passes through the vertices, so a deeper centre
@@ -53,10 +55,10 @@ HERMITE_SAMPLES = 256
 """Intervals of the tabulated H3 over s ∈ [0, 1]."""
 
 COUNTERS = ("candidates", "bounding_pairs", "tissue_contacts", "tool_candidates",
-            "tool_contacts", "recomputed", "contact_triangles")
+            "tool_contacts", "recomputed", "contact_triangles", "rescanned", "listed_pairs")
 """Cumulative i32 event counters (wrap around; take differences)."""
 (C_CANDIDATES, C_BOUNDING, C_TISSUE, C_TOOL_CANDIDATES, C_TOOL, C_RECOMPUTED,
- C_TRIANGLES) = range(len(COUNTERS))
+ C_TRIANGLES, C_RESCANNED, C_LISTED) = range(len(COUNTERS))
 
 
 def hermite_table(samples: int = HERMITE_SAMPLES) -> np.ndarray:
@@ -160,13 +162,10 @@ def centroid(coll: ti.template(), t):
     return (coll.vertex_p[v[0]] + coll.vertex_p[v[1]] + coll.vertex_p[v[2]]) / 3.0
 
 
-@ti.kernel
-def update_spheres(model: ti.template(), state: ti.template(), coll: ti.template()):
-    """The module docstring's spheres. Reads p, x, goal; writes vertex_p, vertex_x, the
-    per-triangle geometry (bound_center, bound_radius, bound_reach = R_b +
-    |displacement|, displacement, start_centroid, start_normal, normal), the spheres
-    (sphere_center, sphere_radius, sphere_cone) and, for circumspheres, the lazy-update
-    state (area_last, curvature, curvature_factor, recovery) and ``recomputed``."""
+@ti.func
+def skin_vertices(model: ti.template(), state: ti.template(), coll: ti.template()):
+    """Surface vertices from p and x by the surface binding (vertex_p, vertex_x); call
+    at a kernel's top level (a parallel loop)."""
     for s in range(coll.vertex_count):
         idx, w = model.surface_index[s], model.surface_weight[s]
         p, x = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
@@ -175,7 +174,22 @@ def update_spheres(model: ti.template(), state: ti.template(), coll: ti.template
             x += w[k] * state.x[idx[k]]
         coll.vertex_p[s] = p
         coll.vertex_x[s] = x
-    for t in range(coll.triangle_count):
+
+
+@ti.kernel
+def update_spheres(model: ti.template(), state: ti.template(), coll: ti.template(),
+                   every: ti.template()):
+    """The module docstring's spheres of the active triangles, after the skinning of
+    :func:`kernels.tissue_collision.update_bounds`, or of all triangles with ``every``
+    (skinning first). Reads vertex_p, vertex_x and goal; writes bound_center,
+    bound_radius, displacement, bound_reach = R_b + |displacement|, start_centroid,
+    start_normal, normal, the spheres (sphere_center, sphere_radius, sphere_cone) and,
+    for circumspheres, the lazy-update state (area_last, curvature, curvature_factor,
+    recovery) and ``recomputed``."""
+    if ti.static(every):
+        skin_vertices(model, state, coll)
+    for m in range(coll.triangle_count if ti.static(every) else coll.active_count[None]):
+        t = m if ti.static(every) else coll.active_list[m]
         v = coll.tri_vertex[t]
         a, b, c = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]
         a0, b0, c0 = coll.vertex_x[v[0]], coll.vertex_x[v[1]], coll.vertex_x[v[2]]
@@ -197,8 +211,8 @@ def update_spheres(model: ti.template(), state: ti.template(), coll: ti.template
                 curvature = 0.0
                 if nb[0] >= 0 and nb[1] >= 0 and nb[2] >= 0:
                     _, curvature = dual_curvature((a + b + c) / 3.0, centroid(coll, nb[0]),
-                                                  centroid(coll, nb[1]), centroid(coll, nb[2]),
-                                                  area)
+                                                  centroid(coll, nb[1]),
+                                                  centroid(coll, nb[2]), area)
                 flat_depth = coll.scale_phi * radius_b * cot(coll.safe_angle)
                 coll.curvature[t] = curvature
                 coll.curvature_factor[t] = curvature_factor(

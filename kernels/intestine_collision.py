@@ -43,6 +43,8 @@ taken back, so contacts pushed by their neighbours do not bounce.
 
 import taichi as ti
 
+from taichi_lap.kernels.closest_points import point_triangle, segment_segment
+
 HUGE = 1e30
 
 
@@ -52,62 +54,6 @@ def pcg_hash(v):
     state = v * ti.u32(747796405) + ti.u32(2891336453)
     word = ((state >> ((state >> ti.u32(28)) + ti.u32(4))) ^ state) * ti.u32(277803737)
     return (word >> ti.u32(22)) ^ word
-
-
-@ti.func
-def segment_segment(p1, q1, p2, q2):
-    """Parameters (s, t) in [0, 1] of the closest points of segments p1q1 and p2q2
-    (Ericson, Real-Time Collision Detection, §5.1.9)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f = d1.dot(d1), d2.dot(d2), d2.dot(r)
-    s, t = 0.0, 0.0
-    if a > 1e-20 and e > 1e-20:
-        c, b = d1.dot(r), d1.dot(d2)
-        denom = a * e - b * b
-        if denom > 1e-6 * a * e:
-            s = ti.math.clamp((b * f - c * e) / denom, 0.0, 1.0)
-        t = (b * s + f) / e
-        if t < 0.0:
-            t, s = 0.0, ti.math.clamp(-c / a, 0.0, 1.0)
-        elif t > 1.0:
-            t, s = 1.0, ti.math.clamp((b - c) / a, 0.0, 1.0)
-    elif a > 1e-20:
-        s = ti.math.clamp(-d1.dot(r) / a, 0.0, 1.0)
-    elif e > 1e-20:
-        t = ti.math.clamp(f / e, 0.0, 1.0)
-    return s, t
-
-
-@ti.func
-def point_triangle(p, a, b, c):
-    """Barycentric weights of the point of triangle abc closest to p (Ericson §5.1.5)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = ab.dot(ap), ac.dot(ap)
-    w = ti.Vector([1.0, 0.0, 0.0])
-    bp = p - b
-    d3, d4 = ab.dot(bp), ac.dot(bp)
-    cp = p - c
-    d5, d6 = ab.dot(cp), ac.dot(cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    if d1 <= 0.0 and d2 <= 0.0:
-        w = ti.Vector([1.0, 0.0, 0.0])
-    elif d3 >= 0.0 and d4 <= d3:
-        w = ti.Vector([0.0, 1.0, 0.0])
-    elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        k = d1 / ti.max(d1 - d3, 1e-30)
-        w = ti.Vector([1.0 - k, k, 0.0])
-    elif d6 >= 0.0 and d5 <= d6:
-        w = ti.Vector([0.0, 0.0, 1.0])
-    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        k = d2 / ti.max(d2 - d6, 1e-30)
-        w = ti.Vector([1.0 - k, 0.0, k])
-    elif va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
-        k = (d4 - d3) / ti.max((d4 - d3) + (d5 - d6), 1e-30)
-        w = ti.Vector([0.0, 1.0 - k, k])
-    else:
-        inv = 1.0 / ti.max(va + vb + vc, 1e-30)
-        w = ti.Vector([1.0 - (vb + vc) * inv, vb * inv, vc * inv])
-    return w
 
 
 @ti.func
@@ -126,7 +72,7 @@ def closest(cd: ti.template(), x: ti.template(), a, b):
         x0 = ti.Vector([corner[k, 0], corner[k, 1], corner[k, 2]])
         k1 = (k + 1) % 3
         x1 = ti.Vector([corner[k1, 0], corner[k1, 1], corner[k1, 2]])
-        s, t = segment_segment(p, q, x0, x1)
+        s, t, _, _ = segment_segment(p, q, x0, x1)
         d2 = (p + s * (q - p) - x0 - t * (x1 - x0)).norm_sqr()
         if d2 < best:
             best, best_s, best_w = d2, s, ti.Vector([0.0, 0.0, 0.0])

@@ -1,7 +1,8 @@
 """Polygon baseline of seed 000 §4.4: exact triangle features instead of spheres.
 
 Closest-point routines of Ericson 2004, "Real-Time Collision Detection": point-triangle
-(§5.1.5), segment-segment (§5.1.9), barycentric coordinates (§3.4). Responses are PBD
+(§5.1.5) and segment-segment (§5.1.9) from :mod:`kernels.closest_points`, barycentric
+coordinates (§3.4), segment-triangle. Responses are PBD
 projections (Müller et al. 2007 §3.4), weighted by the corners' inverse masses:
 
 * vertex-triangle: a vertex whose projection falls inside the other triangle keeps at
@@ -21,6 +22,7 @@ mirror image), adding corrections to local accumulators of its three corners;
 
 import taichi as ti
 
+from taichi_lap.kernels.closest_points import point_triangle, segment_segment
 from taichi_lap.kernels.tool_shapes import MAX_TOOL_SHAPES, round_shape, tool_distance
 
 
@@ -34,65 +36,6 @@ def barycentric(q, a, b, c):
     v = (d11 * d20 - d01 * d21) / denom
     w = (d00 * d21 - d01 * d20) / denom
     return ti.Vector([1.0 - v - w, v, w])
-
-
-@ti.func
-def closest_on_triangle(p, a, b, c):
-    """Closest point of triangle a, b, c to ``p`` and its barycentric coordinates
-    (Ericson §5.1.5, Voronoi regions of vertices, edges, face)."""
-    ab, ac = b - a, c - a
-    d1, d2 = ab.dot(p - a), ac.dot(p - a)
-    d3, d4 = ab.dot(p - b), ac.dot(p - b)
-    d5, d6 = ab.dot(p - c), ac.dot(p - c)
-    vc, vb, va = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4
-    bary = ti.Vector([0.0, 0.0, 0.0])
-    if d1 <= 0.0 and d2 <= 0.0:
-        bary = ti.Vector([1.0, 0.0, 0.0])
-    elif d3 >= 0.0 and d4 <= d3:
-        bary = ti.Vector([0.0, 1.0, 0.0])
-    elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        v = d1 / (d1 - d3)
-        bary = ti.Vector([1.0 - v, v, 0.0])
-    elif d6 >= 0.0 and d5 <= d6:
-        bary = ti.Vector([0.0, 0.0, 1.0])
-    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        w = d2 / (d2 - d6)
-        bary = ti.Vector([1.0 - w, 0.0, w])
-    elif va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        bary = ti.Vector([0.0, 1.0 - w, w])
-    else:
-        denom = 1.0 / (va + vb + vc)
-        bary = ti.Vector([1.0 - (vb + vc) * denom, vb * denom, vc * denom])
-    return bary[0] * a + bary[1] * b + bary[2] * c, bary
-
-
-@ti.func
-def closest_between_segments(p1, q1, p2, q2):
-    """Parameters s, t and closest points c1 = p1 + s (q1 - p1), c2 = p2 + t (q2 - p2)
-    of two segments (Ericson §5.1.9; degenerate segments allowed)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f = d1.dot(d1), d2.dot(d2), d2.dot(r)
-    s, t = 0.0, 0.0
-    if a <= 1e-20 and e <= 1e-20:
-        s, t = 0.0, 0.0
-    elif a <= 1e-20:
-        t = ti.math.clamp(f / e, 0.0, 1.0)
-    else:
-        c = d1.dot(r)
-        if e <= 1e-20:
-            s = ti.math.clamp(-c / a, 0.0, 1.0)
-        else:
-            b = d1.dot(d2)
-            denom = a * e - b * b
-            if denom > 1e-20:
-                s = ti.math.clamp((b * f - c * e) / denom, 0.0, 1.0)
-            t = (b * s + f) / e
-            if t < 0.0:
-                t, s = 0.0, ti.math.clamp(-c / a, 0.0, 1.0)
-            elif t > 1.0:
-                t, s = 1.0, ti.math.clamp((b - c) / a, 0.0, 1.0)
-    return s, t, p1 + s * d1, p2 + t * d2
 
 
 @ti.func
@@ -114,12 +57,13 @@ def segment_triangle_closest(p, q, a, b, c):
     ends, corners = [p, q], [a, b, c]
     for end in ti.static(range(2)):
         e = ends[end]
-        point, be = closest_on_triangle(e, a, b, c)
+        be = point_triangle(e, a, b, c)
+        point = be[0] * a + be[1] * b + be[2] * c
         d = (point - e).norm_sqr()
         if d < best:
             on_seg, on_tri, bary, best = e, point, be, d
     for k in ti.static(range(3)):
-        _, t, c1, c2 = closest_between_segments(p, q, corners[k], corners[(k + 1) % 3])
+        _, t, c1, c2 = segment_segment(p, q, corners[k], corners[(k + 1) % 3])
         d = (c2 - c1).norm_sqr()
         if d < best:
             be = ti.Vector([0.0, 0.0, 0.0])
@@ -154,7 +98,7 @@ def vertex_face(v, v0, w_v, a, b, c, a0, b0, c0, w_f, thickness):
 @ti.func
 def edge_edge(p1, q1, p10, q10, wp, wq, p2, q2, p20, q20, wp2, wq2, thickness):
     """Edge-edge projection (module docstring): (hit, correction of p1, of q1)."""
-    s, t, c1, c2 = closest_between_segments(p1, q1, p2, q2)
+    s, t, c1, c2 = segment_segment(p1, q1, p2, q2)
     hit, dp, dq = 0, ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
     if 0.0 < s < 1.0 and 0.0 < t < 1.0:
         start = (p10 + s * (q10 - p10)) - (p20 + t * (q20 - p20))

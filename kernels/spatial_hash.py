@@ -41,6 +41,46 @@ import taichi as ti
 _PRIMES = (73856093, 19349663, 83492791)
 
 
+@ti.func
+def store_pair(pairs: ti.template(), count: ti.template(), capacity: ti.template(),
+               write: ti.template(), base, found, i, j):
+    """Pair (i, j), the ``found``-th of its point: ``write`` 1 into slot base + found
+    (reserved beforehand), 2 into a slot taken by one atomic on ``count[None]``;
+    dropped past ``capacity`` (the count still says how many there were)."""
+    slot = base + found
+    if ti.static(write == 2):
+        slot = ti.atomic_add(count[None], 1)
+    if slot < capacity:
+        pairs[slot] = ti.Vector([i, j])
+
+
+@ti.func
+def exclusive_scan(count: ti.template(), start: ti.template(), n, block_start: ti.template(),
+                   block: ti.template()):
+    """start[i] = count[0] + ... + count[i - 1] for i = 0..n (start[n] the total): block
+    totals in parallel, a short serial scan over them, offsets inside the blocks in
+    parallel. ``block_start`` holds ceil(n / block) entries. Call it at a kernel's top
+    level: its loops are then the kernel's parallel loops."""
+    n_blocks = (n + block - 1) // block
+    for blk in range(n_blocks):
+        total = 0
+        for b in range(blk * block, ti.min(blk * block + block, n)):
+            total += count[b]
+        block_start[blk] = total
+    for _ in range(1):
+        running = 0
+        for blk in range(n_blocks):
+            total = block_start[blk]
+            block_start[blk] = running
+            running += total
+        start[n] = running
+    for blk in range(n_blocks):
+        running = block_start[blk]
+        for b in range(blk * block, ti.min(blk * block + block, n)):
+            start[b] = running
+            running += count[b]
+
+
 @ti.data_oriented
 class SpatialHash:
     """Counting-sort spatial hash over at most ``capacity`` points.
@@ -115,7 +155,8 @@ class SpatialHash:
 
     # ---- build -----------------------------------------------------------------
     def build(self, points, count: int | None = None):
-        """Rebuild from ``points[0:count]`` (a 3-vector f32 field [m]); one kernel launch."""
+        """Rebuild from ``points[0:count]`` (a 3-vector f32 field [m], or a 4-vector one
+        whose first three components are the point); one kernel launch."""
         count = self.capacity if count is None else int(count)
         if not 0 <= count <= self.capacity or count > points.shape[0]:
             raise ValueError(f"count {count} exceeds capacity {self.capacity} or points")
@@ -131,24 +172,9 @@ class SpatialHash:
             b = self.bucket_of_cell(self.cell_of(points[p]))
             self.point_bucket[p] = b
             ti.atomic_add(self.bucket_count[b], 1)
-        for blk in range(self.n_blocks):  # block totals, in parallel
-            total = 0
-            for b in range(blk * B, ti.min(blk * B + B, T)):
-                total += self.bucket_count[b]
-            self.block_start[blk] = total
-        for _ in range(1):  # short serial scan over the block totals
-            running = 0
-            for blk in range(self.n_blocks):
-                total = self.block_start[blk]
-                self.block_start[blk] = running
-                running += total
-            self.bucket_start[T] = running
-        for blk in range(self.n_blocks):  # offsets inside each block; counts -> cursors
-            running = self.block_start[blk]
-            for b in range(blk * B, ti.min(blk * B + B, T)):
-                self.bucket_start[b] = running
-                running += self.bucket_count[b]
-                self.bucket_count[b] = 0
+        exclusive_scan(self.bucket_count, self.bucket_start, T, self.block_start, B)
+        for b in range(T):  # counts -> cursors
+            self.bucket_count[b] = 0
         for p in range(count):  # scatter
             b = self.point_bucket[p]
             self.sorted_index[self.bucket_start[b] + ti.atomic_add(self.bucket_count[b], 1)] = p
@@ -212,11 +238,8 @@ class SpatialHash:
                 near = (points[j] - x).norm_sqr() <= r2
                 if (j > i if ti.static(upper) else j != i) and near:
                     if ti.static(write):
-                        slot = base + found
-                        if ti.static(write == 2):
-                            slot = ti.atomic_add(self.pair_count[None], 1)
-                        if slot < self.pair_capacity:
-                            self.pairs[slot] = ti.Vector([i, j])
+                        store_pair(self.pairs, self.pair_count, self.pair_capacity, write, base,
+                                   found, i, j)
                     found += 1
         return found
 

@@ -26,6 +26,14 @@ Case ``cylinder`` has tool-tissue contacts only (the experiment); ``cylinder+sel
 adds tissue-tissue (self) detection with the spatial hash (every method pays the same
 broad phase). A box plot like Fig. 10 is written next to the JSON (matplotlib).
 
+Cases ``rectum`` and ``liver``: the scene (detail 1, 0.2 with ``--quick``, its
+scripted tool) with circumsphere collision as the solver runs it, against none, over
+the same frames: ``settle`` (the first 30 frames, from the rest shape, with collision
+from the start) and ``steady`` (frames 61-120, collision switched on at frame 60,
+its first frame left out). Metrics ``frame_ms_off``, ``frame_ms_on`` and
+``collision_ms`` (synchronised around each collision step) per frame, and
+``collision_phase_ms`` per phase of :meth:`TissueCollision.step` (median per frame).
+
 Usage: python perf/bench_circumsphere.py [--quick] [--arch cpu] [--json OUT]
 """
 
@@ -112,6 +120,63 @@ def run(session, collision, controls, iterations: int, frames: int):
     return errors, times
 
 
+WINDOWS = {"settle": (0, 30, 0), "steady": (60, 120, 1)}
+"""Scene windows: first frame, end frame, frames dropped after collision starts."""
+
+
+def scene_window(session, collision, first: int, end: int, drop: int) -> dict:
+    """Frame times [ms] over frames first..end-1 with ``collision`` (None: off) on from
+    frame ``first``, the first ``drop`` of them left out."""
+    session.reset()
+    session.solver.collision = None
+    for _ in range(first):
+        session.step()
+    session.solver.collision = collision
+    out = {"frame": [], "collision": [], "phases": []}
+    if collision is not None:
+        collision.reset()
+    for frame in range(first, end):
+        spent, phases = (collision.total_ms, dict(collision.phase_ms)) if collision else (0, {})
+        session.step()
+        if frame >= first + drop:
+            out["frame"].append(session.timings["physics"])
+            if collision is not None:
+                out["collision"].append(collision.total_ms - spent)
+                out["phases"].append({k: collision.phase_ms[k] - phases[k] for k in phases})
+    return out
+
+
+def scene_cases(quick: bool) -> list[dict]:
+    """The rectum and liver scenes with and without circumsphere collision."""
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.session import Session
+    from taichi_lap.sim.collision import TissueCollision
+
+    detail = 0.2 if quick else 1.0
+    results = []
+    for name in ("rectum", "liver"):
+        scene = scene_mod.load(name, {"scene.detail": detail, "scene.collision": "circumsphere"})
+        session = Session(scene, progress=False)
+        collision = TissueCollision(session.model, timing=True)
+        scene_window(session, collision, 0, 2, 0)  # compile
+        params = {"particles": session.model.particle_count,
+                  "triangles": session.model.surface_triangle_count, "detail": detail,
+                  "substeps": session.solver.settings.substeps,
+                  "shape_iterations": session.solver.settings.shape_iterations}
+        for window, (first, end, drop) in WINDOWS.items():
+            off = scene_window(session, None, first, end, drop)
+            on = scene_window(session, collision, first, end, drop)
+            case = f"{name}-{window}"
+            rows = [result(case, params, "frame_ms_off", off["frame"]),
+                    result(case, params, "frame_ms_on", on["frame"]),
+                    result(case, params, "collision_ms", on["collision"])]
+            print(case, " ".join(f"{r['metric']} {r['median']:.1f}" for r in rows), flush=True)
+            results += rows + [result(case, {**params, "phase": phase}, "collision_phase_ms",
+                                      [p[phase] for p in on["phases"]])
+                               for phase in on["phases"][0]]
+    return results
+
+
 def quartiles(samples: list[float]) -> dict:
     q1, _, q3 = statistics.quantiles(samples, n=4, method="inclusive")
     return {"q1": q1, "q3": q3}
@@ -183,6 +248,7 @@ def main():
                 print(case, method, iterations, f"rel_error median {results[-2]['median']:+.4f} "
                       f"[{results[-2]['min']:+.4f}, {results[-2]['max']:+.4f}]",
                       f"{results[-1]['median']:.2f} ms/frame", flush=True)
+    results += scene_cases(quick)
     report("circumsphere", args.arch, results, args.json)
     box_plot(results, Path(args.json).with_suffix(".png"))
 

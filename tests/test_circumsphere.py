@@ -9,7 +9,7 @@ import taichi as ti
 
 from taichi_lap.kernels import circumsphere, shape_matching, tissue_collision
 from taichi_lap.sim import Control
-from taichi_lap.sim.collision import TissueCollision, bounding_radii
+from taichi_lap.sim.collision import TissueCollision
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX, simulation
 
@@ -27,6 +27,25 @@ def box():
 
 def skinned(data, x):
     return (data.surface_weight[..., None] * x[data.surface_index]).sum(axis=1)
+
+
+def bounding_spheres(corners):
+    """Centres and radii [m] of the smallest spheres around triangles (F, 3, 3): the
+    longest edge's midpoint and half its length if right or obtuse, else the
+    circumcentre and circumradius."""
+    a, u, v = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    w = np.cross(u, v)
+    w2 = (w * w).sum(axis=1)[:, None]
+    circumcenter = a + ((u * u).sum(axis=1)[:, None] * np.cross(v, w)
+                        + (v * v).sum(axis=1)[:, None] * np.cross(w, u)) / (2.0 * w2)
+    edge = np.roll(corners, -1, axis=1) - corners
+    length = np.linalg.norm(edge, axis=2)
+    rows, longest = np.arange(len(corners)), length.argmax(axis=1)
+    sq = np.sort(length, axis=1) ** 2
+    obtuse = sq[:, 2] >= sq[:, 0] + sq[:, 1]
+    center = np.where(obtuse[:, None], corners[rows, longest] + 0.5 * edge[rows, longest],
+                      circumcenter)
+    return center, np.linalg.norm(corners - center[:, None], axis=2).max(axis=1)
 
 
 def triangle_areas(data, x):
@@ -47,18 +66,18 @@ def test_circumsphere_centre_lies_on_the_normal_at_the_stated_depth_through_the_
     p = data.rest_position + rng.normal(0.0, 3e-4, data.rest_position.shape)
     state.p.from_numpy(p.astype(np.float32))
     collision.reset()
-    collision.step(state, no_tools)
+    collision.update_spheres(state)
     corners = skinned(data, p)[data.surface_triangles]
     normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    radius_b = bounding_radii(corners)
+    bound_center, radius_b = bounding_spheres(corners)
     goal = skinned(data, data.rest_position)[data.surface_triangles]
     recovery = np.linalg.norm(corners - goal, axis=2).mean(axis=1)  # ε of §4.2.2
     hermite = collision.curvature_factor.to_numpy()
     assert np.allclose(collision.recovery.to_numpy(), recovery, atol=1e-6)
     depth = collision.scale_phi * radius_b / math.tan(collision.safe_angle) * hermite + recovery
     center, radius = collision.sphere_center.to_numpy(), collision.sphere_radius.to_numpy()
-    bound_center = collision.bound_center.to_numpy()
+    assert np.allclose(collision.bound_center.to_numpy(), bound_center, atol=1e-6)
     assert np.allclose(center, bound_center - normal * depth[:, None], atol=2e-6)
     assert np.all((hermite > 0.0) & (hermite <= 1.0))
     distance = np.linalg.norm(corners - center[:, None, :], axis=2)
@@ -92,7 +111,7 @@ def dual_curvature_of(organ):
     """Curvature K [1/m²], triangle areas [m²] and neighbour table of an organ's surface."""
     _, data, model, state, _, _ = simulation([organ], gravity=[0, 0, 0])
     collision = TissueCollision(model, tools=False, tissue_pairs=False)
-    circumsphere.update_spheres(model, state, collision)
+    collision.update_spheres(state)
     return (collision.curvature.to_numpy(), triangle_areas(data, data.rest_position),
             collision.tri_neighbour.to_numpy())
 
@@ -117,7 +136,7 @@ def test_lazy_update_skips_recomputation_under_delta_and_recomputes_above(box):
     data, model, state, collision, no_tools = box
     state.reset(model)
     collision.reset()
-    step = lambda: collision.step(state, no_tools)  # noqa: E731
+    step = lambda: collision.update_spheres(state)  # noqa: E731
     assert counted(collision, "recomputed", step) == model.surface_triangle_count
     assert counted(collision, "recomputed", step) == 0
     center, recovery = collision.sphere_center.to_numpy(), collision.recovery.to_numpy()
@@ -339,3 +358,119 @@ def test_a_union_of_implicit_shapes_pushes_particles_and_triangles_out():
 def test_vulkan_matches_cpu():
     result = assert_vulkan_matches_cpu("tests.test_circumsphere:compute_collision_case", 2e-5)
     assert result["collided"].sum() > 10
+
+
+def numpy_broad_spheres(data, x, p):
+    """(F, 4) broad spheres of kernels.tissue_collision.update_bounds: centroid of the
+    skinned p, farthest corner + the centroid's motion from x [m]."""
+    corners = skinned(data, p)[data.surface_triangles]
+    center = corners.mean(axis=1)
+    start = skinned(data, x)[data.surface_triangles].mean(axis=1)
+    radius = np.linalg.norm(corners - center[:, None], axis=2).max(axis=1)
+    return np.concatenate([center, (radius + np.linalg.norm(center - start, axis=1))[:, None]], 1)
+
+
+def rest_excluded(collision, data):
+    """(F, F) bool: pairs the broad phase never lists (its module docstring), in NumPy,
+    and (F, F) bool: pairs too near a tie of its f32 tests to say."""
+    tri = data.surface_triangles
+    shares = (tri[:, None, :, None] == tri[None, :, None, :]).any(axis=(2, 3))
+    rest = collision.rest_sphere.to_numpy().astype(np.float64)
+    normal = collision.rest_normal.to_numpy().astype(np.float64)
+    body = collision.tri_body.to_numpy()
+    d = rest[None, :, :3] - rest[:, None, :3]
+    margin = np.linalg.norm(d, axis=2) \
+        - collision.rest_exclusion * (rest[:, None, 3] + rest[None, :, 3])
+    tests = np.stack([normal @ normal.T, -np.einsum("tud,td->tu", d, normal),
+                      np.einsum("tud,ud->tu", d, normal)])
+    facing = (tests < 0.0).all(axis=0)
+    tie = (np.abs(margin) < 1e-7) | (np.abs(tests) < 1e-6).any(axis=0)
+    skipped = shares | np.eye(len(tri), dtype=bool) \
+        | ((margin < 0.0) & ((body[:, None] == body[None, :]) | ~facing))
+    return skipped, tie
+
+
+def listed_pairs(collision) -> np.ndarray:
+    """(F, F) bool: the pair rows as a matrix."""
+    f = collision.triangle_count
+    start = collision.rows.start.to_numpy()
+    partner = collision.rows.partner.to_numpy()[:start[f]]
+    out = np.zeros((f, f), dtype=bool)
+    out[np.repeat(np.arange(f), np.diff(start)), partner] = True
+    return out
+
+
+def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
+    """Broad phase (kernels.tissue_collision): at every step of a motion in which some
+    triangles drift past the rescan threshold and others do not, the pair rows hold
+    every pair whose broad spheres overlap unless the rest exclusion skips it, and no
+    skipped pair. A nodule joined into the lower block is one body with it."""
+    lower = {**BOX, "name": "lower", "geometry": {"generator": "box",
+                                                  "half_extents": [0.012, 0.004, 0.01]}}
+    upper = {**lower, "name": "upper", "geometry": {**lower["geometry"],
+                                                    "translate": [0.0, 0.0095, 0.0]}}
+    nodule = {**BOX, "name": "nodule", "geometry": {"generator": "sphere", "radius": 0.004,
+                                                    "translate": [0.004, 0.004, 0.0]},
+              "attachments": [{"kind": "join", "organ": "lower"}]}
+    _, data, model, state, control, _ = simulation([lower, upper, nodule], gravity=[0, 0, 0])
+    collision = TissueCollision(model, tools=False)
+    body = collision.tri_body.to_numpy()
+    organ_of = np.repeat(np.arange(3), [o.triangles[1] - o.triangles[0] for o in data.organs])
+    assert body[organ_of == 2][0] == body[organ_of == 0][0] != body[organ_of == 1][0]
+    skipped, tie = rest_excluded(collision, data)
+    x0, upper_particles = data.rest_position, data.organ == 1
+    rng = np.random.default_rng(5)
+    x, rescans, found = x0, [], 0
+    for step in range(16):
+        wave = 0.0004 * np.sin(x0 @ rng.normal(0.0, 300.0, (3, 3)) + step)
+        p = x0 + wave - np.outer(upper_particles, [0.0004 * step, 0.0003 * step, 0.0])
+        state.x.from_numpy(x.astype(np.float32))
+        state.p.from_numpy(p.astype(np.float32))
+        rescans.append(counted(collision, "rescanned", lambda: collision.step(state, control)))
+        sphere = numpy_broad_spheres(data, x, p)
+        gap = np.linalg.norm(sphere[:, None, :3] - sphere[None, :, :3], axis=2) \
+            - sphere[:, None, 3] - sphere[None, :, 3]
+        meet = (gap < -1e-6) & ~skipped & ~tie
+        listed = listed_pairs(collision)
+        assert not (meet & ~listed).any(), f"step {step}: {(meet & ~listed).sum()} pairs unlisted"
+        assert not (listed & skipped & ~tie).any()
+        found += meet.sum()
+        x = p
+    assert found > 100
+    assert any(0 < r < collision.triangle_count for r in rescans[1:])
+
+
+def folded_sheet(rest_exclusion: float):
+    """A 2 mm sheet folded in half over its hinge (x = 0), the upper half's face 1 mm
+    above the lower half's, pressed 1 mm into it within one substep, then 4 collision
+    steps. Returns the lowest point of the upper half and the highest of the lower
+    half over the columns whose layers were 20-40 mm apart at rest [m]."""
+    sheet = {"name": "sheet", "model": "tet_clusters",
+             "geometry": {"generator": "box", "half_extents": [0.02, 0.001, 0.008]},
+             "material": {"particle_spacing": 0.001, "stiffness": 0.5, "damping": 0.0}}
+    _, data, model, state, control, _ = simulation([sheet], gravity=[0, 0, 0])
+    x0 = data.rest_position
+    right = x0[:, 0] > 0.0
+    folded = x0.copy()
+    folded[right, 0], folded[right, 1] = -x0[right, 0], 0.003 - x0[right, 1]  # hinge y = 1.5 mm
+    pressed = folded - np.outer(right, [0.0, 0.002, 0.0])
+    state.x.from_numpy(folded.astype(np.float32))
+    state.goal.from_numpy(folded.astype(np.float32))
+    state.p.from_numpy(pressed.astype(np.float32))
+    collision = TissueCollision(model, tools=False, rest_exclusion=rest_exclusion)
+    for _ in range(4):
+        collision.step(state, control)
+    p = state.p.to_numpy()
+    far = np.abs(x0[:, 0]) > 0.01
+    return p[right & far, 1].min(), p[~right & far, 1].max()
+
+
+def test_a_folded_sheet_collides_where_its_layers_were_far_apart_at_rest():
+    """The rest exclusion skips only what was close at rest: the two halves of one
+    organ folded onto each other (20-40 mm apart at rest, κ = 2 reaches about 3 mm)
+    are separated; skipping every pair of the organ (κ huge) leaves them 1 mm inside
+    each other."""
+    upper, lower = folded_sheet(2.0)
+    assert upper > lower - 1e-4
+    upper, lower = folded_sheet(1000.0)
+    assert upper < lower - 5e-4

@@ -2,14 +2,15 @@
 and against the tools, by adaptive circumspheres (Eq. 4-6, lazy update §4.2.3,
 impulse response §4.3) or either baseline of §4.4 (bounding spheres, polygons).
 
-:class:`TissueCollision` owns the per-triangle tables and the spatial hash; the
-kernels live in :mod:`kernels.circumsphere` (spheres, lazy update),
-:mod:`kernels.tissue_collision` (phases and response), :mod:`kernels.polygon_collision`
-and :mod:`kernels.tool_shapes`. A frame calls
+:class:`TissueCollision` owns the per-triangle tables, the spatial hash and the margin
+pair lists (:class:`PairRows`); the kernels live in :mod:`kernels.circumsphere`
+(spheres, lazy update), :mod:`kernels.tissue_collision` (broad phase, phases and
+response), :mod:`kernels.polygon_collision` and :mod:`kernels.tool_shapes`. A frame calls
 :meth:`TissueCollision.begin_frame` once after the tools are placed, then
-:meth:`TissueCollision.step` after every shape-matching pass: it reads the predicted
-positions p, the substep's start positions x and the goals, and moves p and sets
-``collided`` of the particles under contacting triangles.
+:meth:`TissueCollision.step` after every shape-matching pass (tissue pairs may be left
+to the last pass of a substep: ``tissue=False``): it reads the predicted positions p,
+the substep's start positions x and the goals, and moves p and sets ``collided`` of the
+particles under contacting triangles.
 """
 
 import math
@@ -29,6 +30,22 @@ from taichi_lap.sim.fields import FieldGroup
 METHODS = {"circumsphere": circumsphere.CIRCUMSPHERE,
            "bounding_sphere": circumsphere.BOUNDING_SPHERE,
            "polygon": circumsphere.POLYGON}
+PHASES = ("bounds", "hash", "pairs", "spheres", "detect")
+"""Phases of :meth:`TissueCollision.step` timed with ``timing``."""
+FAR = 1e9
+"""Reference sphere of a triangle never listed [m]: any drift from it is a move."""
+
+
+def shape_reach(kind: int, a: np.ndarray, b: np.ndarray, size: np.ndarray) -> float:
+    """Distance [m] from the tool tip that holds a shape of the tool-frame table (0 for
+    the Control capsule and empty slots: the capsule's own radius covers them)."""
+    if kind == SHAPE_KINDS["sphere"]:
+        return float(np.linalg.norm(a) + size[0])
+    if kind == SHAPE_KINDS["capsule"]:
+        return float(max(np.linalg.norm(a), np.linalg.norm(b)) + size[0])
+    if kind == SHAPE_KINDS["box"]:
+        return float(np.linalg.norm(a) + np.linalg.norm(size))
+    return 0.0
 
 
 def edge_neighbours(triangles: np.ndarray) -> np.ndarray:
@@ -49,17 +66,24 @@ def edge_neighbours(triangles: np.ndarray) -> np.ndarray:
     return out.reshape(f, 3)
 
 
-def bounding_radii(corners: np.ndarray) -> np.ndarray:
-    """Radii [m] of the smallest spheres around triangles ``corners`` (F, 3, 3) [m]:
-    half the longest edge for right or obtuse triangles, else the circumradius."""
-    edge = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2)
-    longest = edge.max(axis=1)
-    sq = np.sort(edge, axis=1) ** 2
-    obtuse = sq[:, 2] >= sq[:, 0] + sq[:, 1]
-    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
-                                         corners[:, 2] - corners[:, 0]), axis=1)
-    circum = edge.prod(axis=1) / np.maximum(4.0 * area, 1e-30)
-    return np.where(obtuse, 0.5 * longest, circum)
+def broad_spheres(corners: np.ndarray) -> np.ndarray:
+    """(F, 4) broad spheres of triangles ``corners`` (F, 3, 3) [m]: the centroid and the
+    largest corner distance from it (:func:`kernels.tissue_collision.update_bounds`)."""
+    center = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - center[:, None, :], axis=2).max(axis=1)
+    return np.concatenate([center, radius[:, None]], axis=1)
+
+
+def organ_bodies(data) -> np.ndarray:
+    """Body index of each organ: organs that share a shape-matching cluster (joined, as
+    seed 002's vessels are into the liver) are one body."""
+    body = np.arange(len(data.organs))
+    member_cluster = np.repeat(np.arange(data.cluster_count), np.diff(data.cluster_start))
+    pairs = np.unique(np.stack([member_cluster, data.organ[data.cluster_member]], axis=1), axis=0)
+    for c in np.flatnonzero(np.bincount(pairs[:, 0], minlength=data.cluster_count) > 1):
+        joined = body[pairs[pairs[:, 0] == c, 1]]
+        body[np.isin(body, joined)] = joined.min()
+    return body
 
 
 def triangle_corner_tables(data) -> dict[str, np.ndarray]:
@@ -86,6 +110,37 @@ def triangle_corner_tables(data) -> dict[str, np.ndarray]:
 
 
 @ti.data_oriented
+class PairRows:
+    """Partner lists of ``triangles`` triangles in one array of ``capacity`` entries:
+    row t is ``partner[start[t]:start[t + 1]]``, sorted (CSR); ``size``, ``cursor`` and
+    ``block_start`` are scratch of the rebuild (:func:`kernels.tissue_collision.count_rows`)."""
+
+    def __init__(self, triangles: int, capacity: int):
+        group = FieldGroup()
+        self.capacity = int(capacity)
+        self.start = group.field(ti.i32, triangles + 1)
+        self.size = group.field(ti.i32, triangles)
+        self.cursor = group.field(ti.i32, triangles)
+        self.block_start = group.field(ti.i32, -(-triangles // tissue_collision.ROW_BLOCK))
+        self.partner = group.field(ti.i32, self.capacity)
+        group.finalize()
+        self._group = group
+
+
+@ti.data_oriented
+class FoundPairs:
+    """Pairs found by one rescan (at most ``capacity``; ``count`` may say more)."""
+
+    def __init__(self, capacity: int):
+        group = FieldGroup()
+        self.capacity = int(capacity)
+        self.pair = group.field(ti.i32, self.capacity, vector=2)
+        self.count = group.field(ti.i32, None)
+        group.finalize()
+        self._group = group
+
+
+@ti.data_oriented
 class TissueCollision:
     """Collision of a model's surface triangles (seed 000 §4).
 
@@ -97,22 +152,33 @@ class TissueCollision:
     ``tools`` tool-triangle contacts; ``tool_particles`` also pushes particles out of
     the tools' shapes (off by default: the solver's prediction already pushes particles
     out of the Control capsules); ``polygon_thickness`` [m] kept between tissue
-    features by the polygon method; ``cell_size`` [m] of the spatial hash (default
-    2.5 × the largest rest bounding radius; a triangle's bounding radius plus its
-    motion in a substep must stay under half of it); ``timing``: synchronise around
-    :meth:`step` and record ``last_ms`` / ``total_ms`` / ``calls``. These settings are
-    compiled into the kernels: fixed per instance.
+    features by the polygon method. Broad phase (:mod:`kernels.tissue_collision`):
+    ``pair_margin`` [m] of the pair lists (default the median rest broad radius;
+    triangles rescan after drifting a third of it), ``hash_slack`` [m] a sphere may
+    drift from where the hash holds it (default the margin), ``rest_exclusion`` κ:
+    pairs closer at rest than κ times the sum of their broad radii never collide when
+    of one body (:func:`organ_bodies`) or not facing each other at rest (0: only
+    adjacent triangles are skipped), ``cell_size`` [m] of the spatial hash (default
+    2 × 1.25 × the largest rest broad radius + margin + slack: a triangle's broad
+    radius plus its motion in a substep must stay under 1.25 × that largest radius).
+    ``timing``: synchronise around :meth:`step` and record ``last_ms``, ``total_ms``,
+    ``calls`` and ``phase_ms`` (cumulative per phase). These settings are compiled
+    into the kernels: fixed per instance.
     """
 
     def __init__(self, model, *, method: str = "circumsphere", scale_phi: float = 3.0,
                  safe_angle: float = math.pi / 6, lazy_delta: float = 0.05,
                  tissue_pairs: bool = True, self_collision: bool = True, tools: bool = True,
                  tool_particles: bool = False, polygon_thickness: float = 1e-4,
-                 cell_size: float | None = None, timing: bool = False):
+                 pair_margin: float | None = None, hash_slack: float | None = None,
+                 rest_exclusion: float = 2.0, cell_size: float | None = None,
+                 timing: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if not 0.0 < safe_angle < math.pi / 2 or scale_phi < 0.0 or lazy_delta < 0.0:
             raise ValueError("safe_angle must lie in (0, π/2), scale_phi and lazy_delta >= 0")
+        if rest_exclusion < 0.0 or (pair_margin or 0.0) < 0.0 or (hash_slack or 0.0) < 0.0:
+            raise ValueError("pair_margin, hash_slack and rest_exclusion must be >= 0")
         self.model = model
         self.method = METHODS[method]
         self.scale_phi, self.safe_angle = float(scale_phi), float(safe_angle)
@@ -120,35 +186,62 @@ class TissueCollision:
         self.tissue_pairs, self.self_collision = bool(tissue_pairs), bool(self_collision)
         self.tools, self.tool_particles = bool(tools), bool(tool_particles)
         self.polygon_thickness = float(polygon_thickness)
+        self.rest_exclusion = float(rest_exclusion)
         self.timing, self.last_ms, self.total_ms, self.calls = timing, 0.0, 0.0, 0
-        self._begun = False
+        self.phase_ms = dict.fromkeys(PHASES, 0.0)
+        self._begun, self._hashed, self._mark = False, False, 0.0
         data = model.data
         triangles = np.asarray(data.surface_triangles, dtype=np.int64).reshape(-1, 3)
         self.triangle_count, self.vertex_count = len(triangles), len(data.surface_index)
+        rest = (data.surface_weight[..., None] * data.rest_position[data.surface_index]).sum(axis=1)
+        corners = rest[triangles]
+        rest_sphere = broad_spheres(corners)
+        rest_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        rest_normal /= np.maximum(np.linalg.norm(rest_normal, axis=1, keepdims=True), 1e-30)
+        self.pair_margin = float(np.median(rest_sphere[:, 3]) if pair_margin is None
+                                 and len(triangles) else pair_margin or 0.0)
+        self.hash_slack = self.pair_margin if hash_slack is None else float(hash_slack)
+        self.rescan_drift = self.pair_margin / 3.0
+        self.reach_bound = 1.25 * max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
         tables = triangle_corner_tables(data)
-        self.bound_count = len(tables["bound_particle"])
-        self._init_fields(data, triangles, tables)
-        self.grid = None  # tissue pairs only: the hash allocates its own fields
+        self._init_fields(data, triangles, tables, rest_sphere, rest_normal)
+        self.grid = self.rows = self.spare = self.found = None  # tissue pairs only
         if tissue_pairs:
             if cell_size is None:
-                rest = (data.surface_weight[..., None]
-                        * data.rest_position[data.surface_index]).sum(axis=1)
-                largest = float(bounding_radii(rest[triangles]).max(initial=0.0))
-                cell_size = 2.5 * max(largest, 1e-5)
-            self.grid = SpatialHash(max(self.triangle_count, 1),
-                                    1 << max(4, int(2 * self.triangle_count).bit_length()),
-                                    cell_size, pair_capacity=1)
+                cell_size = 2.0 * self.reach_bound + self.pair_margin + self.hash_slack
+            f = max(self.triangle_count, 1)
+            self.grid = SpatialHash(f, 1 << max(4, int(2 * f).bit_length()), cell_size,
+                                    pair_capacity=1)
+            self.rows, self.spare = PairRows(f, 8 * f), PairRows(f, 8 * f)
+            self.found = FoundPairs(4 * f)
 
-    def _init_fields(self, data, triangles: np.ndarray, tables: dict):
+    def _init_fields(self, data, triangles: np.ndarray, tables: dict, rest_sphere: np.ndarray,
+                     rest_normal: np.ndarray):
         f, v, group = self.triangle_count, self.vertex_count, FieldGroup()
         self._group = group
         organ = np.zeros(f, dtype=np.int32)
         for k, record in enumerate(data.organs):
             organ[record.triangles[0]:record.triangles[1]] = k
+        self.tri_body = group.field(ti.i32, f, values=organ_bodies(data)[organ])
         corner_inv_mass = tables["corner_inv_mass"]
         self.tri_vertex = group.field(ti.i32, f, vector=3, values=triangles)
         self.tri_neighbour = group.field(ti.i32, f, vector=3, values=edge_neighbours(triangles))
         self.tri_organ = group.field(ti.i32, f, values=organ)
+        self.broad_sphere = group.field(ti.f32, f, vector=4)
+        self.rest_sphere = group.field(ti.f32, f, vector=4, values=rest_sphere)
+        self.rest_normal = group.field(ti.f32, f, vector=3, values=rest_normal)
+        self.ref_sphere = group.field(ti.f32, f, vector=4, values=np.full((f, 4), FAR))
+        self.hash_sphere = group.field(ti.f32, f, vector=4)
+        self.moved = group.field(ti.i32, f)
+        self.active_list = group.field(ti.i32, f)
+        self.active_count = group.field(ti.i32, None)
+        self.touched_list = group.field(ti.i32, len(data.pinned))
+        self.touched_count = group.field(ti.i32, None)
+        self.particle_mark = group.field(ti.i32, len(data.pinned))
+        rank = np.full(len(data.pinned), -1)
+        rank[tables["bound_particle"]] = np.arange(len(tables["bound_particle"]))
+        self.particle_rank = group.field(ti.i32, len(data.pinned), values=rank)
+        self.broad = group.field(ti.i32, len(tissue_collision.BROAD))
         self.tri_inv_mass = group.field(ti.f32, f,
                                         values=corner_inv_mass.reshape(-1, 3).mean(axis=1))
         self.corner_inv_mass = group.field(ti.f32, 3 * f, values=corner_inv_mass)
@@ -167,6 +260,10 @@ class TissueCollision:
         self.shape_size = group.field(ti.f32, shapes, vector=3)
         for name in ("tool_prev_a", "tool_prev_b", "tool_last_a", "tool_last_b"):
             setattr(self, name, group.field(ti.f32, MAX_TOOLS, vector=3))
+        self.tool_reach = group.field(ti.f32, MAX_TOOLS)
+        self.tool_cull = group.field(ti.f32, MAX_TOOLS, vector=4)
+        self.tool_cull_a = group.field(ti.f32, MAX_TOOLS, vector=3)
+        self.tool_cull_axis = group.field(ti.f32, MAX_TOOLS, vector=3)
         self.tool_prev_radius = group.field(ti.f32, MAX_TOOLS)
         self.tool_last_radius = group.field(ti.f32, MAX_TOOLS)
         self.tool_last_active = group.field(ti.i32, MAX_TOOLS)
@@ -179,6 +276,8 @@ class TissueCollision:
                      "curvature", "curvature_factor", "recovery"):
             setattr(self, name, group.field(ti.f32, f))
         self.sorted_sphere = group.field(ti.f32, f, vector=4)
+        self.sorted_rest = group.field(ti.f32, f, vector=4)
+        self.sorted_body = group.field(ti.i32, f)
         self.corner_delta = group.field(ti.f32, 3 * f, vector=3)
         self.corner_count = group.field(ti.i32, 3 * f)
         self.counter = group.field(ti.i32, len(circumsphere.COUNTERS))
@@ -208,6 +307,10 @@ class TissueCollision:
         for f, values in ((self.shape_kind, kind), (self.shape_a, a), (self.shape_b, b),
                           (self.shape_size, size)):
             f.from_numpy(values)
+        reach = self.tool_reach.to_numpy()
+        reach[tool] = max([shape_reach(kind[row], a[row], b[row], size[row])
+                           for row in range(rows.start, rows.stop)])
+        self.tool_reach.from_numpy(reach)
 
     def begin_frame(self, control):
         """Remember the tools' poses of the last frame (for the tool motion in the
@@ -218,30 +321,82 @@ class TissueCollision:
 
     def reset(self):
         """Forget the lazy-update state (every circumsphere is recomputed at the next
-        step) and the tools' last poses, e.g. after :meth:`State.reset`."""
+        step), the pair lists (every triangle rescans) and the tools' last poses, e.g.
+        after :meth:`State.reset`."""
         self.area_last.fill(0.0)
+        self.ref_sphere.fill(FAR)
         self.tool_last_active.fill(0)
         self._begun = False
 
-    def step(self, state, control):
+    def update_spheres(self, state):
+        """Every triangle's bounding and collision sphere (seed 000 §4.2) from p and x,
+        detecting nothing (to look at them)."""
+        circumsphere.update_spheres(self.model, state, self, True)
+
+    def step(self, state, control, tissue: bool = True):
         """Detect and respond once (module docstring): moves ``state.p`` and flags
-        ``state.collided``; velocities follow from p - x in the solver's update."""
+        ``state.collided``; velocities follow from p - x in the solver's update.
+        ``tissue=False`` leaves out the tissue pairs (tools only), e.g. for all but the
+        last shape-matching pass of a substep."""
         if not self._begun:
             self.begin_frame(control)
         if self.timing:
             ti.sync()
-            start = time.perf_counter()
+            start = self._mark = time.perf_counter()
         if self.tool_particles:
             push_particles_out_of_tools(self.model, state, control, self)
-        circumsphere.update_spheres(self.model, state, self)
-        if self.tissue_pairs:
-            self.grid.build(self.bound_center, self.triangle_count)
-        tissue_collision.detect_and_respond(self.model, state, control, self, self.grid)
+        tissue_collision.update_bounds(self.model, state, control, self)
+        self._lap("bounds")
+        tissue = tissue and self.tissue_pairs
+        if tissue:
+            moved, stale = self.broad.to_numpy()[[tissue_collision.B_MOVED,
+                                                  tissue_collision.B_STALE]]
+            if moved:
+                self._list_pairs(bool(stale))
+            tissue_collision.mark_active(self, self.rows)
+        circumsphere.update_spheres(self.model, state, self, False)
+        self._lap("spheres")
+        tissue_collision.detect_and_respond(self.model, state, control, self, self.rows,
+                                            int(tissue))
+        self._lap("detect")
         if self.timing:
-            ti.sync()
             self.last_ms = (time.perf_counter() - start) * 1e3
             self.total_ms += self.last_ms
             self.calls += 1
+
+    def _list_pairs(self, stale: bool):
+        """Broad phase of the moved triangles (:mod:`kernels.tissue_collision`): the hash
+        is rebuilt when out of date, the moved rescan it, the rows are rebuilt; found
+        pairs and rows that outgrow their arrays get larger ones (compiled once more)
+        and the rescan runs again."""
+        if stale or not self._hashed:
+            self.grid.build(self.broad_sphere, self.triangle_count)
+            tissue_collision.hold_spheres(self, self.grid)
+            self._hashed = True
+            self._lap("hash")
+        while True:
+            tissue_collision.list_pairs(self, self.grid, self.found)
+            tissue_collision.count_rows(self, self.rows, self.spare, self.found)
+            status = self.broad.to_numpy()
+            found = int(status[tissue_collision.B_FOUND])
+            rows = int(status[tissue_collision.B_ROWS])
+            if found > self.found.capacity:
+                self.found = FoundPairs(2 * found)
+            elif rows > self.spare.capacity:
+                self.spare = PairRows(self.triangle_count, 2 * rows)
+            else:
+                break
+        tissue_collision.fill_rows(self, self.rows, self.spare, self.found)
+        self.rows, self.spare = self.spare, self.rows
+        self._lap("pairs")
+
+    def _lap(self, phase: str):
+        """With ``timing``: add the time since the last lap to ``phase_ms[phase]``."""
+        if self.timing:
+            ti.sync()
+            now = time.perf_counter()
+            self.phase_ms[phase] += (now - self._mark) * 1e3
+            self._mark = now
 
     def counters(self) -> dict[str, int]:
         """Cumulative event counts (i32, wrapping: compare differences)."""

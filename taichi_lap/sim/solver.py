@@ -9,9 +9,10 @@ A frame of length dt runs ``substeps`` substeps of h = dt / substeps, each:
 3. **shape matching** — ``shape_iterations`` passes of Alg. 1 lines 7-23 (A, polar
    decomposition per cluster, limited goals); all passes but the last move p
    towards the goals;
-4. **collision** — surface triangles against each other and the tools by adaptive
-   circumspheres or a baseline (seed 000 §4, chosen per scene), after each shape-matching
-   pass; self-collision of the intestine and mesentery (seed 001 §4: stochastic detection,
+4. **collision** — surface triangles against the tools by adaptive circumspheres or a
+   baseline (seed 000 §4, chosen per scene) after each shape-matching pass, against each
+   other after the last; self-collision of the intestine and mesentery (seed 001 §4:
+   stochastic detection,
    displacement-velocity response Eq. 2-9) on the predicted positions;
 5. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
 
@@ -145,7 +146,7 @@ class Solver:
             for _ in range(settings.shape_iterations - 1):
                 shape_matching.match_clusters(model, state)
                 shape_matching.project_to_goals(model, state, control)
-                self._collide(state, control)
+                self._collide(state, control, tissue=False)
             shape_matching.match_clusters(model, state)
         self._collide(state, control)
         if self.self_collision is not None:
@@ -153,10 +154,12 @@ class Solver:
         shape_matching.update_goals(model, state, control, h, settings.speed_limit,
                                     settings.gravity, int(not last))
 
-    def _collide(self, state: State, control: Control):
-        """Tissue collision (seed 000 §4), the last move of p before the goal update."""
+    def _collide(self, state: State, control: Control, tissue: bool = True):
+        """Tissue collision (seed 000 §4), the last move of p before the goal update;
+        tissue-tissue pairs only after the last shape-matching pass (``tissue``), tool
+        contacts after every pass."""
         if self.collision is not None:
-            self.collision.step(state, control)
+            self.collision.step(state, control, tissue=tissue)
 
     def _solve_constraints(self, state: State, control: Control):
         model, settings = self.model, self.settings
