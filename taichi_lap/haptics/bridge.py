@@ -55,6 +55,9 @@ class HapticBridge:
         self.session = self.surface = self.snapshot = self.servo = self.feedback = None
         self.tool_index = -1
         self._ticks_seen = 0
+        self._held = np.zeros(0, dtype=np.int64)  # the grasped particles _edges belong to
+        self._edges = np.zeros((0, 2), dtype=np.int64)
+        self._edge_rest = np.zeros(0)
 
     def attach(self, session):
         """Start the servo for ``session``: publish its surface, then open the device."""
@@ -78,7 +81,8 @@ class HapticBridge:
         """Publish the current surface and grasp; the tool at the servo's graphical pose."""
         state = self.session.state
         x = state.x.to_numpy()
-        self.surface.publish(self.snapshot, x, **self._grasp(x, state.grasp_tool.to_numpy()))
+        grasp = self._grasp(x) if state.jaws_closed[self.tool_index] else {}
+        self.surface.publish(self.snapshot, x, **grasp)
         self.feedback = self.servo.feedback.read()
         if self.feedback is None:
             return {}
@@ -102,21 +106,25 @@ class HapticBridge:
                 zip(ticks["clock"], ticks["tip"], ticks["direction"], ticks["buttons"],
                     ticks["force"])]
 
-    def _grasp(self, x: np.ndarray, holder: np.ndarray) -> dict:
+    def _grasp(self, x: np.ndarray) -> dict:
         """The grasp edges of the particles this tool holds (at most the snapshot's
-        capacity, nearest the tip first), the grasped end in the stylus frame."""
-        grasped = np.flatnonzero(holder == self.tool_index)
+        capacity, nearest the tip first), the grasped end in the stylus frame. The
+        edges and their rest lengths are found once per grasp (the held set changes
+        only when the jaws close)."""
+        grasped = np.flatnonzero(self.session.state.grasp_tool.to_numpy() == self.tool_index)
         if self.feedback is None or not len(grasped):
             return {}
-        data = self.session.data
-        edges = grasp_edges(data.tets, grasped, data.distance_pair)
-        pose = self.feedback.graphic_pose
+        if not np.array_equal(grasped, self._held):
+            data = self.session.data
+            self._held = grasped
+            self._edges = grasp_edges(data.tets, grasped, data.distance_pair)
+            ends = data.rest_position[self._edges]
+            self._edge_rest = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+        edges, pose = self._edges, self.feedback.graphic_pose
         local = (x[edges[:, 0]] - pose[:3, 3]) @ pose[:3, :3]
         order = np.argsort(np.linalg.norm(local, axis=1), kind="stable")[:GRASP_EDGE_CAPACITY]
-        rest = data.rest_position
         return {"grasp_local": local[order], "grasp_neighbor": x[edges[order, 1]],
-                "grasp_rest": np.linalg.norm(rest[edges[order, 1]] - rest[edges[order, 0]],
-                                             axis=1)}
+                "grasp_rest": self._edge_rest[order]}
 
     def close(self):
         """Stop the servo (zero force first), then free the shared memory."""
