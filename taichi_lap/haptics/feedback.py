@@ -157,10 +157,16 @@ class ServoFeedback:
     def ticks_since(self, seen: int) -> tuple[dict[str, np.ndarray], int, int]:
         """The device input of the ticks after the first ``seen`` (``clock``, ``tip``,
         ``direction``, ``buttons``, ``force``, oldest first), the new count, and how
-        many of those ticks the ring no longer holds."""
+        many of those ticks the ring no longer holds (or the servo overwrote while they
+        were read)."""
         count = int(self._header[RING_WORD])
         begin = max(seen, count - self.ticks_capacity)
-        return self._ring(RING_INPUT, begin, count), count, begin - seen
+        ticks = self._ring(RING_INPUT, begin, count)
+        # the servo kept ticking while they were copied: drop the oldest it wrote over
+        overwritten = max(int(self._header[RING_WORD]) - self.ticks_capacity - begin, 0)
+        if overwritten:
+            ticks = {name: values[overwritten:] for name, values in ticks.items()}
+        return ticks, count, begin + overwritten - seen
 
     @property
     def state(self) -> ServoState:
