@@ -30,6 +30,10 @@ SCENE_PARAMS = {
     "seed": Param("int", 0, "seed of every random source", lo=0, hi=2**31 - 1),
     "detail": Param("float", 1.0, "particle-count multiplier (smaller scenes for tests)",
                     lo=1e-3, hi=8.0),
+    "settle_time": Param("float", 0.0, "simulated time run from the rest shape, tools at their "
+                                        "scene poses and collision off, before frame 0: the "
+                                        "session starts with the organs at rest under gravity",
+                         lo=0.0, hi=60.0, unit="s"),
     "speed_limit": Param("float", 50.0, "particle speed reported as a simulation fault",
                          lo=1e-3, hi=1e6, unit="m/s"),
     "collision": Param("str", "off", "tissue collision of surface triangles (seed 000 §4)",

@@ -30,7 +30,14 @@ def scene_script(scene: Scene) -> ScriptedDevice | None:
 class Session:
     """Owns everything one running scene needs. ``timings`` holds the last frame's
     milliseconds per stage (``physics``; renderers add theirs); ``events`` the last
-    step's simulation events (grasp, release), each with the tool's name."""
+    step's simulation events (grasp, release), each with the tool's name.
+
+    A scene with ``settle_time`` starts settled: once, at construction, the solver runs
+    that long from the rest shape with the tools at their scene poses and both
+    collision pipelines off (an organ sagging from the shape it was built in moves
+    every surface triangle, which the collision broad phase pays for in every
+    substep), and :meth:`reset` returns to that state (``settle_seconds``: the wall
+    time it took)."""
 
     def __init__(self, scene: Scene, *, use_cache: bool = True, progress: bool = True):
         start = time.perf_counter()
@@ -44,17 +51,42 @@ class Session:
         self.dt = scene.settings["dt"]
         self.timings: dict[str, float] = {}
         self.events: list[dict] = []
+        self._start_state = None
+        self.settle_seconds = 0.0
         self.reset()
+        self._settle(round(scene.settings["settle_time"] / self.dt))
 
     def reset(self):
-        """Back to the rest state, tools at their scene poses, surface skinned."""
-        self.state.reset(self.model)
+        """Back to the start state (the rest shape, or the settled one), tools at their
+        scene poses, surface skinned."""
+        if self._start_state is None:
+            self.state.reset(self.model)
+        else:
+            self.state.restore(self._start_state)
         self.control.reset()
         for collision in (self.solver.collision, self.solver.self_collision):
             if collision is not None:
                 collision.reset()
         apply_poses(self.control, self.scene.tools, {})
         skin_surface(self.model, self.state)
+
+    def _settle(self, frames: int):
+        """Run ``frames`` frames from the rest state with collision off and keep the
+        result as the start state (class docstring)."""
+        if frames <= 0:
+            return
+        start = time.perf_counter()
+        solver = self.solver
+        pipelines = solver.collision, solver.self_collision
+        solver.collision = solver.self_collision = None
+        try:
+            for _ in range(frames):
+                solver.step(self.state, self.control, self.dt)
+        finally:
+            solver.collision, solver.self_collision = pipelines
+        self._start_state = self.state.snapshot()
+        self.reset()
+        self.settle_seconds = time.perf_counter() - start
 
     def step(self, poses: dict[str, Pose] | None = None, buttons: dict[str, int] | None = None):
         """Place the tools (``buttons`` per tool name close graspers), advance one

@@ -13,6 +13,11 @@ from taichi_lap.sim.fields import FieldGroup
 from taichi_lap.sim.model import Model
 
 
+SNAPSHOT_FIELDS = ("x", "v", "goal", "eta", "collided", "grasp_tool", "grasp_local",
+                   "cluster_rotation", "cluster_quaternion", "cluster_center")
+"""State fields carried from one frame to the next (the rest is scratch of a step)."""
+
+
 @ti.data_oriented
 class State:
     """Per-particle ``x`` [m], ``v`` [m/s], predicted ``p`` [m] (and a second buffer
@@ -77,8 +82,21 @@ the holding tool (``grasp_tool``, -1 for none) and its place in that tool's fram
         return self.x.to_numpy()
 
     def snapshot(self) -> dict[str, np.ndarray]:
-        """Everything that evolves, as NumPy copies (for determinism checks)."""
-        return {"x": self.x.to_numpy(), "v": self.v.to_numpy(), "goal": self.goal.to_numpy(),
-                "eta": self.eta.to_numpy(), "collided": self.collided.to_numpy(),
-                "grasp_tool": self.grasp_tool.to_numpy(),
-                "grasp_local": self.grasp_local.to_numpy()}
+        """Everything that evolves between frames, as NumPy copies (for determinism
+        checks and :meth:`restore`)."""
+        return {name: getattr(self, name).to_numpy() for name in SNAPSHOT_FIELDS}
+
+    def restore(self, snapshot: dict[str, np.ndarray]):
+        """Put back a :meth:`snapshot` taken while no tool held tissue, as frame 0:
+        predictions at x, no fault, jaws open, time 0."""
+        if (snapshot["grasp_tool"] != FREE).any():
+            raise ValueError("cannot restore a snapshot taken while a tool held tissue")
+        for name in SNAPSHOT_FIELDS:
+            getattr(self, name).from_numpy(snapshot[name])
+        self.p.copy_from(self.x)
+        self.p_next.copy_from(self.x)
+        self.fault[None] = 0
+        self.fault_particle[None] = 2**31 - 1
+        self.time = 0.0
+        self.frame = 0
+        self.jaws_closed = [False] * MAX_TOOLS
