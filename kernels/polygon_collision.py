@@ -166,8 +166,8 @@ def polygon_pair(coll: ti.template(), t, u, acc, hits):
 
 
 @ti.func
-def polygon_tool(coll: ti.template(), t, tool, tip, tail, radius, acc, hits):
-    """Triangle t against a kinematic tool: vertices projected to the surface of the
+def polygon_tool(coll: ti.template(), t, tool, pose, acc, hits):
+    """Triangle t against a kinematic tool at ``pose``: vertices projected to the surface of the
     union, triangle interior pushed off the axis of each round shape, added to t's
     corner accumulators. Returns (corrections, acc, hits)."""
     v = coll.tri_vertex[t]
@@ -175,13 +175,13 @@ def polygon_tool(coll: ti.template(), t, tool, tip, tail, radius, acc, hits):
     count = 0
     for k in range(3):
         if coll.corner_owner[3 * t + k] and w[k] > 0.0:
-            dist, grad = tool_distance(coll, tool, tip, tail, radius, coll.vertex_p[v[k]])
+            dist, grad = tool_distance(coll, tool, pose, coll.vertex_p[v[k]])
             if dist < 0.0:
                 acc, hits = add_corner(acc, hits, k, -dist * grad)
                 count += 1
     p0, p1, p2 = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]
     for s in range(MAX_TOOL_SHAPES):
-        round_, a, b, r = round_shape(coll, tool * MAX_TOOL_SHAPES + s, tip, tail, radius)
+        round_, a, b, r = round_shape(coll, tool * MAX_TOOL_SHAPES + s, pose)
         if round_:
             on_seg, on_tri, bary = segment_triangle_closest(a, b, p0, p1, p2)
             gap = on_tri - on_seg

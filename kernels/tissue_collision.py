@@ -78,7 +78,7 @@ from taichi_lap.kernels.circumsphere import (C_BOUNDING, C_CANDIDATES, C_LISTED,
 from taichi_lap.kernels.contact import MAX_TOOLS
 from taichi_lap.kernels.polygon_collision import add_corner, polygon_pair, polygon_tool
 from taichi_lap.kernels.spatial_hash import exclusive_scan, store_pair
-from taichi_lap.kernels.tool_shapes import tool_distance
+from taichi_lap.kernels.tool_shapes import control_pose, tool_distance, tool_extent
 
 NEAR = 32
 """Hash hits a scanning triangle keeps before testing them (it scans again for more):
@@ -155,8 +155,8 @@ def sphere_pair_translation(c_t, r_t, disp_t, w_t, c_u, r_u, disp_u, w_u, fallba
 
 
 @ti.func
-def sphere_tool_translation(coll: ti.template(), tool, tip, tail, radius, center, r, disp):
-    """§4.3 against a kinematic tool (its union of shapes at its current pose). When
+def sphere_tool_translation(coll: ti.template(), tool, pose, center, r, disp):
+    """§4.3 against a kinematic tool (its union of shapes at its current ``pose``). When
     the sphere (centre ``center`` [m], radius r, displacement ``disp``) started the
     substep clear of the tool: back up to where it first touched (8 bisections of
     sdf(start + τ disp) - r), remove the approaching normal velocity and move on.
@@ -176,7 +176,7 @@ def sphere_tool_translation(coll: ti.template(), tool, tip, tail, radius, center
                 point = start + hi * disp
             elif it >= 10:
                 point = final
-            d, g = tool_distance(coll, tool, tip, tail, radius, point)
+            d, g = tool_distance(coll, tool, pose, point)
             if it == 0:
                 clear = d > r
             elif it <= 8:
@@ -223,16 +223,15 @@ def add_to_corners(acc, hits, translation):
 @ti.kernel
 def remember_tool_poses(control: ti.template(), coll: ti.template()):
     """Once per frame: the previous pose of each tool becomes the pose seen at the last
-    call (or the current pose for a tool that just became active). Writes
-    tool_prev_*, tool_last_*."""
+    call (or the current pose for a tool that just became active). Writes tool_prev,
+    tool_last, tool_last_active."""
     for k in ti.static(range(MAX_TOOLS)):
-        a, b, r = control.tool_a[k], control.tool_b[k], control.tool_radius[k]
+        pose = control_pose(control, k)
         if coll.tool_last_active[k] and control.tool_active[k]:
-            a, b, r = coll.tool_last_a[k], coll.tool_last_b[k], coll.tool_last_radius[k]
-        coll.tool_prev_a[k], coll.tool_prev_b[k], coll.tool_prev_radius[k] = a, b, r
-        coll.tool_last_a[k] = control.tool_a[k]
-        coll.tool_last_b[k] = control.tool_b[k]
-        coll.tool_last_radius[k] = control.tool_radius[k]
+            coll.tool_prev[k] = coll.tool_last[k]
+        else:
+            coll.tool_prev[k] = pose
+        coll.tool_last[k] = pose
         coll.tool_last_active[k] = control.tool_active[k]
 
 
@@ -264,9 +263,10 @@ def xyz(sphere):
 
 @ti.func
 def tool_motion(coll: ti.template(), control: ti.template(), k):
-    """How far [m] tool k's ends moved since the last frame."""
-    return ti.max((control.tool_a[k] - coll.tool_prev_a[k]).norm(),
-                  (control.tool_b[k] - coll.tool_prev_b[k]).norm())
+    """How far [m] tool k's shaft ends and jaw end moved since the last frame."""
+    prev = coll.tool_prev[k]
+    return ti.max((control.tool_a[k] - prev.tip).norm(), (control.tool_b[k] - prev.tail).norm(),
+                  (control.tool_jaw[k] - prev.jaw).norm())
 
 
 @ti.func
@@ -302,7 +302,8 @@ def update_bounds(model: ti.template(), state: ti.template(), control: ti.templa
     coll.active_count[None] = 0
     for k in ti.static(range(MAX_TOOLS)):  # bounding capsules: tip, axis, 1 / |axis|², reach
         axis = control.tool_b[k] - control.tool_a[k]
-        reach = ti.max(control.tool_radius[k], coll.tool_reach[k]) + tool_motion(coll, control, k)
+        reach = ti.max(control.tool_radius[k], coll.tool_reach[k],
+                       tool_extent(control_pose(control, k))) + tool_motion(coll, control, k)
         coll.tool_cull_a[k], coll.tool_cull_axis[k] = control.tool_a[k], axis
         coll.tool_cull[k] = ti.Vector([1.0 / ti.max(axis.dot(axis), 1e-30), 0.0, 0.0,
                                        ti.select(control.tool_active[k] != 0, reach, -1.0)])
@@ -556,17 +557,16 @@ def tool_contacts(coll: ti.template(), control: ti.template(), t, acc, hits):
     for k in range(MAX_TOOLS):
         if control.tool_active[k]:
             move = tool_motion(coll, control, k)
-            tip, tail, radius = control.tool_a[k], control.tool_b[k], control.tool_radius[k]
+            pose = control_pose(control, k)
             center, r = coll.sphere_center[t], coll.sphere_radius[t]
             touching = True
             for test in range(3):  # one distance call site: bounding, facing, sphere phase
-                a, b, rad, point = tip, tail, radius, coll.bound_center[t]
+                at, point = pose, coll.bound_center[t]
                 if test == 1:
-                    a, b, rad = coll.tool_prev_a[k], coll.tool_prev_b[k], coll.tool_prev_radius[k]
-                    point = coll.start_centroid[t]
+                    at, point = coll.tool_prev[k], coll.start_centroid[t]
                 elif test == 2:
                     point = center
-                dist, grad = tool_distance(coll, k, a, b, rad, point)
+                dist, grad = tool_distance(coll, k, at, point)
                 if test == 0:
                     touching = dist < coll.bound_reach[t] + move
                     if touching:
@@ -579,11 +579,11 @@ def tool_contacts(coll: ti.template(), control: ti.template(), t, acc, hits):
                     break
             if touching:
                 if ti.static(coll.method == POLYGON):
-                    n, acc, hits = polygon_tool(coll, t, k, tip, tail, radius, acc, hits)
+                    n, acc, hits = polygon_tool(coll, t, k, pose, acc, hits)
                     contacts += n
                 elif coll.tri_inv_mass[t] > 0.0:
                     acc, hits = add_to_corners(acc, hits, sphere_tool_translation(
-                        coll, k, tip, tail, radius, center, r, coll.displacement[t]))
+                        coll, k, pose, center, r, coll.displacement[t]))
                     contacts += 1
     return candidates, contacts, acc, hits
 

@@ -9,7 +9,7 @@ method (``circumsphere``, ``bounding_sphere``, ``polygon``) and per solver itera
 count 1-10 (24 frames and 1, 2, 5 with ``--quick``). An iteration is one
 shape-matching pass (seed 000 Alg. 1 lines 7-23, :mod:`kernels.shape_matching`)
 followed by one collision step (:class:`taichi_lap.sim.collision.TissueCollision`), as
-the solver is meant to run it.
+the solver runs it (:meth:`Solver.substep`; tissue pairs after the last pass).
 The cylinder reaches the tissue only through the collision pipeline (the solver's
 particle contacts get no tools).
 
@@ -27,10 +27,11 @@ adds tissue-tissue (self) detection with the spatial hash (every method pays the
 broad phase). A box plot like Fig. 10 is written next to the JSON (matplotlib).
 
 Cases ``rectum`` and ``liver``: the scene (detail 1, 0.2 with ``--quick``, its
-scripted tool) with circumsphere collision as the solver runs it, against none, over
-the same frames: ``settle`` (the first 30 frames, from the rest shape, with collision
-from the start) and ``steady`` (frames 61-120, collision switched on at frame 60,
-its first frame left out). Metrics ``frame_ms_off``, ``frame_ms_on`` and
+script driving the tools) with circumsphere collision as the solver runs it, against
+none, over the same frames: ``start`` (the first 30 frames from the session's start
+state, the liver's after its ``settle_time``, with collision from the start) and
+``steady`` (frames 61-120, collision switched on at frame 60, its first frame left
+out). Metrics ``frame_ms_off``, ``frame_ms_on`` and
 ``collision_ms`` (synchronised around each collision step) per frame, and
 ``collision_phase_ms`` per phase of :meth:`TissueCollision.step` (median per frame).
 
@@ -80,37 +81,23 @@ def cylinder_height(frame: int) -> float:
     return top - DEPTH + 0.5 * DEPTH * (frame + 1 - PRESS - HOLD) / LIFT
 
 
-def colliding_substep(session, collision, no_tools, tools, iterations: int):
-    """One substep with collision after every shape-matching pass (the wiring proposed
-    for :meth:`Solver.substep`); the solver's own contacts get ``no_tools``."""
-    from taichi_lap.kernels import shape_matching
-
-    model, state, settings = session.model, session.state, session.solver.settings
-    h = session.dt / settings.substeps
-    shape_matching.predict(model, state, no_tools, settings.gravity, h, 0)
-    for it in range(iterations):
-        shape_matching.match_clusters(model, state)
-        if it < iterations - 1:
-            shape_matching.project_to_goals(model, state, no_tools)
-        collision.step(state, tools)
-    shape_matching.update_goals(model, state, no_tools, h, settings.speed_limit,
-                                settings.gravity, 0)
-
-
 def run(session, collision, controls, iterations: int, frames: int):
     """Per-frame relative errors and collision milliseconds of one run; ``controls``
     are (no tools, the cylinder), created once so that kernels compile once."""
     session.reset()
     collision.reset()
     no_tools, tools = controls
+    solver = session.solver
+    solver.collision, solver.settings.shape_iterations = collision, iterations
+    h = session.dt / solver.settings.substeps
     errors, times = [], []
     for frame in range(frames):
         y = cylinder_height(frame)
         tools.set_tool(0, [0.0, y, -2 * HALF[2]], [0.0, y, 2 * HALF[2]], RADIUS)
         collision.begin_frame(tools)
         spent = collision.total_ms
-        for _ in range(session.solver.settings.substeps):
-            colliding_substep(session, collision, no_tools, tools, iterations)
+        for _ in range(solver.settings.substeps):
+            solver.substep(session.state, no_tools, h, collision_control=tools)
         times.append(collision.total_ms - spent)
         collided = session.state.collided.to_numpy() > 0
         if collided.any():
@@ -120,24 +107,30 @@ def run(session, collision, controls, iterations: int, frames: int):
     return errors, times
 
 
-WINDOWS = {"settle": (0, 30, 0), "steady": (60, 120, 1)}
+WINDOWS = {"start": (0, 30, 0), "steady": (60, 120, 1)}
 """Scene windows: first frame, end frame, frames dropped after collision starts."""
 
 
-def scene_window(session, collision, first: int, end: int, drop: int) -> dict:
-    """Frame times [ms] over frames first..end-1 with ``collision`` (None: off) on from
-    frame ``first``, the first ``drop`` of them left out."""
+def scene_window(session, script, collision, first: int, end: int, drop: int) -> dict:
+    """Frame times [ms] over frames first..end-1, the tools driven by ``script``, with
+    ``collision`` (None: off) on from frame ``first``, the first ``drop`` of them left
+    out."""
     session.reset()
     session.solver.collision = None
+
+    def step():
+        time = session.state.time
+        session.step(script.poses(time), script.buttons(time))
+
     for _ in range(first):
-        session.step()
+        step()
     session.solver.collision = collision
     out = {"frame": [], "collision": [], "phases": []}
     if collision is not None:
         collision.reset()
     for frame in range(first, end):
         spent, phases = (collision.total_ms, dict(collision.phase_ms)) if collision else (0, {})
-        session.step()
+        step()
         if frame >= first + drop:
             out["frame"].append(session.timings["physics"])
             if collision is not None:
@@ -149,7 +142,7 @@ def scene_window(session, collision, first: int, end: int, drop: int) -> dict:
 def scene_cases(quick: bool) -> list[dict]:
     """The rectum and liver scenes with and without circumsphere collision."""
     from taichi_lap import scene as scene_mod
-    from taichi_lap.session import Session
+    from taichi_lap.session import Session, scene_script
     from taichi_lap.sim.collision import TissueCollision
 
     detail = 0.2 if quick else 1.0
@@ -157,15 +150,17 @@ def scene_cases(quick: bool) -> list[dict]:
     for name in ("rectum", "liver"):
         scene = scene_mod.load(name, {"scene.detail": detail, "scene.collision": "circumsphere"})
         session = Session(scene, progress=False)
+        script = scene_script(scene)
         collision = TissueCollision(session.model, timing=True)
-        scene_window(session, collision, 0, 2, 0)  # compile
+        scene_window(session, script, collision, 0, 2, 0)  # compile
         params = {"particles": session.model.particle_count,
                   "triangles": session.model.surface_triangle_count, "detail": detail,
                   "substeps": session.solver.settings.substeps,
+                  "settle_time_s": scene.settings["settle_time"],
                   "shape_iterations": session.solver.settings.shape_iterations}
         for window, (first, end, drop) in WINDOWS.items():
-            off = scene_window(session, None, first, end, drop)
-            on = scene_window(session, collision, first, end, drop)
+            off = scene_window(session, script, None, first, end, drop)
+            on = scene_window(session, script, collision, first, end, drop)
             case = f"{name}-{window}"
             rows = [result(case, params, "frame_ms_off", off["frame"]),
                     result(case, params, "frame_ms_on", on["frame"]),

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_lap.kernels import circumsphere, shape_matching, tissue_collision
+from taichi_lap.kernels import circumsphere, tissue_collision
 from taichi_lap.sim import Control
 from taichi_lap.sim.collision import TissueCollision
 from tests.archrun import assert_vulkan_matches_cpu
@@ -213,20 +213,6 @@ def test_impulse_exchange_conserves_momentum_and_a_tool_takes_none_of_it():
     assert gap.min() > -1e-6
 
 
-def substep_with_collision(model, state, solver, collision, no_tools, tools, iterations: int):
-    """One substep of 1/60 s with a collision step after every shape-matching pass (the
-    wiring proposed for Solver.substep); the solver's particle contacts get ``no_tools``."""
-    settings = solver.settings
-    shape_matching.predict(model, state, no_tools, settings.gravity, DT, 0)
-    for it in range(iterations):
-        shape_matching.match_clusters(model, state)
-        if it < iterations - 1:
-            shape_matching.project_to_goals(model, state, no_tools)
-        collision.step(state, tools)
-    shape_matching.update_goals(model, state, no_tools, DT, settings.speed_limit,
-                                settings.gravity, 0)
-
-
 def sheet_run(method: str, speed: float):
     """A 2 mm tissue sheet, pinned at two edges, met by a capsule (radius 2.5 mm) moving
     down at ``speed`` [m/s] until its axis is 3 mm below the sheet's rest top, then
@@ -239,7 +225,8 @@ def sheet_run(method: str, speed: float):
              "attachments": [{"kind": "fixed", "box_min": [-1, -1, -1], "box_max": [-0.018, 1, 1]},
                              {"kind": "fixed", "box_min": [0.018, -1, -1], "box_max": [1, 1, 1]}]}
     _, data, model, state, no_tools, solver = simulation([sheet], gravity=[0, 0, 0])
-    collision = TissueCollision(model, method=method, tissue_pairs=False)
+    solver.collision = TissueCollision(model, method=method, tissue_pairs=False)
+    solver.settings.shape_iterations = 5
     tools = Control()
     radius, y, y_end = 0.0025, 0.001 + 0.0025 + 0.0005, -0.002
     x0 = data.rest_position
@@ -247,8 +234,8 @@ def sheet_run(method: str, speed: float):
     held = 0
     while held < 3:
         tools.set_tool(0, [0.0, y, -0.03], [0.0, y, 0.03], radius)
-        collision.begin_frame(tools)
-        substep_with_collision(model, state, solver, collision, no_tools, tools, 5)
+        solver.collision.begin_frame(tools)
+        solver.substep(state, no_tools, DT, collision_control=tools)
         held += y == y_end
         y = max(y - speed * DT, y_end)
     return y, state.x.to_numpy()[under, 1]
@@ -309,17 +296,16 @@ UNION = [("control",), ("sphere", [0.0, -0.004, 0.015], 0.004),
 """A tool as a union: the Control capsule, a sphere and a box in the tool frame [m]."""
 
 
-def union_distances(x, tip, tail, radius):
-    """NumPy signed distances [m] of points ``x`` to each shape of :data:`UNION` (in the
-    tool frame of kernels.tool_shapes), shape (3, n)."""
-    z = (tail - tip) / np.linalg.norm(tail - tip)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[1]) > 0.9 else np.array([0.0, 1.0, 0.0])
-    ex = np.cross(helper, z) / np.linalg.norm(np.cross(helper, z))
-    frame = np.stack([ex, np.cross(z, ex), z], axis=1)
+def capsule_distances(x, a, b, r):
+    """NumPy signed distances [m] of points ``x`` to the capsule a-b of radius r."""
+    t = np.clip((x - a) @ (b - a) / max((b - a) @ (b - a), 1e-30), 0.0, 1.0)
+    return np.linalg.norm(x - (a + t[:, None] * (b - a)), axis=1) - r
 
-    def capsule(a, b, r):
-        t = np.clip((x - a) @ (b - a) / max((b - a) @ (b - a), 1e-30), 0.0, 1.0)
-        return np.linalg.norm(x - (a + t[:, None] * (b - a)), axis=1) - r
+
+def union_distances(x, tip, tail, radius, frame):
+    """NumPy signed distances [m] of points ``x`` to each shape of :data:`UNION` placed
+    in the tool ``frame`` (columns, Control.tool_frame), shape (3, n)."""
+    capsule = lambda a, b, r: capsule_distances(x, a, b, r)  # noqa: E731
 
     sphere = tip + frame @ np.asarray(UNION[1][1])
     q = np.abs((x - tip - frame @ np.asarray(UNION[2][1])) @ frame) - np.asarray(UNION[2][2])
@@ -342,16 +328,47 @@ def compute_collision_case(method: str = "circumsphere") -> dict:
         collision.step(state, tools)
     p2, _ = pressed_blocks(*two_blocks(), method, 2)
     return {"p": state.p.to_numpy(), "collided": state.collided.to_numpy(), "p_blocks": p2,
-            "tool": np.float32([-0.03, y, 0.0, 0.03, y, 0.0])}
+            "tool": np.float32([-0.03, y, 0.0, 0.03, y, 0.0]),
+            "frame": tools.tool_frame.to_numpy()[0]}
 
 
 def test_a_union_of_implicit_shapes_pushes_particles_and_triangles_out():
     result = compute_collision_case()
     tip, tail = result["tool"][:3].astype(float), result["tool"][3:].astype(float)
-    distance = union_distances(result["p"].astype(float), tip, tail, 0.005)
+    distance = union_distances(result["p"].astype(float), tip, tail, 0.005,
+                               result["frame"].astype(float))
     assert distance.min() > -1e-5  # nothing left inside any shape
     assert np.all(distance.min(axis=1) < 2.5e-3)  # and every shape pushed some of it
     assert result["collided"].sum() > 10
+
+
+def jaw_press(jaw_length: float):
+    """A tool of radius 4 mm pointing down at the test block, 1 mm deeper each frame
+    from where jaws of ``jaw_length`` [m] would touch the top to 3 mm into it (the
+    shaft stays clear); returns the skinned surface from p, the rest surface and the
+    Control."""
+    _, data, model, state, _, _ = simulation([BOX], gravity=[0, 0, 0])
+    collision = TissueCollision(model, tissue_pairs=False)
+    tools, radius, top = Control(), 0.004, BOX["geometry"]["half_extents"][1]
+    for k in range(4):
+        y = top + 0.016 + 0.7 * radius - 0.001 * k
+        tools.set_tool(0, [0.0, y, 0.0], [0.0, y + 0.2, 0.0], radius, jaw_length=jaw_length)
+        collision.begin_frame(tools)
+        for _ in range(3):
+            collision.step(state, tools)
+    return skinned(data, state.p.to_numpy()), skinned(data, data.rest_position), tools
+
+
+def test_grasper_jaws_push_the_tissue_surface_and_a_probe_at_the_same_pose_does_not():
+    surface, rest, tools = jaw_press(0.016)
+    jaw, tip = tools.tool_jaw.to_numpy()[0], tools.tool_a.to_numpy()[0]
+    jaw_radius = float(tools.tool_jaw_radius.to_numpy()[0])
+    assert jaw[1] - jaw_radius < BOX["geometry"]["half_extents"][1] - 0.002  # into the block
+    inside = capsule_distances(surface, jaw, tip, jaw_radius)
+    assert inside.min() > -2e-4
+    assert np.abs(surface - rest).max() > 2e-3
+    probe_surface, _, _ = jaw_press(0.0)
+    assert np.abs(probe_surface - rest).max() < 1e-6
 
 
 @pytest.mark.vulkan

@@ -22,8 +22,8 @@ import taichi as ti
 from taichi_lap.kernels import circumsphere, tissue_collision
 from taichi_lap.kernels.contact import MAX_TOOLS
 from taichi_lap.kernels.spatial_hash import SpatialHash
-from taichi_lap.kernels.tool_shapes import (MAX_TOOL_SHAPES, SHAPE_CONTROL, SHAPE_KINDS,
-                                            push_particles_out_of_tools)
+from taichi_lap.kernels.tool_shapes import (MAX_TOOL_SHAPES, SHAPE_CONTROL, SHAPE_JAWS,
+                                            SHAPE_KINDS, ToolPose, push_particles_out_of_tools)
 from taichi_lap.sim.csr import incidence
 from taichi_lap.sim.fields import FieldGroup
 
@@ -38,7 +38,8 @@ FAR = 1e9
 
 def shape_reach(kind: int, a: np.ndarray, b: np.ndarray, size: np.ndarray) -> float:
     """Distance [m] from the tool tip that holds a shape of the tool-frame table (0 for
-    the Control capsule and empty slots: the capsule's own radius covers them)."""
+    the shaft, the jaws and empty slots: the collision reads their reach from the
+    Control)."""
     if kind == SHAPE_KINDS["sphere"]:
         return float(np.linalg.norm(a) + size[0])
     if kind == SHAPE_KINDS["capsule"]:
@@ -254,18 +255,16 @@ class TissueCollision:
                                    values=circumsphere.hermite_table())
         shapes = MAX_TOOLS * MAX_TOOL_SHAPES
         self.shape_kind = group.field(ti.i32, shapes, values=np.tile(
-            [SHAPE_CONTROL] + [0] * (MAX_TOOL_SHAPES - 1), MAX_TOOLS))
+            [SHAPE_CONTROL, SHAPE_JAWS] + [0] * (MAX_TOOL_SHAPES - 2), MAX_TOOLS))
         self.shape_a = group.field(ti.f32, shapes, vector=3)
         self.shape_b = group.field(ti.f32, shapes, vector=3)
         self.shape_size = group.field(ti.f32, shapes, vector=3)
-        for name in ("tool_prev_a", "tool_prev_b", "tool_last_a", "tool_last_b"):
-            setattr(self, name, group.field(ti.f32, MAX_TOOLS, vector=3))
+        self.tool_prev = group.field(ToolPose, MAX_TOOLS)
+        self.tool_last = group.field(ToolPose, MAX_TOOLS)
         self.tool_reach = group.field(ti.f32, MAX_TOOLS)
         self.tool_cull = group.field(ti.f32, MAX_TOOLS, vector=4)
         self.tool_cull_a = group.field(ti.f32, MAX_TOOLS, vector=3)
         self.tool_cull_axis = group.field(ti.f32, MAX_TOOLS, vector=3)
-        self.tool_prev_radius = group.field(ti.f32, MAX_TOOLS)
-        self.tool_last_radius = group.field(ti.f32, MAX_TOOLS)
         self.tool_last_active = group.field(ti.i32, MAX_TOOLS)
         self.vertex_p = group.field(ti.f32, v, vector=3)
         self.vertex_x = group.field(ti.f32, v, vector=3)
@@ -285,7 +284,8 @@ class TissueCollision:
 
     def set_tool_shapes(self, tool: int, shapes: list[tuple]):
         """Replace tool ``tool``'s shapes (at most MAX_TOOL_SHAPES), in its frame [m]:
-        ``("control",)`` the Control capsule, ``("sphere", center, radius)``,
+        ``("control",)`` the shaft capsule, ``("jaws",)`` the jaws' capsule (both
+        placed by the Control; the default is these two), ``("sphere", center, radius)``,
         ``("capsule", a, b, radius)``, ``("box", center, half_extents)``."""
         if not 0 <= tool < MAX_TOOLS or len(shapes) > MAX_TOOL_SHAPES:
             raise ValueError(f"tool in 0..{MAX_TOOLS - 1} with at most {MAX_TOOL_SHAPES} shapes")

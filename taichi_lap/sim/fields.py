@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import taichi as ti
+from taichi.lang.struct import StructType
 from taichi.lang.util import to_numpy_type
 
 
@@ -25,9 +26,12 @@ class FieldGroup:
     def field(self, dtype, n: int | None, *, vector: int = 0, matrix: tuple[int, int] | None = None,
               values=None):
         """A field of ``n`` entries (at least one; ``n=None`` for a 0-D field) of
-        scalars, ``vector``-vectors or ``matrix`` matrices, filled with ``values``
-        (padded with zeros) when the group is finalized."""
-        if matrix:
+        scalars, ``vector``-vectors, ``matrix`` matrices or structs (``dtype`` a
+        ``ti.types.struct``), filled with ``values`` (padded with zeros) when the group
+        is finalized."""
+        if isinstance(dtype, StructType):
+            f = dtype.field()
+        elif matrix:
             f = ti.Matrix.field(matrix[0], matrix[1], dtype)
         elif vector:
             f = ti.Vector.field(vector, dtype)

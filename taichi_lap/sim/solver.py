@@ -133,11 +133,15 @@ class Solver:
                                 "particles": count})
 
     def substep(self, state: State, control: Control, h: float, *, first: bool = True,
-                last: bool = True):
+                last: bool = True, collision_control: Control | None = None):
         """One substep: predict, constraints, shape matching, update goals. Within a
         frame the update of one substep also predicts the next (``first``/``last``
-        say where this substep lies), except for particles with springs."""
+        say where this substep lies), except for particles with springs.
+        ``collision_control``: the tools the tissue collision sees when they differ
+        from ``control`` (seed 000's cylinder experiment reaches the tissue through
+        the collision pipeline only)."""
         model, settings = self.model, self.settings
+        collision_control = collision_control or control
         if first or self._has_springs:
             shape_matching.predict(model, state, control, settings.gravity, h, int(not first))
         if self._has_constraints:
@@ -146,9 +150,9 @@ class Solver:
             for _ in range(settings.shape_iterations - 1):
                 shape_matching.match_clusters(model, state)
                 shape_matching.project_to_goals(model, state, control)
-                self._collide(state, control, tissue=False)
+                self._collide(state, collision_control, tissue=False)
             shape_matching.match_clusters(model, state)
-        self._collide(state, control)
+        self._collide(state, collision_control)
         if self.self_collision is not None:
             self.self_collision.step(state, h)
         shape_matching.update_goals(model, state, control, h, settings.speed_limit,
