@@ -85,10 +85,11 @@ NEAR = 32
 the exact tests run outside the tight candidate loop."""
 ROW_BLOCK = 256
 """Triangles per block of the pair rows' prefix sum."""
-BROAD = ("moved", "stale", "found", "rows", "seen", "rescanned", "listed")
+BROAD = ("moved", "stale", "found", "rows", "seen", "rescanned", "listed", "oversize")
 """Slots of the broad-phase status ``broad`` (one read per step): triangles to rescan,
-hash out of date, pairs found, entries of the new rows, and this rescan's counts."""
-B_MOVED, B_STALE, B_FOUND, B_ROWS, B_SEEN, B_RESCANNED, B_LISTED = range(len(BROAD))
+hash out of date, pairs found, entries of the new rows, this rescan's counts, and
+triangles whose broad sphere outgrew ``reach_bound`` (their pairs may be missed)."""
+B_MOVED, B_STALE, B_FOUND, B_ROWS, B_SEEN, B_RESCANNED, B_LISTED, B_OVERSIZE = range(len(BROAD))
 
 
 @ti.func
@@ -296,9 +297,10 @@ def update_bounds(model: ti.template(), state: ti.template(), control: ti.templa
     to hold all the tool's shapes, ``tool_reach``, and by its motion since the last
     frame; ``tool_cull*``), and with tissue pairs flag the triangles whose
     broad sphere drifted (centre shift + reach change) more than ``rescan_drift``
-    since they were listed (``moved``, counted in ``broad[B_MOVED]``) and whether some
-    drifted more than ``hash_slack`` from the hash (``broad[B_STALE]``)."""
-    coll.broad[B_MOVED], coll.broad[B_STALE] = 0, 0
+    since they were listed (``moved``, counted in ``broad[B_MOVED]``), whether some
+    drifted more than ``hash_slack`` from the hash (``broad[B_STALE]``) and how many
+    outgrew ``reach_bound`` (``broad[B_OVERSIZE]``)."""
+    coll.broad[B_MOVED], coll.broad[B_STALE], coll.broad[B_OVERSIZE] = 0, 0, 0
     coll.active_count[None] = 0
     for k in ti.static(range(MAX_TOOLS)):  # bounding capsules: tip, axis, 1 / |axis|², reach
         axis = control.tool_b[k] - control.tool_a[k]
@@ -325,6 +327,8 @@ def update_bounds(model: ti.template(), state: ti.template(), control: ti.templa
                 ti.atomic_add(coll.broad[B_MOVED], 1)
             if (center - xyz(held)).norm() + ti.abs(sphere[3] - held[3]) > coll.hash_slack:
                 coll.broad[B_STALE] = 1
+            if sphere[3] > coll.reach_bound:
+                ti.atomic_add(coll.broad[B_OVERSIZE], 1)
         if any_tool_near(coll, sphere):
             coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
 

@@ -1,6 +1,7 @@
 """Tissue collision (seed 000 §4): adaptive circumspheres (Eq. 4-6), the lazy update
 (§4.2.3), the impulse response (§4.3) and both baselines, as promises."""
 
+import logging
 import math
 
 import numpy as np
@@ -289,6 +290,21 @@ def test_tissue_pairs_are_separated_after_the_response(blocks, method):
     penetration = p[~upper & inner, 1].max() - p[upper & inner, 1].min()
     assert penetration < 1e-4, f"{method}: {penetration * 1e3:.2f} mm"
     assert not np.array_equal(p[~upper], x0[~upper])  # both blocks took part
+
+
+def test_triangles_moving_beyond_the_hash_bound_in_a_substep_are_reported(blocks, caplog):
+    data, model, state, no_tools = blocks
+    collision = TissueCollision(model, tools=False)
+    state.reset(model)
+    collision.step(state, no_tools)
+    assert collision.oversize_steps == 0
+    upper = data.organ == 1
+    jump = 2.0 * collision.reach_bound
+    state.p.from_numpy((data.rest_position + np.outer(upper, [0.0, jump, 0.0])).astype(np.float32))
+    with caplog.at_level(logging.WARNING, logger="taichi_lap"):
+        collision.step(state, no_tools)
+    assert collision.oversize_steps == 1
+    assert "may be missed" in caplog.text
 
 
 UNION = [("control",), ("sphere", [0.0, -0.004, 0.015], 0.004),

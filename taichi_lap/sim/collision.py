@@ -13,6 +13,7 @@ the substep's start positions x and the goals, and moves p and sets ``collided``
 particles under contacting triangles.
 """
 
+import logging
 import math
 import time
 
@@ -26,6 +27,8 @@ from taichi_lap.kernels.tool_shapes import (MAX_TOOL_SHAPES, SHAPE_CONTROL, SHAP
                                             SHAPE_KINDS, ToolPose, push_particles_out_of_tools)
 from taichi_lap.sim.csr import incidence
 from taichi_lap.sim.fields import FieldGroup
+
+log = logging.getLogger("taichi_lap")
 
 METHODS = {"circumsphere": circumsphere.CIRCUMSPHERE,
            "bounding_sphere": circumsphere.BOUNDING_SPHERE,
@@ -161,7 +164,9 @@ class TissueCollision:
     of one body (:func:`organ_bodies`) or not facing each other at rest (0: only
     adjacent triangles are skipped), ``cell_size`` [m] of the spatial hash (default
     2 × 1.25 × the largest rest broad radius + margin + slack: a triangle's broad
-    radius plus its motion in a substep must stay under 1.25 × that largest radius).
+    radius plus its motion in a substep must stay under 1.25 × that largest radius,
+    ``reach_bound``; steps where some do not are counted in ``oversize_steps`` and the
+    first is logged as a warning).
     ``timing``: synchronise around :meth:`step` and record ``last_ms``, ``total_ms``,
     ``calls`` and ``phase_ms`` (cumulative per phase). These settings are compiled
     into the kernels: fixed per instance.
@@ -189,6 +194,7 @@ class TissueCollision:
         self.polygon_thickness = float(polygon_thickness)
         self.rest_exclusion = float(rest_exclusion)
         self.timing, self.last_ms, self.total_ms, self.calls = timing, 0.0, 0.0, 0
+        self.oversize_steps = 0
         self.phase_ms = dict.fromkeys(PHASES, 0.0)
         self._begun, self._hashed, self._mark = False, False, 0.0
         data = model.data
@@ -349,8 +355,11 @@ class TissueCollision:
         self._lap("bounds")
         tissue = tissue and self.tissue_pairs
         if tissue:
-            moved, stale = self.broad.to_numpy()[[tissue_collision.B_MOVED,
-                                                  tissue_collision.B_STALE]]
+            moved, stale, oversize = self.broad.to_numpy()[[tissue_collision.B_MOVED,
+                                                            tissue_collision.B_STALE,
+                                                            tissue_collision.B_OVERSIZE]]
+            if oversize:
+                self._report_oversize(int(oversize))
             if moved:
                 self._list_pairs(bool(stale))
             tissue_collision.mark_active(self, self.rows)
@@ -363,6 +372,16 @@ class TissueCollision:
             self.last_ms = (time.perf_counter() - start) * 1e3
             self.total_ms += self.last_ms
             self.calls += 1
+
+    def _report_oversize(self, count: int):
+        """Count steps where some triangle's broad sphere (its radius plus its motion in
+        the substep) outgrew ``reach_bound``, the largest the hash cells are sized for:
+        their tissue pairs may be missed. Warns at the first such step."""
+        if not self.oversize_steps:
+            log.warning("tissue collision: %d triangles moved or stretched beyond %.2f mm in a "
+                        "substep; some tissue contacts may be missed (more substeps per "
+                        "frame avoid this)", count, self.reach_bound * 1e3)
+        self.oversize_steps += 1
 
     def _list_pairs(self, stale: bool):
         """Broad phase of the moved triangles (:mod:`kernels.tissue_collision`): the hash
