@@ -35,6 +35,14 @@ METHODS = {"circumsphere": circumsphere.CIRCUMSPHERE,
            "polygon": circumsphere.POLYGON}
 PHASES = ("bounds", "hash", "pairs", "spheres", "detect")
 """Phases of :meth:`TissueCollision.step` timed with ``timing``."""
+REACH_FACTOR = 1.5
+"""How much larger than the largest rest broad radius a triangle's broad sphere (its
+radius plus its motion in a substep) may grow before its pairs may be missed; the
+settled rectum stretches its largest triangles by up to 38 %."""
+ROW_CAPACITY = 32
+"""Partners per triangle the pair lists are first allocated for (the rectum's lists
+hold up to ~29 while its wall settles). Lists that outgrow them are reallocated, and
+every new list recompiles the collision kernels, which takes seconds."""
 FAR = 1e9
 """Reference sphere of a triangle never listed [m]: any drift from it is a move."""
 
@@ -163,8 +171,9 @@ class TissueCollision:
     pairs closer at rest than κ times the sum of their broad radii never collide when
     of one body (:func:`organ_bodies`) or not facing each other at rest (0: only
     adjacent triangles are skipped), ``cell_size`` [m] of the spatial hash (default
-    2 × 1.25 × the largest rest broad radius + margin + slack: a triangle's broad
-    radius plus its motion in a substep must stay under 1.25 × that largest radius,
+    2 × REACH_FACTOR × the largest rest broad radius + margin + slack: a triangle's
+    broad radius plus its motion in a substep must stay under REACH_FACTOR × that
+    largest radius,
     ``reach_bound``; steps where some do not are counted in ``oversize_steps`` and the
     first is logged as a warning).
     ``timing``: synchronise around :meth:`step` and record ``last_ms``, ``total_ms``,
@@ -209,7 +218,7 @@ class TissueCollision:
                                  and len(triangles) else pair_margin or 0.0)
         self.hash_slack = self.pair_margin if hash_slack is None else float(hash_slack)
         self.rescan_drift = self.pair_margin / 3.0
-        self.reach_bound = 1.25 * max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
+        self.reach_bound = REACH_FACTOR * max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
         tables = triangle_corner_tables(data)
         self._init_fields(data, triangles, tables, rest_sphere, rest_normal)
         self.grid = self.rows = self.spare = self.found = None  # tissue pairs only
@@ -219,8 +228,9 @@ class TissueCollision:
             f = max(self.triangle_count, 1)
             self.grid = SpatialHash(f, 1 << max(4, int(2 * f).bit_length()), cell_size,
                                     pair_capacity=1)
-            self.rows, self.spare = PairRows(f, 8 * f), PairRows(f, 8 * f)
-            self.found = FoundPairs(4 * f)
+            self.rows = PairRows(f, ROW_CAPACITY * f)
+            self.spare = PairRows(f, ROW_CAPACITY * f)
+            self.found = FoundPairs(ROW_CAPACITY // 2 * f)
 
     def _init_fields(self, data, triangles: np.ndarray, tables: dict, rest_sphere: np.ndarray,
                      rest_normal: np.ndarray):
