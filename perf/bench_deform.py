@@ -4,8 +4,8 @@ Cases
 * ``10k``, ``50k``, ``liver-full``, ``500k``: the liver scene's step (seed 000
   Alg. 1 run as 5 substeps, each with integration, environment contact and one
   shape-matching pass; seed 002 clusters) at about that many particles;
-  ``liver-full`` is the full-scale scene with its vessels (seed 002 Table 1).
-  Metric ``ms_per_step``, and ``numpy_ms_per_step`` for the same step in the NumPy
+  ``liver-full`` is the full-scale scene with its vessels (seed 002 Table 1); the
+  deformation alone: from the rest shape, tissue collision off. Metric ``ms_per_step``, and ``numpy_ms_per_step`` for the same step in the NumPy
   reference (:mod:`taichi_lap.sim.reference`).
 * ``fascia-128``: a 128 x 128 fascia sheet (relaxed LRA, edge and bending
   constraints) hanging from one edge, for the Jacobi and the graph-coloured
@@ -13,8 +13,9 @@ Cases
   strain after one second of hanging (``mean_strain``, ``p99_strain``), to compare
   convergence per millisecond.
 * ``cold-start`` / ``cached-start``: seconds from launch to the first stepped frame
-  of the full liver with empty caches, then with the model cache and Taichi's
-  kernel cache filled (child processes).
+  of the full liver scene as it runs (its 2 s settling and tissue collision included;
+  params ``model_build_s``, ``settle_s``) with empty caches, then with the model cache
+  and Taichi's kernel cache filled (child processes).
 
 Usage: python perf/bench_deform.py [--quick] [--arch cpu] [--json OUT]
 """
@@ -36,11 +37,17 @@ LIVER_ONLY_PARTICLES = 146_000  # liver organ of scenes/liver.toml at detail 1 (
 DT = 1.0 / 60.0
 
 
-def liver_session(detail: float, vessels: bool):
+def liver_session(detail: float, vessels: bool, as_scene: bool = False):
+    """The liver scene at ``detail`` (``vessels``: with its vessels). ``as_scene``: as
+    it runs (settled start, tissue collision); else the deformation alone, as this
+    benchmark times it (rest start, tissue collision off)."""
     from taichi_lap import scene as scene_mod
     from taichi_lap.session import Session
 
-    scene = scene_mod.load("liver", {"scene.detail": detail})
+    overrides = {"scene.detail": detail}
+    if not as_scene:
+        overrides.update({"scene.collision": "off", "scene.settle_time": 0.0})
+    scene = scene_mod.load("liver", overrides)
     if not vessels:
         scene.organs = scene.organs[:1]
         scene.raw["organs"] = scene.raw["organs"][:1]
@@ -131,14 +138,16 @@ def fascia_cases(quick: bool, runs: int) -> list[dict]:
 
 
 def startup_probe():
-    """Child process: time to the first stepped frame of the full liver."""
+    """Child process: time to the first stepped frame of the full liver scene as it
+    runs (settling and tissue collision included)."""
     from taichi_lap import runtime
 
     start = time.perf_counter()
     runtime.init("cpu")
-    session = liver_session(1.0, True)
+    session = liver_session(1.0, True, as_scene=True)
     session.step()
-    print(f"STARTUP {time.perf_counter() - start:.3f} BUILD {session.build_seconds:.3f}")
+    print(f"STARTUP {time.perf_counter() - start:.3f} BUILD {session.build_seconds:.3f} "
+          f"SETTLE {session.settle_seconds:.3f}")
 
 
 def startup_cases() -> list[dict]:
@@ -150,8 +159,9 @@ def startup_cases() -> list[dict]:
             proc = subprocess.run([sys.executable, __file__, "--startup-probe"], env=env,
                                   capture_output=True, text=True, check=True)
             line = next(l for l in proc.stdout.splitlines() if l.startswith("STARTUP"))
-            _, total, _, build = line.split()
-            out.append(result(case, {"model_build_s": float(build)}, "seconds", [float(total)]))
+            _, total, _, build, _, settle = line.split()
+            out.append(result(case, {"model_build_s": float(build), "settle_s": float(settle)},
+                              "seconds", [float(total)]))
             print(case, total, "s", flush=True)
     return out
 
