@@ -3,6 +3,7 @@ Model / State / Control, the solver, and per-stage timings."""
 
 from __future__ import annotations
 
+import logging
 import time
 
 import taichi as ti
@@ -12,6 +13,8 @@ from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.scene import Scene
 from taichi_lap.sim import Control, Model, Solver, SolverSettings, State
+
+log = logging.getLogger("taichi_lap")
 
 
 def model_for(scene: Scene, data) -> Model:
@@ -87,6 +90,8 @@ class Session:
         self._start_state = self.state.snapshot()
         self.reset()
         self.settle_seconds = time.perf_counter() - start
+        log.info("%s settled for %.2f s of simulated time in %.1f s",
+                 self.scene.settings["name"], frames * self.dt, self.settle_seconds)
 
     def step(self, poses: dict[str, Pose] | None = None, buttons: dict[str, int] | None = None):
         """Place the tools (``buttons`` per tool name close graspers), advance one
