@@ -386,11 +386,17 @@ class TissueCollision:
     def _report_oversize(self, count: int):
         """Count steps where some triangle's broad sphere (its radius plus its motion in
         the substep) outgrew ``reach_bound``, the largest the hash cells are sized for:
-        their tissue pairs may be missed. Warns at the first such step."""
+        their tissue pairs may be missed. Warns at the first such step, naming the
+        organs and the largest sphere."""
         if not self.oversize_steps:
-            log.warning("tissue collision: %d triangles moved or stretched beyond %.2f mm in a "
-                        "substep; some tissue contacts may be missed (more substeps per "
-                        "frame avoid this)", count, self.reach_bound * 1e3)
+            f = self.triangle_count
+            radius = self.broad_sphere.to_numpy()[:f, 3]
+            organ = self.tri_organ.to_numpy()[:f][radius > self.reach_bound]
+            organs = sorted({self.model.data.organs[k].name for k in np.unique(organ)})
+            log.warning("tissue collision: %d triangles of %s are stretched or move beyond %.2f mm "
+                        "in a substep (the largest %.2f mm); their tissue contacts may be missed "
+                        "(more substeps per frame help where they move)", count, ", ".join(organs),
+                        self.reach_bound * 1e3, radius.max() * 1e3)
         self.oversize_steps += 1
 
     def _list_pairs(self, stale: bool):
