@@ -40,7 +40,8 @@ class Session:
     collision pipelines off (an organ sagging from the shape it was built in moves
     every surface triangle, which the collision broad phase pays for in every
     substep), and :meth:`reset` returns to that state (``settle_seconds``: the wall
-    time it took)."""
+    time it took). The tissue collision's pair lists are then built for the start
+    state, so that the first frame does not pay for them."""
 
     def __init__(self, scene: Scene, *, use_cache: bool = True, progress: bool = True):
         start = time.perf_counter()
@@ -58,6 +59,8 @@ class Session:
         self.settle_seconds = 0.0
         self.reset()
         self._settle(round(scene.settings["settle_time"] / self.dt))
+        if self.solver.collision is not None:
+            self.solver.collision.prime(self.state, self.control)
 
     def reset(self):
         """Back to the start state (the rest shape, or the settled one), tools at their

@@ -453,6 +453,17 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
     skipped, tie = rest_excluded(collision, data)
     x0, upper_particles = data.rest_position, data.organ == 1
     rng = np.random.default_rng(5)
+    def unlisted_meeting_pairs(x, p):
+        """(overlapping pairs left unlisted, overlapping pairs) of the broad spheres from
+        x to p; no listed pair may be one the rest exclusion skips."""
+        sphere = numpy_broad_spheres(data, x, p)
+        gap = np.linalg.norm(sphere[:, None, :3] - sphere[None, :, :3], axis=2) \
+            - sphere[:, None, 3] - sphere[None, :, 3]
+        meet = (gap < -1e-6) & ~skipped & ~tie
+        listed = listed_pairs(collision)
+        assert not (listed & skipped & ~tie).any()
+        return (meet & ~listed).sum(), meet.sum()
+
     x, rescans, found = x0, [], 0
     for step in range(16):
         wave = 0.0004 * np.sin(x0 @ rng.normal(0.0, 300.0, (3, 3)) + step)
@@ -460,17 +471,20 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
         state.x.from_numpy(x.astype(np.float32))
         state.p.from_numpy(p.astype(np.float32))
         rescans.append(counted(collision, "rescanned", lambda: collision.step(state, control)))
-        sphere = numpy_broad_spheres(data, x, p)
-        gap = np.linalg.norm(sphere[:, None, :3] - sphere[None, :, :3], axis=2) \
-            - sphere[:, None, 3] - sphere[None, :, 3]
-        meet = (gap < -1e-6) & ~skipped & ~tie
-        listed = listed_pairs(collision)
-        assert not (meet & ~listed).any(), f"step {step}: {(meet & ~listed).sum()} pairs unlisted"
-        assert not (listed & skipped & ~tie).any()
-        found += meet.sum()
+        unlisted, meeting = unlisted_meeting_pairs(x, p)
+        assert unlisted == 0, f"step {step}: {unlisted} pairs unlisted"
+        found += meeting
         x = p
     assert found > 100
     assert any(0 < r < collision.triangle_count for r in rescans[1:])
+    # a reset that puts the state back at rest keeps the lists: the triangles that moved
+    # away from where they were listed rescan, the others keep their rows
+    state.x.from_numpy(x0.astype(np.float32))
+    state.p.from_numpy(x0.astype(np.float32))
+    collision.reset()
+    rescanned = counted(collision, "rescanned", lambda: collision.step(state, control))
+    assert unlisted_meeting_pairs(x0, x0)[0] == 0
+    assert 0 < rescanned < collision.triangle_count
 
 
 def folded_sheet(rest_exclusion: float):

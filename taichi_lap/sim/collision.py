@@ -337,12 +337,25 @@ class TissueCollision:
 
     def reset(self):
         """Forget the lazy-update state (every circumsphere is recomputed at the next
-        step), the pair lists (every triangle rescans) and the tools' last poses, e.g.
-        after :meth:`State.reset`."""
+        step) and the tools' last poses, e.g. after :meth:`State.reset`. The pair lists
+        stay: each row holds the partners within the margin of where its triangle was
+        when listed, wherever the state jumped since, and a triangle that is now
+        elsewhere rescans at the next step, as after any drift."""
         self.area_last.fill(0.0)
-        self.ref_sphere.fill(FAR)
         self.tool_last_active.fill(0)
         self._begun = False
+
+    def prime(self, state, control):
+        """List the pairs of every triangle at the current positions (p and x) now, e.g.
+        at a session's start, rather than in the first step (seconds for the full
+        liver's 58k triangles)."""
+        if not self.tissue_pairs:
+            return
+        tissue_collision.update_bounds(self.model, state, control, self)
+        moved, stale = self.broad.to_numpy()[[tissue_collision.B_MOVED,
+                                              tissue_collision.B_STALE]]
+        if moved:
+            self._list_pairs(bool(stale))
 
     def update_spheres(self, state):
         """Every triangle's bounding and collision sphere (seed 000 §4.2) from p and x,
