@@ -194,11 +194,18 @@ def sphere_tool_translation(coll: ti.template(), tool, pose, center, r, disp):
 
 
 @ti.func
+def facing(c_t, n_t, c_u, n_u):
+    """Triangles at centroids c_t, c_u with normals n_t, n_u face each other: opposite
+    normals and each centroid in front of the other."""
+    d = c_u - c_t
+    return n_t.dot(n_u) < 0.0 and d.dot(n_t) > 0.0 and d.dot(n_u) < 0.0
+
+
+@ti.func
 def facing_pair(coll: ti.template(), t, u):
-    """Opposite start normals and each start centroid in front of the other."""
-    n_t, n_u = coll.start_normal[t], coll.start_normal[u]
-    d = coll.start_centroid[u] - coll.start_centroid[t]
-    return n_t.dot(n_u) < 0.0 and d.dot(n_t) > 0.0 and (-d).dot(n_u) > 0.0
+    """t and u face each other at the substep's start (:func:`facing`)."""
+    return facing(coll.start_centroid[t], coll.start_normal[t], coll.start_centroid[u],
+                  coll.start_normal[u])
 
 
 @ti.func
@@ -359,9 +366,8 @@ def excluded(coll: ti.template(), t, u):
     d = xyz(b) - xyz(a)
     near = coll.rest_exclusion * (a[3] + b[3])
     if d.dot(d) < near * near:
-        n_t, n_u = coll.rest_normal[t], coll.rest_normal[u]
-        facing = n_t.dot(n_u) < 0.0 and d.dot(n_t) > 0.0 and d.dot(n_u) < 0.0
-        out = out or coll.tri_body[u] == coll.tri_body[t] or not facing
+        out = out or coll.tri_body[u] == coll.tri_body[t] \
+            or not facing(xyz(a), coll.rest_normal[t], xyz(b), coll.rest_normal[u])
     return out
 
 

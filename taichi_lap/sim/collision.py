@@ -173,9 +173,8 @@ class TissueCollision:
     adjacent triangles are skipped), ``cell_size`` [m] of the spatial hash (default
     2 × REACH_FACTOR × the largest rest broad radius + margin + slack: a triangle's
     broad radius plus its motion in a substep must stay under REACH_FACTOR × that
-    largest radius,
-    ``reach_bound``; steps where some do not are counted in ``oversize_steps`` and the
-    first is logged as a warning).
+    largest radius, ``reach_bound``; steps where some do not are counted in
+    ``oversize_steps`` and the first is logged as a warning).
     ``timing``: synchronise around :meth:`step` and record ``last_ms``, ``total_ms``,
     ``calls`` and ``phase_ms`` (cumulative per phase). These settings are compiled
     into the kernels: fixed per instance.
@@ -349,13 +348,9 @@ class TissueCollision:
         """List the pairs of every triangle at the current positions (p and x) now, e.g.
         at a session's start, rather than in the first step (seconds for the full
         liver's 58k triangles)."""
-        if not self.tissue_pairs:
-            return
-        tissue_collision.update_bounds(self.model, state, control, self)
-        moved, stale = self.broad.to_numpy()[[tissue_collision.B_MOVED,
-                                              tissue_collision.B_STALE]]
-        if moved:
-            self._list_pairs(bool(stale))
+        if self.tissue_pairs:
+            tissue_collision.update_bounds(self.model, state, control, self)
+            self._refresh_pairs()
 
     def update_spheres(self, state):
         """Every triangle's bounding and collision sphere (seed 000 §4.2) from p and x,
@@ -378,13 +373,9 @@ class TissueCollision:
         self._lap("bounds")
         tissue = tissue and self.tissue_pairs
         if tissue:
-            moved, stale, oversize = self.broad.to_numpy()[[tissue_collision.B_MOVED,
-                                                            tissue_collision.B_STALE,
-                                                            tissue_collision.B_OVERSIZE]]
+            oversize = self._refresh_pairs()
             if oversize:
-                self._report_oversize(int(oversize))
-            if moved:
-                self._list_pairs(bool(stale))
+                self._report_oversize(oversize)
             tissue_collision.mark_active(self, self.rows)
         circumsphere.update_spheres(self.model, state, self, False)
         self._lap("spheres")
@@ -395,6 +386,16 @@ class TissueCollision:
             self.last_ms = (time.perf_counter() - start) * 1e3
             self.total_ms += self.last_ms
             self.calls += 1
+
+    def _refresh_pairs(self) -> int:
+        """After :func:`kernels.tissue_collision.update_bounds`: rescan the triangles
+        that drifted; returns how many outgrew the hash's bound."""
+        moved, stale, oversize = self.broad.to_numpy()[[tissue_collision.B_MOVED,
+                                                        tissue_collision.B_STALE,
+                                                        tissue_collision.B_OVERSIZE]]
+        if moved:
+            self._list_pairs(bool(stale))
+        return int(oversize)
 
     def _report_oversize(self, count: int):
         """Count steps where some triangle's broad sphere (its radius plus its motion in
