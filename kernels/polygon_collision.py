@@ -167,9 +167,9 @@ def polygon_pair(coll: ti.template(), t, u, acc, hits):
 
 @ti.func
 def polygon_tool(coll: ti.template(), t, tool, pose, acc, hits):
-    """Triangle t against a kinematic tool at ``pose``: vertices projected to the surface of the
-    union, triangle interior pushed off the axis of each round shape, added to t's
-    corner accumulators. Returns (corrections, acc, hits)."""
+    """Triangle t against a kinematic tool at ``pose``: vertices projected to the
+    surface of the union, triangle interior pushed off the axis of each round shape,
+    added to t's corner accumulators. Returns (corrections, acc, hits)."""
     v = coll.tri_vertex[t]
     w = ti.Vector([coll.corner_inv_mass[3 * t + k] for k in ti.static(range(3))])
     count = 0

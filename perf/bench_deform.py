@@ -5,7 +5,8 @@ Cases
   Alg. 1 run as 5 substeps, each with integration, environment contact and one
   shape-matching pass; seed 002 clusters) at about that many particles;
   ``liver-full`` is the full-scale scene with its vessels (seed 002 Table 1); the
-  deformation alone: from the rest shape, tissue collision off. Metric ``ms_per_step``, and ``numpy_ms_per_step`` for the same step in the NumPy
+  deformation alone: from the rest shape, tissue collision off. Metric
+  ``ms_per_step``, and ``numpy_ms_per_step`` for the same step in the NumPy
   reference (:mod:`taichi_lap.sim.reference`).
 * ``fascia-128``: a 128 x 128 fascia sheet (relaxed LRA, edge and bending
   constraints) hanging from one edge, for the Jacobi and the graph-coloured

@@ -3,8 +3,8 @@
 Cases
 * ``liver-full-load`` (``--quick``: ``liver-small-load``, the liver scene at detail
   0.1, as it runs: settled start, tissue collision): this process steps it 60 frames
-  to compile the kernels, then frame after frame and publishes the surface clusters and particles to the servo after every
-  frame, driving the probe with the servo's graphical tool; the servo process runs
+  to compile the kernels, then frame after frame, and publishes the surface clusters
+  and particles to the servo after every frame, driving the probe with the servo's graphical tool; the servo process runs
   its 1 kHz loop with a scripted device pressing the probe into the liver top and
   lifting it again (contact, QP, safety filter every tick). 30 s (``--quick``: 5 s).
 * ``idle``: the same servo while this process only republishes the snapshot at

@@ -6,7 +6,8 @@ import numpy as np
 from taichi_lap import scene as scene_mod
 from taichi_lap.session import Session
 
-BALL = {"name": "ball", "model": "tet_clusters", "geometry": {"generator": "sphere", "radius": 0.02},
+BALL = {"name": "ball", "model": "tet_clusters",
+        "geometry": {"generator": "sphere", "radius": 0.02},
         "material": {"particle_spacing": 0.004, "stiffness": 0.3, "damping": 6.0}}
 FLOOR = {"point": [0.0, -0.02, 0.0], "normal": [0.0, 1.0, 0.0], "friction": 0.8}
 

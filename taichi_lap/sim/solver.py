@@ -12,8 +12,8 @@ A frame of length dt runs ``substeps`` substeps of h = dt / substeps, each:
 4. **collision** — surface triangles against the tools by adaptive circumspheres or a
    baseline (seed 000 §4, chosen per scene) after each shape-matching pass, against each
    other after the last; self-collision of the intestine and mesentery (seed 001 §4:
-   stochastic detection,
-   displacement-velocity response Eq. 2-9) on the predicted positions;
+   stochastic detection, displacement-velocity response Eq. 2-9) on the predicted
+   positions;
 5. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
 
 Before the substeps a grasper whose jaws just closed captures the particles between
