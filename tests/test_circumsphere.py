@@ -10,7 +10,7 @@ import taichi as ti
 
 from taichi_lap.kernels import circumsphere, tissue_collision
 from taichi_lap.sim import Control
-from taichi_lap.sim.collision import TissueCollision
+from taichi_lap.sim.collision import TissueCollision, broad_spheres
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX, simulation
 
@@ -396,11 +396,10 @@ def test_vulkan_matches_cpu():
 def numpy_broad_spheres(data, x, p):
     """(F, 4) broad spheres of kernels.tissue_collision.update_bounds: centroid of the
     skinned p, farthest corner + the centroid's motion from x [m]."""
-    corners = skinned(data, p)[data.surface_triangles]
-    center = corners.mean(axis=1)
+    sphere = broad_spheres(skinned(data, p)[data.surface_triangles])
     start = skinned(data, x)[data.surface_triangles].mean(axis=1)
-    radius = np.linalg.norm(corners - center[:, None], axis=2).max(axis=1)
-    return np.concatenate([center, (radius + np.linalg.norm(center - start, axis=1))[:, None]], 1)
+    sphere[:, 3] += np.linalg.norm(sphere[:, :3] - start, axis=1)
+    return sphere
 
 
 def rest_excluded(collision, data):
