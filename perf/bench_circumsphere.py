@@ -143,7 +143,6 @@ def scene_cases(quick: bool) -> list[dict]:
     """The rectum and liver scenes with and without circumsphere collision."""
     from taichi_lap import scene as scene_mod
     from taichi_lap.session import Session, scene_script
-    from taichi_lap.sim.collision import TissueCollision
 
     detail = 0.2 if quick else 1.0
     results = []
@@ -151,7 +150,8 @@ def scene_cases(quick: bool) -> list[dict]:
         scene = scene_mod.load(name, {"scene.detail": detail, "scene.collision": "circumsphere"})
         session = Session(scene, progress=False)
         script = scene_script(scene)
-        collision = TissueCollision(session.model, timing=True)
+        collision = session.solver.collision  # the scene's own pipeline, timed
+        collision.timing = True
         scene_window(session, script, collision, 0, 2, 0)  # compile
         params = {"particles": session.model.particle_count,
                   "triangles": session.model.surface_triangle_count, "detail": detail,
