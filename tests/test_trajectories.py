@@ -1,0 +1,28 @@
+"""The state-regression guard: each built-in scene, run as :mod:`tests.trajectories`
+describes, keeps the positions of its stored reference within the scene's tolerance,
+on the CPU backend and on Vulkan (regenerate deliberately: ``python -m
+tests.trajectories``)."""
+
+import pytest
+
+from tests.archrun import run_on_arch
+from tests.trajectories import RUNS, load_reference, max_difference, run_scene
+
+
+def assert_within_tolerance(name: str, result: dict, tolerance: float):
+    differences = max_difference(load_reference(name), result)
+    assert max(differences.values()) <= tolerance, (
+        f"{name} left its reference trajectory (tolerance {tolerance:g} m): {differences}")
+
+
+@pytest.mark.parametrize("name", sorted(RUNS))
+def test_scene_follows_its_reference_trajectory(name):
+    assert_within_tolerance(name, run_scene(name), RUNS[name].tolerance)
+
+
+@pytest.mark.vulkan
+@pytest.mark.parametrize("name", sorted(RUNS))
+def test_scene_follows_its_reference_trajectory_on_vulkan(name):
+    run = RUNS[name]
+    assert_within_tolerance(name, run_on_arch("vulkan", "tests.trajectories:run_scene", name=name),
+                            run.vulkan_tolerance or run.tolerance)
