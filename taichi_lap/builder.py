@@ -8,7 +8,9 @@ second show a progress bar.
 
 from __future__ import annotations
 
+import ast
 import hashlib
+import importlib.util
 import json
 import logging
 import os
@@ -20,7 +22,6 @@ import numpy as np
 from tqdm import tqdm
 
 import taichi_lap
-import taichi_lap.scenes.anatomy as anatomy
 from taichi_lap.build import clusters as clustering
 from taichi_lap.build.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
 from taichi_lap.build.organs import OrganParts, add_long_range_attachments, build_organ, select_region
@@ -44,20 +45,63 @@ def cache_dir() -> Path:
     return Path(base) / "taichi-lap"
 
 
+BUILD_ROOTS = ("taichi_lap.builder",)
+"""Modules whose code, with everything they import from the package, builds a model."""
+
+
+def build_sources(roots: tuple[str, ...] = BUILD_ROOTS) -> list[Path]:
+    """Source files of ``roots`` and of every package module they import, directly or
+    through others, at module level or inside a function (read from the files, so an
+    import that has not run yet counts too)."""
+    seen: dict[str, Path] = {}
+    pending = list(roots)
+    while pending:
+        name = pending.pop()
+        if name in seen:
+            continue
+        try:
+            spec = importlib.util.find_spec(name)
+        except ModuleNotFoundError:  # a name imported from a module, not a module
+            continue
+        if spec is None or not spec.origin or not spec.origin.endswith(".py"):
+            continue
+        path = Path(spec.origin)
+        seen[name] = path
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        pending += [package] + _imported_modules(ast.parse(path.read_bytes()), package)
+    return sorted(seen.values())
+
+
+def _imported_modules(tree: ast.AST, package: str) -> list[str]:
+    """Package modules an AST imports: ``import a.b``, ``from a import b`` (b a module
+    or a name in a), relative imports resolved against ``package``."""
+    names = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{parent}.{base}" if base else parent
+            names += [base] + [f"{base}.{alias.name}" for alias in node.names]
+    return [n for n in names if n == "taichi_lap" or n.startswith("taichi_lap.")]
+
+
 def _code_digest() -> str:
-    """Digest of the model-building source, so a code change invalidates the cache."""
+    """Digest of the package version and of every source file a build reads, so a
+    change of any of them misses the cache."""
     h = hashlib.sha256(taichi_lap.__version__.encode())
-    roots = [Path(__file__).parent / "build", Path(anatomy.__file__).parent]
-    for root in roots:
-        for path in sorted(root.glob("*.py")):
-            h.update(path.read_bytes())
-    h.update(Path(__file__).read_bytes())
+    for path in build_sources():
+        h.update(path.read_bytes())
     return h.hexdigest()
 
 
 def scene_digest(scene: Scene) -> str:
-    """Content key of a scene: its values (after overrides), mesh files and builder code."""
-    h = hashlib.sha256(json.dumps(scene.raw, sort_keys=True, default=str).encode())
+    """Content key of a scene's model: the validated organs (defaults filled in), the
+    detail, the mesh files and the code that builds it."""
+    content = {"detail": scene.settings["detail"], "organs": [asdict(o) for o in scene.organs]}
+    h = hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode())
     for organ in scene.organs:
         if organ.geometry.mesh is not None:
             h.update(Path(organ.geometry.mesh).read_bytes())

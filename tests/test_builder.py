@@ -1,10 +1,14 @@
 """Model building: clusters (seed 002 §3.2), joins, surface binding, the model cache."""
 
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 
 from taichi_lap import builder
 from taichi_lap import scene as scene_mod
 from taichi_lap.build import clusters as clustering
+from taichi_lap.scene_schema import MATERIAL_PARAMS
 from taichi_lap.session import Session
 
 SMALL = {"scene.detail": 0.03}
@@ -90,6 +94,30 @@ def test_changed_scene_misses_the_cache_and_corrupt_cache_is_rebuilt(tmp_path, m
     rebuilt = builder.build_model(a, progress=False)
     assert rebuilt.particle_count > 0
     assert builder.load_model(path).particle_count == rebuilt.particle_count
+
+
+def test_a_changed_schema_default_misses_the_cache(monkeypatch):
+    before = builder.scene_digest(scene_mod.load("rectum", SMALL))
+    shape = MATERIAL_PARAMS["shape_matching"]
+    monkeypatch.setitem(shape, "organ_cluster", replace(shape["organ_cluster"], default=False))
+    assert builder.scene_digest(scene_mod.load("rectum", SMALL)) != before
+
+
+def test_a_changed_builder_function_misses_the_cache(monkeypatch):
+    scene = scene_mod.load("rectum", SMALL)
+    before = builder.scene_digest(scene)
+    sources = builder.build_sources()
+    changed = next(p for p in sources if p.name == "clusters.py")
+    read_bytes = Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes",
+                        lambda self: read_bytes(self) + b"#" * (self == changed))
+    assert builder.scene_digest(scene) != before
+
+
+def test_the_cache_key_covers_every_module_a_build_reads():
+    names = {path.name for path in builder.build_sources()}
+    assert {"organs.py", "clusters.py", "tetrahedralize.py", "truss.py", "sheets.py",
+            "meshfile.py", "liver.py", "rectum.py", "intestine.py", "sdf.py"} <= names
 
 
 def test_two_runs_of_a_scene_are_identical():
