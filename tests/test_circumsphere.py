@@ -225,9 +225,9 @@ def sheet_run(method: str, speed: float):
                           "recover_rate": 0.05, "eta_on_contact": 0.7},
              "attachments": [{"kind": "fixed", "box_min": [-1, -1, -1], "box_max": [-0.018, 1, 1]},
                              {"kind": "fixed", "box_min": [0.018, -1, -1], "box_max": [1, 1, 1]}]}
-    _, data, model, state, no_tools, solver = simulation([sheet], gravity=[0, 0, 0])
+    _, data, model, state, no_tools, solver = simulation([sheet], gravity=[0, 0, 0],
+                                                         shape_iterations=5)
     solver.collision = TissueCollision(model, method=method, tissue_pairs=False)
-    solver.settings.shape_iterations = 5
     tools = Control()
     radius, y, y_end = 0.0025, 0.001 + 0.0025 + 0.0005, -0.002
     x0 = data.rest_position

@@ -39,3 +39,20 @@ def test_settled_start_is_at_rest_on_the_floor_and_reset_returns_to_it():
     for name, value in again.items():
         assert np.array_equal(value, fresh[name]), name
     np.testing.assert_array_equal(again["x"], x0)
+
+
+def test_solver_settings_take_every_default_from_the_scene_schema():
+    from dataclasses import fields
+
+    from taichi_lap.scene_schema import SCENE_PARAMS
+    from taichi_lap.sim import SolverSettings
+
+    defaults = SolverSettings()
+    for field in fields(SolverSettings):
+        expected = SCENE_PARAMS[field.name].default
+        assert getattr(defaults, field.name) == (tuple(expected) if isinstance(expected, list)
+                                                 else expected), field.name
+    scene = scene_mod.from_tables([BALL], substeps=3, gravity=[0.0, 0.0, -1.0])
+    settings = SolverSettings.from_scene(scene.settings)
+    assert settings.substeps == 3 and settings.gravity == (0.0, 0.0, -1.0)
+    assert settings.self_collision is True

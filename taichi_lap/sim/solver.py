@@ -27,9 +27,10 @@ flag is read: a non-finite or exploding particle raises :class:`SimulationFault`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 from taichi_lap.errors import SimulationFault
+from taichi_lap.scene_schema import SCENE_PARAMS
 from taichi_lap.kernels import distance, grasp, shape_matching, skinning
 from taichi_lap.sim.collision import TissueCollision
 from taichi_lap.sim.control import JAW_REACH, MAX_TOOLS, Control
@@ -40,40 +41,42 @@ from taichi_lap.sim.state import State
 NO_FAULT = 2**31 - 1
 
 
-@dataclass
-class SolverSettings:
-    """Scene-wide solver parameters (units: s, m/s², m/s)."""
+def _frozen(value):
+    """Arrays of the schema as tuples (settings are immutable)."""
+    return tuple(value) if isinstance(value, list) else value
 
-    substeps: int = 1
-    shape_iterations: int = 5
-    iterations: int = 10
-    constraint_solver: str = "jacobi"
-    over_relaxation: float = 1.5
-    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
-    speed_limit: float = 50.0
-    collision: str = "off"
-    collision_scale_phi: float = 3.0
-    self_collision: bool = False
-    collision_threshold: float = 0.02    # [m]
-    collision_random_pairs: int = 0      # 0: chosen from the segment count
-    collision_passes: int = 8
-    collision_skin: float = 0.001        # [m]
-    seed: int = 0
+
+def _default(key: str):
+    """The scene schema's default of ``[scene]`` key ``key``."""
+    return _frozen(SCENE_PARAMS[key].default)
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Scene-wide solver parameters: the ``[scene]`` keys of the same names, whose
+    defaults, units and meanings are those of
+    :data:`taichi_lap.scene_schema.SCENE_PARAMS` (one default per key)."""
+
+    substeps: int = _default("substeps")
+    shape_iterations: int = _default("shape_iterations")
+    iterations: int = _default("iterations")
+    constraint_solver: str = _default("constraint_solver")
+    over_relaxation: float = _default("over_relaxation")
+    gravity: tuple[float, float, float] = _default("gravity")
+    speed_limit: float = _default("speed_limit")
+    collision: str = _default("collision")
+    collision_scale_phi: float = _default("collision_scale_phi")
+    self_collision: bool = _default("self_collision")
+    collision_threshold: float = _default("collision_threshold")
+    collision_random_pairs: int = _default("collision_random_pairs")
+    collision_passes: int = _default("collision_passes")
+    collision_skin: float = _default("collision_skin")
+    seed: int = _default("seed")
 
     @classmethod
     def from_scene(cls, settings: dict) -> "SolverSettings":
-        return cls(substeps=settings["substeps"], shape_iterations=settings["shape_iterations"],
-                   iterations=settings["iterations"],
-                   constraint_solver=settings["constraint_solver"],
-                   over_relaxation=settings["over_relaxation"],
-                   gravity=tuple(settings["gravity"]), speed_limit=settings["speed_limit"],
-                   collision=settings["collision"],
-                   collision_scale_phi=settings["collision_scale_phi"],
-                   self_collision=settings["self_collision"],
-                   collision_threshold=settings["collision_threshold"],
-                   collision_random_pairs=settings["collision_random_pairs"],
-                   collision_passes=settings["collision_passes"],
-                   collision_skin=settings["collision_skin"], seed=settings["seed"])
+        """The settings of a validated scene's ``settings`` table."""
+        return cls(**{f.name: _frozen(settings[f.name]) for f in fields(cls)})
 
 
 class Solver:
