@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import statistics
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -88,7 +89,8 @@ def run(session, collision, controls, iterations: int, frames: int):
     collision.reset()
     no_tools, tools = controls
     solver = session.solver
-    solver.collision, solver.settings.shape_iterations = collision, iterations
+    solver.collision = collision
+    solver.settings = replace(solver.settings, shape_iterations=iterations)
     h = session.dt / solver.settings.substeps
     errors, times = [], []
     for frame in range(frames):
@@ -177,9 +179,14 @@ def quartiles(samples: list[float]) -> dict:
     return {"q1": q1, "q3": q3}
 
 
-def box_plot(results: list[dict], path: Path):
-    """Fig. 10-like box plot of rel_error per iteration count, one colour per method."""
-    import matplotlib
+def box_plot(results: list[dict], path: Path) -> bool:
+    """Fig. 10-like box plot of rel_error per iteration count, one colour per method;
+    False (and a line saying which extra gives it) without matplotlib."""
+    try:
+        import matplotlib
+    except ImportError:
+        print("no box plot: it needs matplotlib (pip install 'taichi-lap[perf]')")
+        return False
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -208,6 +215,7 @@ def box_plot(results: list[dict], path: Path):
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     print(f"wrote {path}")
+    return True
 
 
 def main():
