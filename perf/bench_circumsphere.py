@@ -49,7 +49,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import arguments, report, result  # noqa: E402
+from common import arguments, report, result
 
 METHODS = ("circumsphere", "bounding_sphere", "polygon")
 RADIUS = 0.008        # cylinder radius ρ = d_exa [m]

@@ -28,11 +28,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import arguments, report, result, timed  # noqa: E402
+from common import arguments, report, result, timed
 
 LIVER_ONLY_PARTICLES = 146_000  # liver organ of scenes/liver.toml at detail 1 (approx.)
 DT = 1.0 / 60.0
@@ -78,7 +79,7 @@ def deform_cases(quick: bool, runs: int) -> list[dict]:
             planes=[(p["point"], p["normal"], p["friction"]) for p in scene.planes])
         numpy_runs = max(2, min(runs, 5 if params["particles"] < 200_000 else 2))
         out.append(result(case, params, "numpy_ms_per_step",
-                          timed(lambda: reference.step(DT), numpy_runs, warmup=1)))
+                          timed(partial(reference.step, DT), numpy_runs, warmup=1)))
         print(out[-1]["case"], out[-1]["metric"], f"{out[-1]['median']:.2f}", flush=True)
     return out
 

@@ -31,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import arguments, report, result  # noqa: E402
+from common import arguments, report, result
 
 PERIOD = 0.001  # [s]
 MISSED = 0.002  # [s]

@@ -45,7 +45,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import arguments, report, result  # noqa: E402
+from common import arguments, report, result
 
 WARMUP_FRAMES = 10
 """Frames (1/6 s) from rest, with an empty pair list, before measuring."""

@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import arguments, report, result  # noqa: E402
+from common import arguments, report, result
 
 RADIUS = 0.05  # [m]
 EYE = (0.0, 0.01, 0.085)  # close, as an endoscope: the blob fills most of the frame
@@ -36,7 +36,7 @@ def uv_sphere(triangles: int) -> tuple[np.ndarray, np.ndarray]:
     body = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], -1).reshape(-1, 3)
     positions = RADIUS * np.concatenate([[[0.0, 1.0, 0.0]], body, [[0.0, -1.0, 0.0]]])
     faces = []
-    ring = lambda r, s: 1 + r * segments + s % segments  # noqa: E731
+    ring = lambda r, s: 1 + r * segments + s % segments
     for s in range(segments):
         faces.append((0, ring(0, s + 1), ring(0, s)))
         faces.append((len(positions) - 1, ring(rings - 2, s), ring(rings - 2, s + 1)))

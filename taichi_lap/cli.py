@@ -16,7 +16,7 @@ import sys
 # Taichi prints a banner to stdout on import; keep stdout for our output (check --json)
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")
 
-from taichi_lap.errors import InputError, SimulationFault  # noqa: E402
+from taichi_lap.errors import InputError, SimulationFault
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -137,7 +137,7 @@ def test_lazy_update_skips_recomputation_under_delta_and_recomputes_above(box):
     data, model, state, collision, no_tools = box
     state.reset(model)
     collision.reset()
-    step = lambda: collision.update_spheres(state)  # noqa: E731
+    step = lambda: collision.update_spheres(state)
     assert counted(collision, "recomputed", step) == model.surface_triangle_count
     assert counted(collision, "recomputed", step) == 0
     center, recovery = collision.sphere_center.to_numpy(), collision.recovery.to_numpy()
@@ -321,7 +321,7 @@ def capsule_distances(x, a, b, r):
 def union_distances(x, tip, tail, radius, frame):
     """NumPy signed distances [m] of points ``x`` to each shape of :data:`UNION` placed
     in the tool ``frame`` (columns, Control.tool_frame), shape (3, n)."""
-    capsule = lambda a, b, r: capsule_distances(x, a, b, r)  # noqa: E731
+    capsule = lambda a, b, r: capsule_distances(x, a, b, r)
 
     sphere = tip + frame @ np.asarray(UNION[1][1])
     q = np.abs((x - tip - frame @ np.asarray(UNION[2][1])) @ frame) - np.asarray(UNION[2][2])

@@ -69,7 +69,7 @@ def test_grasped_particles_follow_the_jaws_rigidly_and_stretch_the_tissue():
         assert np.abs(frame["x"][held] - carried).max() < 2e-5
     turned = history[release_frame - 1]
     assert np.degrees(np.arccos(turned["frame"][1, 2])) > 20.0  # the tool did turn
-    pairwise = lambda x: np.linalg.norm(x[:, None] - x[None], axis=2)  # noqa: E731
+    pairwise = lambda x: np.linalg.norm(x[:, None] - x[None], axis=2)
     assert np.abs(pairwise(turned["x"][held]) - pairwise(start["x"][held])).max() < 2e-5
     # lifted by 15 mm, the block's free particles follow part of the way up
     rest = session.data.rest_position

@@ -12,11 +12,11 @@ from taichi_lap.haptics.safety import ForceSafety
 
 __all__ = ["ForceSafety", "HDError", "HapticDevice", "OpenHapticsDevice", "OpenHapticsError",
            "WorkspaceMapping"]
-from taichi_lap.haptics.proxy import (HapticProxy, ProxySettings, ProxyStatus,  # noqa: E402
+from taichi_lap.haptics.proxy import (HapticProxy, ProxySettings, ProxyStatus,
                                       SurfaceClusters, ToolCapsule, grasp_edges, pull_force)
-from taichi_lap.haptics.servo import ScriptedHapticDevice, ServoProcess, ServoSettings  # noqa: E402
-from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback  # noqa: E402
-from taichi_lap.haptics.snapshot import (HapticScene, SceneSnapshot,  # noqa: E402
+from taichi_lap.haptics.servo import ScriptedHapticDevice, ServoProcess, ServoSettings
+from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
+from taichi_lap.haptics.snapshot import (HapticScene, SceneSnapshot,
                                          SnapshotCapacityError)
 
 __all__ += ["HapticProxy", "HapticScene", "ProxySettings", "ProxyStatus", "SceneSnapshot",
