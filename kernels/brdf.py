@@ -41,7 +41,9 @@ def ggx_distance(n_dot_h, alpha):
     """GGX (Trowbridge-Reitz) normal distribution D(h), seed 000 Eq. 9 (Walter et al.
     2007; Burley 2012): alpha^2 / (pi ((n·h)^2 (alpha^2 - 1) + 1)^2) [1/sr]."""
     a2 = ti.max(alpha, ALPHA_MIN) ** 2
-    d = (1.0 - n_dot_h) * (1.0 + n_dot_h) + a2 * n_dot_h * n_dot_h  # = (n·h)^2 (a2 - 1) + 1, exact 1 - n·h
+    d = (1.0 - n_dot_h) * (
+        1.0 + n_dot_h
+    ) + a2 * n_dot_h * n_dot_h  # = (n·h)^2 (a2 - 1) + 1, exact 1 - n·h
     return a2 / (PI * d * d)
 
 
@@ -124,13 +126,23 @@ def surface_brdf_cos(n, v, l, albedo, roughness, metalness, mucus):
         f0 = specular_f0(albedo, metalness)
         # one Eq. 11 weight per cosine, shared by the base and the film
         w_l, w_v, w_h = fresnel_weight(nl), fresnel_weight(nv), fresnel_weight(v_dot_h)
-        diffuse = albedo * ((1.0 - metalness) * INV_PI * disney_diffuse(nv, nl, v_dot_h, roughness)) \
-            * ((1.0 - f0) * (1.0 - w_l)) * ((1.0 - f0) * (1.0 - w_v))
-        specular = (f0 + (1.0 - f0) * w_h) * (ggx_distance(n_dot_h, alpha) * smith_visibility(nv, nl, alpha))
+        diffuse = (
+            albedo
+            * ((1.0 - metalness) * INV_PI * disney_diffuse(nv, nl, v_dot_h, roughness))
+            * ((1.0 - f0) * (1.0 - w_l))
+            * ((1.0 - f0) * (1.0 - w_v))
+        )
+        specular = (f0 + (1.0 - f0) * w_h) * (
+            ggx_distance(n_dot_h, alpha) * smith_visibility(nv, nl, alpha)
+        )
         coat_alpha = MUCUS_ROUGHNESS * MUCUS_ROUGHNESS
-        coat = (MUCUS_F0 + (1.0 - MUCUS_F0) * w_h) * ggx_distance(n_dot_h, coat_alpha) \
+        coat = (
+            (MUCUS_F0 + (1.0 - MUCUS_F0) * w_h)
+            * ggx_distance(n_dot_h, coat_alpha)
             * smith_visibility(nv, nl, coat_alpha)
-        transmission = (1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * w_l)) \
-            * (1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * w_v))
+        )
+        transmission = (1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * w_l)) * (
+            1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * w_v)
+        )
         result = (transmission * (diffuse + specular) + mucus * coat) * n_dot_l
     return result

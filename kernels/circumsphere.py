@@ -54,11 +54,29 @@ CIRCUMSPHERE, BOUNDING_SPHERE, POLYGON = 0, 1, 2
 HERMITE_SAMPLES = 256
 """Intervals of the tabulated H3 over s ∈ [0, 1]."""
 
-COUNTERS = ("candidates", "bounding_pairs", "tissue_contacts", "tool_candidates",
-            "tool_contacts", "recomputed", "contact_triangles", "rescanned", "listed_pairs")
+COUNTERS = (
+    "candidates",
+    "bounding_pairs",
+    "tissue_contacts",
+    "tool_candidates",
+    "tool_contacts",
+    "recomputed",
+    "contact_triangles",
+    "rescanned",
+    "listed_pairs",
+)
 """Cumulative i32 event counters (wrap around; take differences)."""
-(C_CANDIDATES, C_BOUNDING, C_TISSUE, C_TOOL_CANDIDATES, C_TOOL, C_RECOMPUTED,
- C_TRIANGLES, C_RESCANNED, C_LISTED) = range(len(COUNTERS))
+(
+    C_CANDIDATES,
+    C_BOUNDING,
+    C_TISSUE,
+    C_TOOL_CANDIDATES,
+    C_TOOL,
+    C_RECOMPUTED,
+    C_TRIANGLES,
+    C_RESCANNED,
+    C_LISTED,
+) = range(len(COUNTERS))
 
 
 def hermite_table(samples: int = HERMITE_SAMPLES) -> np.ndarray:
@@ -122,8 +140,7 @@ def dual_curvature(centroid, n0, n1, n2, area):
     """Gauss-Bonnet at the dual vertex ``centroid`` with edge-neighbour centroids
     n0..n2: (angle deficit 2π - Σ angles [rad], K = deficit / area [1/m²])."""
     e0, e1, e2 = n0 - centroid, n1 - centroid, n2 - centroid
-    deficit = 2.0 * math.pi - angle_between(e0, e1) - angle_between(e1, e2) \
-        - angle_between(e2, e0)
+    deficit = 2.0 * math.pi - angle_between(e0, e1) - angle_between(e1, e2) - angle_between(e2, e0)
     return deficit, deficit / ti.max(area, 1e-30)
 
 
@@ -134,8 +151,7 @@ def cot(angle):
 
 
 @ti.func
-def circumsphere_center(center, normal, bound_radius, scale_phi, safe_angle, hermite,
-                        recovery):
+def circumsphere_center(center, normal, bound_radius, scale_phi, safe_angle, hermite, recovery):
     """Eq. 4-6: C = x_c - N_c (φ R_b cot θ H3(K) + ε) with x_c = ``center``; returns C
     and its depth [m]."""
     depth = scale_phi * bound_radius * cot(safe_angle) * hermite + recovery
@@ -177,8 +193,9 @@ def skin_vertices(model: ti.template(), state: ti.template(), coll: ti.template(
 
 
 @ti.kernel
-def update_spheres(model: ti.template(), state: ti.template(), coll: ti.template(),
-                   every: ti.template()):
+def update_spheres(
+    model: ti.template(), state: ti.template(), coll: ti.template(), every: ti.template()
+):
     """The module docstring's spheres of the active triangles, after the skinning of
     :func:`kernels.tissue_collision.update_bounds`, or of all triangles with ``every``
     (skinning first). Reads vertex_p, vertex_x and goal; writes bound_center,
@@ -210,19 +227,30 @@ def update_spheres(model: ti.template(), state: ti.template(), coll: ti.template
                 nb = coll.tri_neighbour[t]
                 curvature = 0.0
                 if nb[0] >= 0 and nb[1] >= 0 and nb[2] >= 0:
-                    _, curvature = dual_curvature((a + b + c) / 3.0, centroid(coll, nb[0]),
-                                                  centroid(coll, nb[1]),
-                                                  centroid(coll, nb[2]), area)
+                    _, curvature = dual_curvature(
+                        (a + b + c) / 3.0,
+                        centroid(coll, nb[0]),
+                        centroid(coll, nb[1]),
+                        centroid(coll, nb[2]),
+                        area,
+                    )
                 flat_depth = coll.scale_phi * radius_b * cot(coll.safe_angle)
                 coll.curvature[t] = curvature
                 coll.curvature_factor[t] = curvature_factor(
-                    coll.hermite, curvature, 4.0 / ti.max(flat_depth * flat_depth, 1e-30))
+                    coll.hermite, curvature, 4.0 / ti.max(flat_depth * flat_depth, 1e-30)
+                )
                 coll.recovery[t] = triangle_goal_distance(model, state, v)
                 coll.area_last[t] = area
                 ti.atomic_add(coll.counter[C_RECOMPUTED], 1)
-            center, depth = circumsphere_center(center_b, normal, radius_b, coll.scale_phi,
-                                                coll.safe_angle, coll.curvature_factor[t],
-                                                coll.recovery[t])
+            center, depth = circumsphere_center(
+                center_b,
+                normal,
+                radius_b,
+                coll.scale_phi,
+                coll.safe_angle,
+                coll.curvature_factor[t],
+                coll.recovery[t],
+            )
             radius = ti.sqrt(radius_b * radius_b + depth * depth)
             coll.sphere_center[t] = center
             coll.sphere_radius[t] = radius

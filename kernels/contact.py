@@ -57,8 +57,9 @@ def push_out_of_tools(control: ti.template(), p, r):
         if control.tool_active[k]:
             a = control.tool_a[k]
             if control.tool_jaw_radius[k] > 0.0:
-                p, jaws = push_out_of_capsule(control.tool_jaw[k], a,
-                                              control.tool_jaw_radius[k] + r, p)
+                p, jaws = push_out_of_capsule(
+                    control.tool_jaw[k], a, control.tool_jaw_radius[k] + r, p
+                )
                 hit |= jaws
             p, shaft = push_out_of_capsule(a, control.tool_b[k], control.tool_radius[k] + r, p)
             hit |= shaft
@@ -98,8 +99,7 @@ def hold_grasped(state: ti.template(), control: ti.template(), i, p):
 
 
 @ti.func
-def resolve_contacts(model: ti.template(), state: ti.template(), control: ti.template(), i, p,
-                     x):
+def resolve_contacts(model: ti.template(), state: ti.template(), control: ti.template(), i, p, x):
     """All contacts of particle ``i`` at predicted ``p`` (previous position ``x``):
     tools, planes, then the grasp. Returns the projected position and the collided
     flag."""

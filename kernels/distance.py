@@ -32,8 +32,9 @@ def distance_delta(pi, pj, wi, wj, rest, stiffness):
 
 
 @ti.func
-def finish_particle(model: ti.template(), state: ti.template(), control: ti.template(),
-                    source: ti.template(), i, p):
+def finish_particle(
+    model: ti.template(), state: ti.template(), control: ti.template(), source: ti.template(), i, p
+):
     """LRA then contacts for particle ``i``; flags the collision."""
     p += lra_correction(model, source, i, p)
     p, hit = resolve_contacts(model, state, control, i, p, state.x[i])
@@ -43,8 +44,14 @@ def finish_particle(model: ti.template(), state: ti.template(), control: ti.temp
 
 
 @ti.kernel
-def jacobi_sweep(model: ti.template(), state: ti.template(), control: ti.template(),
-                 source: ti.template(), target: ti.template(), over_relaxation: ti.f32):
+def jacobi_sweep(
+    model: ti.template(),
+    state: ti.template(),
+    control: ti.template(),
+    source: ti.template(),
+    target: ti.template(),
+    over_relaxation: ti.f32,
+):
     """One averaged Jacobi iteration over all distance constraints and LRAs, reading
     ``source`` and writing ``target`` (both particle position fields)."""
     for i in range(model.particle_count):
@@ -55,8 +62,14 @@ def jacobi_sweep(model: ti.template(), state: ti.template(), control: ti.templat
             delta = ti.Vector([0.0, 0.0, 0.0])
             for e in range(begin, end):
                 j = model.distance_other[e]
-                delta += distance_delta(p, source[j], wi, model.inv_mass[j],
-                                        model.distance_rest[e], model.distance_stiffness[e])
+                delta += distance_delta(
+                    p,
+                    source[j],
+                    wi,
+                    model.inv_mass[j],
+                    model.distance_rest[e],
+                    model.distance_stiffness[e],
+                )
             if end > begin:
                 p += over_relaxation * delta / (end - begin)
             p = finish_particle(model, state, control, source, i, p)

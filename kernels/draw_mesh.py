@@ -21,9 +21,16 @@ def gather_points(surface: ti.template(), source: ti.template(), points: ti.temp
 
 
 @ti.kernel
-def place_instruments(local_position: ti.template(), local_normal: ti.template(),
-                      vertex_tool: ti.template(), count: ti.i32, control: ti.template(),
-                      positions: ti.template(), normals: ti.template(), offset: ti.i32):
+def place_instruments(
+    local_position: ti.template(),
+    local_normal: ti.template(),
+    vertex_tool: ti.template(),
+    count: ti.i32,
+    control: ti.template(),
+    positions: ti.template(),
+    normals: ti.template(),
+    offset: ti.i32,
+):
     """positions[offset + v] = a + R · local_position[v] for the tool
     ``vertex_tool[v]`` (capsule tip ``a`` [m], frame R of the Control, the one
     grasped tissue is held in); normals likewise rotated. An inactive tool collapses

@@ -191,8 +191,15 @@ def curvature_indicator(points, start, end, i):
 
 
 @ti.kernel
-def sample_tubes(tubes: ti.template(), points: ti.template(), radius: ti.template(),
-                 tube_range: ti.template(), tube_count: ti.i32, epsilon: ti.f32, level: ti.i32):
+def sample_tubes(
+    tubes: ti.template(),
+    points: ti.template(),
+    radius: ti.template(),
+    tube_range: ti.template(),
+    tube_count: ti.i32,
+    epsilon: ti.f32,
+    level: ti.i32,
+):
     """§5.1 and Eq. 12: indicators, Eq. 11 samples, frames; then the output layout.
 
     Reads points [m], radius [m], tube_range (ivec2 [start, end), ascending, disjoint).
@@ -318,9 +325,16 @@ def clear_plane(q, own, other, clearance):
 
 
 @ti.kernel
-def skin_tubes(tubes: ti.template(), tube_count: ti.i32, level: ti.i32, vertices: ti.template(),
-               normals: ti.template(), indices: ti.template(), vertex_offset: ti.i32,
-               index_offset: ti.i32):
+def skin_tubes(
+    tubes: ti.template(),
+    tube_count: ti.i32,
+    level: ti.i32,
+    vertices: ti.template(),
+    normals: ti.template(),
+    indices: ti.template(),
+    vertex_offset: ti.i32,
+    index_offset: ti.i32,
+):
     """Eq. 1, 13, 14 and the plane clearance, after sample_tubes with the same level.
 
     Writes vertices [m] and normals at vertex_offset + ring * sides + side, and

@@ -16,8 +16,14 @@ from taichi_lap.kernels.contact import FREE, closest_on_segment
 
 
 @ti.kernel
-def capture(model: ti.template(), state: ti.template(), control: ti.template(), tool: ti.i32,
-            length: ti.f32, reach: ti.f32) -> ti.i32:
+def capture(
+    model: ti.template(),
+    state: ti.template(),
+    control: ti.template(),
+    tool: ti.i32,
+    length: ti.f32,
+    reach: ti.f32,
+) -> ti.i32:
     """Hold every free movable particle whose sphere comes within ``reach`` [m] of the
     jaw segment of ``tool`` (``length`` [m] ahead of the tip); returns how many.
     Reads x; writes grasp_tool, grasp_local."""

@@ -21,8 +21,19 @@ import math
 
 import taichi as ti
 
-from taichi_lap.kernels.brdf import (ALPHA_MIN, INV_PI, MUCUS_F0, MUCUS_ROUGHNESS, N_DOT_MIN, PI, fresnel,
-                                     fresnel_weight, mucus_fresnel, smith_visibility, specular_f0)
+from taichi_lap.kernels.brdf import (
+    ALPHA_MIN,
+    INV_PI,
+    MUCUS_F0,
+    MUCUS_ROUGHNESS,
+    N_DOT_MIN,
+    PI,
+    fresnel,
+    fresnel_weight,
+    mucus_fresnel,
+    smith_visibility,
+    specular_f0,
+)
 from taichi_lap.sim.fields import FieldGroup
 
 SH_ROWS, SH_COLUMNS = 128, 256  # latitude-longitude quadrature grid of the SH projection
@@ -54,7 +65,9 @@ def environment_radiance(direction):
     """Radiance [relative units] of the abdominal cavity seen along unit ``direction``:
     a red wall, darker below (y < 0), with pink, yellowish and deep red patches; RGB in
     about [0.05, 1.1]."""
-    wall = ti.math.mix(ti.Vector([0.20, 0.05, 0.045]), ti.Vector([0.55, 0.20, 0.17]), 0.5 + 0.5 * direction.y)
+    wall = ti.math.mix(
+        ti.Vector([0.20, 0.05, 0.045]), ti.Vector([0.55, 0.20, 0.17]), 0.5 + 0.5 * direction.y
+    )
     for patch in ti.static((_PERITONEUM, _FAT, _BOWEL)):
         wall += ti.Vector(patch[0]) * spherical_gaussian(direction, patch[1], patch[2])
     return wall
@@ -72,13 +85,25 @@ def sh9_basis(d):
     """The 9 real spherical harmonics Y00, Y1-1, Y10, Y11, Y2-2, Y2-1, Y20, Y21, Y22 at
     unit ``d`` (Ramamoorthi & Hanrahan 2001; x, y, z = d)."""
     x, y, z = d.x, d.y, d.z
-    return ti.Vector([0.282095, 0.488603 * y, 0.488603 * z, 0.488603 * x, 1.092548 * x * y,
-                      1.092548 * y * z, 0.315392 * (3.0 * z * z - 1.0), 1.092548 * x * z,
-                      0.546274 * (x * x - y * y)])
+    return ti.Vector(
+        [
+            0.282095,
+            0.488603 * y,
+            0.488603 * z,
+            0.488603 * x,
+            1.092548 * x * y,
+            1.092548 * y * z,
+            0.315392 * (3.0 * z * z - 1.0),
+            1.092548 * x * z,
+            0.546274 * (x * x - y * y),
+        ]
+    )
 
 
 @ti.kernel
-def project_sh9(environment: ti.template(), intensity: ti.f32, row_sums: ti.template(), coeffs: ti.template()):
+def project_sh9(
+    environment: ti.template(), intensity: ti.f32, row_sums: ti.template(), coeffs: ti.template()
+):
     """coeffs[k] = intensity ∫ L(w) Y_k(w) dw (Ramamoorthi & Hanrahan 2001)
     by the midpoint rule on a SH_ROWS x SH_COLUMNS latitude-longitude grid. One latitude
     ring per thread into ``row_sums[row * 9 + k]``, then rings summed in order."""
@@ -106,9 +131,14 @@ def sh9_irradiance(coeffs, n):
     Lambertian surface reflects radiance albedo · E(n) / pi. A constant L gives pi L."""
     c1, c2, c3, c4, c5 = 0.429043, 0.511664, 0.743125, 0.886227, 0.247708
     x, y, z = n.x, n.y, n.z
-    e = c1 * coeffs[8] * (x * x - y * y) + c3 * coeffs[6] * z * z + c4 * coeffs[0] - c5 * coeffs[6] \
-        + 2.0 * c1 * (coeffs[4] * x * y + coeffs[7] * x * z + coeffs[5] * y * z) \
+    e = (
+        c1 * coeffs[8] * (x * x - y * y)
+        + c3 * coeffs[6] * z * z
+        + c4 * coeffs[0]
+        - c5 * coeffs[6]
+        + 2.0 * c1 * (coeffs[4] * x * y + coeffs[7] * x * z + coeffs[5] * y * z)
         + 2.0 * c2 * (coeffs[3] * x + coeffs[1] * y + coeffs[2] * z)
+    )
     return ti.max(e, 0.0)
 
 
@@ -130,7 +160,9 @@ def tangent_frame(n):
     sign = ti.select(n.z >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + n.z)
     b = n.x * n.y * a
-    return ti.Vector([1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x]), ti.Vector([b, sign + n.y * n.y * a, -n.y])
+    return ti.Vector([1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x]), ti.Vector(
+        [b, sign + n.y * n.y * a, -n.y]
+    )
 
 
 @ti.func
@@ -190,7 +222,9 @@ def prefilter_environment(environment: ti.template(), intensity: ti.f32, maps: t
     GGX reflections about n = v = r. Writes maps[(k * HEIGHT + row) * WIDTH + col]."""
     for level, row, col in ti.ndrange(PREFILTER_LEVELS, PREFILTER_HEIGHT, PREFILTER_WIDTH):
         roughness = level / (PREFILTER_LEVELS - 1.0)
-        r = latlong_direction(PI * (row + 0.5) / PREFILTER_HEIGHT, 2.0 * PI * (col + 0.5) / PREFILTER_WIDTH)
+        r = latlong_direction(
+            PI * (row + 0.5) / PREFILTER_HEIGHT, 2.0 * PI * (col + 0.5) / PREFILTER_WIDTH
+        )
         total = ti.Vector([0.0, 0.0, 0.0])
         weight = 0.0
         for s in range(PREFILTER_SAMPLES):
@@ -210,8 +244,12 @@ def latlong_texel(d):
     theta = ti.acos(ti.math.clamp(d.y, -1.0, 1.0))
     phi = ti.atan2(d.z, d.x)
     phi = ti.select(phi < 0.0, phi + 2.0 * PI, phi)
-    return ti.Vector([phi * (PREFILTER_WIDTH / (2.0 * PI)) - 0.5,
-                      ti.math.clamp(theta * (PREFILTER_HEIGHT / PI) - 0.5, 0.0, PREFILTER_HEIGHT - 1.0)])
+    return ti.Vector(
+        [
+            phi * (PREFILTER_WIDTH / (2.0 * PI)) - 0.5,
+            ti.math.clamp(theta * (PREFILTER_HEIGHT / PI) - 0.5, 0.0, PREFILTER_HEIGHT - 1.0),
+        ]
+    )
 
 
 @ti.func
@@ -225,9 +263,14 @@ def latlong_sample(maps, level, texel):
     r0 = ti.min(ti.cast(texel.y, ti.i32), PREFILTER_HEIGHT - 2)
     fy = texel.y - r0
     base = level * PREFILTER_HEIGHT
-    top = ti.math.mix(maps[(base + r0) * PREFILTER_WIDTH + c0], maps[(base + r0) * PREFILTER_WIDTH + c1], fx)
-    bottom = ti.math.mix(maps[(base + r0 + 1) * PREFILTER_WIDTH + c0],
-                         maps[(base + r0 + 1) * PREFILTER_WIDTH + c1], fx)
+    top = ti.math.mix(
+        maps[(base + r0) * PREFILTER_WIDTH + c0], maps[(base + r0) * PREFILTER_WIDTH + c1], fx
+    )
+    bottom = ti.math.mix(
+        maps[(base + r0 + 1) * PREFILTER_WIDTH + c0],
+        maps[(base + r0 + 1) * PREFILTER_WIDTH + c1],
+        fx,
+    )
     return ti.math.mix(top, bottom, fy)
 
 
@@ -237,7 +280,9 @@ def prefiltered_at(maps, texel, roughness):
     bilinear in the map, linear between the two nearest levels."""
     level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
     k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
-    return ti.math.mix(latlong_sample(maps, k0, texel), latlong_sample(maps, k0 + 1, texel), level - k0)
+    return ti.math.mix(
+        latlong_sample(maps, k0, texel), latlong_sample(maps, k0 + 1, texel), level - k0
+    )
 
 
 @ti.func
@@ -256,8 +301,12 @@ def ibl_diffuse(lighting, n, v, albedo, metalness, mucus):
     n_dot_v = ti.max(n.dot(v), N_DOT_MIN)
     f0 = specular_f0(albedo, metalness)
     base = (1.0 - fresnel(f0, n_dot_v)) * (1.0 - f0 - (1.0 - f0) * FRESNEL_WEIGHT_MEAN)
-    film = (1.0 - mucus * mucus_fresnel(n_dot_v)) * (1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * FRESNEL_WEIGHT_MEAN))
-    return albedo * ((1.0 - metalness) * INV_PI * film) * sh9_irradiance(lighting.sh_coeffs, n) * base
+    film = (1.0 - mucus * mucus_fresnel(n_dot_v)) * (
+        1.0 - mucus * (MUCUS_F0 + (1.0 - MUCUS_F0) * FRESNEL_WEIGHT_MEAN)
+    )
+    return (
+        albedo * ((1.0 - metalness) * INV_PI * film) * sh9_irradiance(lighting.sh_coeffs, n) * base
+    )
 
 
 @ti.func
@@ -270,9 +319,13 @@ def ibl_specular(lighting, n, v, albedo, roughness, metalness, mucus):
     r = 2.0 * n.dot(v) * n - v
     texel = latlong_texel(r)
     ab = dfg_lookup(lighting.dfg, n_dot_v, roughness)
-    base = prefiltered_at(lighting.prefiltered, texel, roughness) * (specular_f0(albedo, metalness) * ab[0] + ab[1])
+    base = prefiltered_at(lighting.prefiltered, texel, roughness) * (
+        specular_f0(albedo, metalness) * ab[0] + ab[1]
+    )
     coat_ab = dfg_lookup(lighting.dfg, n_dot_v, MUCUS_ROUGHNESS)
-    coat = prefiltered_at(lighting.prefiltered, texel, MUCUS_ROUGHNESS) * (MUCUS_F0 * coat_ab[0] + coat_ab[1])
+    coat = prefiltered_at(lighting.prefiltered, texel, MUCUS_ROUGHNESS) * (
+        MUCUS_F0 * coat_ab[0] + coat_ab[1]
+    )
     film = 1.0 - mucus * mucus_fresnel(n_dot_v)
     return film * film * base + mucus * coat
 
@@ -299,7 +352,9 @@ class ImageLighting:
         self.sh_coeffs = group.field(ti.f32, 9, vector=3)
         self.sh_row_sums = group.field(ti.f32, SH_ROWS * 9, vector=3)
         self.dfg = group.field(ti.f32, DFG_SIZE * DFG_SIZE, vector=2)
-        self.prefiltered = group.field(ti.f32, PREFILTER_LEVELS * PREFILTER_HEIGHT * PREFILTER_WIDTH, vector=3)
+        self.prefiltered = group.field(
+            ti.f32, PREFILTER_LEVELS * PREFILTER_HEIGHT * PREFILTER_WIDTH, vector=3
+        )
         group.finalize()
         project_sh9(environment, float(intensity), self.sh_row_sums, self.sh_coeffs)
         integrate_dfg(self.dfg)

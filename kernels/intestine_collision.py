@@ -64,8 +64,13 @@ def closest(cd: ti.template(), x: ti.template(), a, b):
     two end-point-triangle tests and the point where pq crosses the triangle."""
     va, vb = cd.element_vertex[a], cd.element_vertex[b]
     p, q = x[cd.particle_global[va[0]]], x[cd.particle_global[va[1]]]
-    corner = ti.Matrix.rows([x[cd.particle_global[vb[0]]], x[cd.particle_global[vb[1]]],
-                             x[cd.particle_global[vb[ti.select(vb[2] >= 0, 2, 1)]]]])
+    corner = ti.Matrix.rows(
+        [
+            x[cd.particle_global[vb[0]]],
+            x[cd.particle_global[vb[1]]],
+            x[cd.particle_global[vb[ti.select(vb[2] >= 0, 2, 1)]]],
+        ]
+    )
     triangle = vb[2] >= 0
     best, best_s, best_w = HUGE, 0.0, ti.Vector([1.0, 0.0, 0.0])
     for k in range(ti.select(triangle, 3, 1)):
@@ -129,14 +134,16 @@ def around(cd: ti.template(), e, k):
     return r
 
 
-SEGMENT_STENCIL = [(i, j) for i in (0, 1, 2) for j in (0, 1, 2) if i or j] + \
-    [(i, j) for i in (0, 4, 5) for j in (0, 4, 5) if i or j]
+SEGMENT_STENCIL = [(i, j) for i in (0, 1, 2) for j in (0, 1, 2) if i or j] + [
+    (i, j) for i in (0, 4, 5) for j in (0, 4, 5) if i or j
+]
 """(k on a, k on b) of the pairs a segment-segment update tests (see :func:`around`)."""
 GROWTH = 6
 """Candidates per listed contact when the areas grow: itself, then the pairs with a
 replaced by its 2 neighbours or b by its (up to) 3 adjacent elements."""
-TRIANGLE_STENCIL = [(1, 0), (2, 0), (4, 0), (5, 0), (0, 1), (0, 2), (0, 3), (0, 4), (0, 5)] + \
-    [(0, 0)] * 7
+TRIANGLE_STENCIL = [(1, 0), (2, 0), (4, 0), (5, 0), (0, 1), (0, 2), (0, 3), (0, 4), (0, 5)] + [
+    (0, 0)
+] * 7
 """The same for segment-triangle: the first four move a, the others b around a'."""
 
 
@@ -192,8 +199,15 @@ def random_pair(cd: ti.template(), seed, step, draw, active):
 
 
 @ti.kernel
-def track_pairs(cd: ti.template(), x: ti.template(), seed: ti.u32, step: ti.u32, draws: ti.i32,
-                threshold: ti.f32, climb_steps: ti.i32):
+def track_pairs(
+    cd: ti.template(),
+    x: ti.template(),
+    seed: ti.u32,
+    step: ti.u32,
+    draws: ti.i32,
+    threshold: ti.f32,
+    climb_steps: ti.i32,
+):
     """Update every active pair (at most ``climb_steps`` local-minimum updates) and
     draw ``draws`` new ones (§4.1); write the candidates (a = -1 when over
     ``threshold`` [m]) with their gaps [m]. Reads pair_*."""
@@ -219,10 +233,20 @@ def track_pairs(cd: ti.template(), x: ti.template(), seed: ti.u32, step: ti.u32,
 
 
 @ti.kernel
-def compact(cd: ti.template(), src_a: ti.template(), src_b: ti.template(),
-            src_gap: ti.template(), src_count: ti.template(), dst_a: ti.template(),
-            dst_b: ti.template(), dst_gap: ti.template(), dst_count: ti.template(),
-            dst_start: ti.template(), dst_dropped: ti.template(), capacity: ti.i32):
+def compact(
+    cd: ti.template(),
+    src_a: ti.template(),
+    src_b: ti.template(),
+    src_gap: ti.template(),
+    src_count: ti.template(),
+    dst_a: ti.template(),
+    dst_b: ti.template(),
+    dst_gap: ti.template(),
+    dst_count: ti.template(),
+    dst_start: ti.template(),
+    dst_dropped: ti.template(),
+    capacity: ti.i32,
+):
     """Valid source pairs (a >= 0) without duplicates into dst, sorted by (a, b): a
     counting sort over segments, then each segment's pairs sorted by (b, source
     index); dst_start[a] is where segment a's pairs begin. Pairs past ``capacity``
@@ -371,8 +395,9 @@ def contact_direction(cd: ti.template(), x: ti.template(), c, xa, xb):
 
 
 @ti.kernel
-def respond(cd: ti.template(), model: ti.template(), state: ti.template(), h: ti.f32,
-            passes: ti.i32):
+def respond(
+    cd: ti.template(), model: ti.template(), state: ti.template(), h: ti.f32, passes: ti.i32
+):
     """``passes`` projected Gauss-Seidel sweeps of Eq. 2-9 over the contacts (see
     the module docstring); ``h`` [s] the substep. Reads and writes state.p (Eq. 8
     displacement) and state.x (x = p - h v carries the Eq. 4 velocity change);
@@ -396,8 +421,9 @@ def respond(cd: ti.template(), model: ti.template(), state: ti.template(), h: ti
                 total = cd.contact_impulse[c]
             if k_sum > 0.0:
                 f = ti.max(total[0] - v_sep / k_sum, 0.0)  # Eq. 7
-                g = ti.max(total[1] + (cd.element_radius[a] + cd.element_radius[b] - d) / k_sum,
-                           0.0)  # Eq. 9
+                g = ti.max(
+                    total[1] + (cd.element_radius[a] + cd.element_radius[b] - d) / k_sum, 0.0
+                )  # Eq. 9
                 df, dg = f - total[0], g - total[1]
                 total = ti.Vector([f, g])
                 for j in range(5):
@@ -421,8 +447,7 @@ def exact_collisions(cd: ti.template(), exact: ti.template(), x: ti.template()):
         if v[2] >= 0:
             p2 = x[cd.particle_global[v[2]]]
             centre = (p0 + p1 + p2) / 3.0
-            bound = ti.max(ti.max((p0 - centre).norm(), (p1 - centre).norm()),
-                           (p2 - centre).norm())
+            bound = ti.max(ti.max((p0 - centre).norm(), (p1 - centre).norm()), (p2 - centre).norm())
         exact.centre[e], exact.bound[e] = centre, bound + cd.element_radius[e] + 0.5 * exact.skin
     exact.count[None] = 0
     for k in range(cd.segment_count * cd.element_count):

@@ -26,6 +26,8 @@ def spring_force(model: ti.template(), state: ti.template(), i):
         if length > 1e-9:
             n = d / length
             stretch = length - model.spring_rest[s]
-            f += (model.spring_stiffness[s] * stretch
-                  + model.spring_damping[s] * (state.v[j] - vi).dot(n)) * n
+            f += (
+                model.spring_stiffness[s] * stretch
+                + model.spring_damping[s] * (state.v[j] - vi).dot(n)
+            ) * n
     return f

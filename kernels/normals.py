@@ -6,8 +6,14 @@ import taichi as ti
 
 
 @ti.kernel
-def vertex_normals(positions: ti.template(), triangles: ti.template(), incident_start: ti.template(),
-                   incident: ti.template(), vertex_count: ti.i32, normals: ti.template()):
+def vertex_normals(
+    positions: ti.template(),
+    triangles: ti.template(),
+    incident_start: ti.template(),
+    incident: ti.template(),
+    vertex_count: ti.i32,
+    normals: ti.template(),
+):
     """normals[v] = normalize(Σ_t (b - a) × (c - a)) over triangles t incident to v.
     ``triangles`` is a flat index field (3 per triangle); reads positions, writes normals."""
     for v in range(vertex_count):

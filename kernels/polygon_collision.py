@@ -140,9 +140,18 @@ def polygon_pair(coll: ti.template(), t, u, acc, hits):
         vertex, face = ti.select(mine, vt[k], vu[k]), ti.select(mine, vu, vt)
         w_v, w_f = ti.select(mine, tw[k], uw[k]), ti.select(mine, uw, tw)
         hit, dv, bary, lam_n = vertex_face(
-            coll.vertex_p[vertex], coll.vertex_x[vertex], w_v, coll.vertex_p[face[0]],
-            coll.vertex_p[face[1]], coll.vertex_p[face[2]], coll.vertex_x[face[0]],
-            coll.vertex_x[face[1]], coll.vertex_x[face[2]], w_f, h)
+            coll.vertex_p[vertex],
+            coll.vertex_x[vertex],
+            w_v,
+            coll.vertex_p[face[0]],
+            coll.vertex_p[face[1]],
+            coll.vertex_p[face[2]],
+            coll.vertex_x[face[0]],
+            coll.vertex_x[face[1]],
+            coll.vertex_x[face[2]],
+            w_f,
+            h,
+        )
         if hit:
             count += 1
             if mine:
@@ -154,10 +163,21 @@ def polygon_pair(coll: ti.template(), t, u, acc, hits):
     for test in range(9):  # edge i of t against edge j of u
         i, j = test // 3, test % 3
         i1, j1 = (i + 1) % 3, (j + 1) % 3
-        hit, dp, dq = edge_edge(coll.vertex_p[vt[i]], coll.vertex_p[vt[i1]],
-                                coll.vertex_x[vt[i]], coll.vertex_x[vt[i1]], tw[i], tw[i1],
-                                coll.vertex_p[vu[j]], coll.vertex_p[vu[j1]],
-                                coll.vertex_x[vu[j]], coll.vertex_x[vu[j1]], uw[j], uw[j1], h)
+        hit, dp, dq = edge_edge(
+            coll.vertex_p[vt[i]],
+            coll.vertex_p[vt[i1]],
+            coll.vertex_x[vt[i]],
+            coll.vertex_x[vt[i1]],
+            tw[i],
+            tw[i1],
+            coll.vertex_p[vu[j]],
+            coll.vertex_p[vu[j1]],
+            coll.vertex_x[vu[j]],
+            coll.vertex_x[vu[j1]],
+            uw[j],
+            uw[j1],
+            h,
+        )
         if hit:
             acc, hits = add_corner(acc, hits, i, dp)
             acc, hits = add_corner(acc, hits, i1, dq)

@@ -37,15 +37,16 @@ import taichi as ti
 
 SUBPIXEL_BITS = 8
 SUBPIXEL = 1 << SUBPIXEL_BITS  # snapping grid: 1/256 px
-GUARD_BAND = float(2 ** 20)  # [px] from the image centre
-VISIBILITY_CLEAR = 2 ** 63 - 1  # no fragment: larger than every key
+GUARD_BAND = float(2**20)  # [px] from the image centre
+VISIBILITY_CLEAR = 2**63 - 1  # no fragment: larger than every key
 BACKGROUND_DEPTH = 1.0e30  # [m], finite so fast-math arithmetic on it stays defined
 INF_BITS = 0x7F800000  # f32 bits of +inf
-PIXEL_ITEMS = 2 ** 31 - 1  # most box pixels per frame on the by-pixel path
+PIXEL_ITEMS = 2**31 - 1  # most box pixels per frame on the by-pixel path
 
 
-def camera_matrices(eye, target, up, fov_deg: float, aspect: float, near: float,
-                    far: float) -> tuple[np.ndarray, np.ndarray]:
+def camera_matrices(
+    eye, target, up, fov_deg: float, aspect: float, near: float, far: float
+) -> tuple[np.ndarray, np.ndarray]:
     """``(view, projection)``, float32 4x4, OpenGL conventions.
 
     View space is right-handed with the camera at the origin looking down -z, y up;
@@ -104,8 +105,15 @@ def _near_crossing(inside, outside, near):
 
 
 @ti.func
-def _clip_and_snap(positions: ti.template(), triangles: ti.template(), t, view_projection, near,
-                   width: ti.template(), height: ti.template()):
+def _clip_and_snap(
+    positions: ti.template(),
+    triangles: ti.template(),
+    t,
+    view_projection,
+    near,
+    width: ti.template(),
+    height: ti.template(),
+):
     """Triangle t clipped to w >= near: ``(corners, screen, inv_w)`` with corners 3 or 4
     (0 if it lies outside a frustum plane), screen the 4x2 i32 corner positions
     [1/256 px] and inv_w their 1/w [1/m]."""
@@ -115,8 +123,14 @@ def _clip_and_snap(positions: ti.template(), triangles: ti.template(), t, view_p
     x, y = ti.Vector([c0.x, c1.x, c2.x]), ti.Vector([c0.y, c1.y, c2.y])
     z, w = ti.Vector([c0.z, c1.z, c2.z]), ti.Vector([c0.w, c1.w, c2.w])
     corners, screen, inv_w = 0, ti.Matrix.zero(ti.i32, 4, 2), ti.Vector.zero(ti.f32, 4)
-    if not ((x > w).all() or (x < -w).all() or (y > w).all() or (y < -w).all() or (z > w).all()
-            or (w < near).all()):
+    if not (
+        (x > w).all()
+        or (x < -w).all()
+        or (y > w).all()
+        or (y < -w).all()
+        or (z > w).all()
+        or (w < near).all()
+    ):
         p0, p1, p2 = c0.xyw, c1.xyw, c2.xyw
         in0, in1, in2 = w[0] >= near, w[1] >= near, w[2] >= near
         inside_count = ti.cast(in0, ti.i32) + ti.cast(in1, ti.i32) + ti.cast(in2, ti.i32)
@@ -200,7 +214,9 @@ def _box(a, b, c, width: ti.template(), height: ti.template()):
     ``x0, y0, x1, y1`` (empty when x0 > x1 or y0 > y1)."""
     low, high, half = ti.min(a, ti.min(b, c)), ti.max(a, ti.max(b, c)), SUBPIXEL // 2
     first = ((ti.max(low, 0) + half - 1) >> SUBPIXEL_BITS).cast(ti.i32)  # arithmetic shifts: floor
-    last = ((ti.min(high, ti.Vector([width, height]) * SUBPIXEL) - half) >> SUBPIXEL_BITS).cast(ti.i32)
+    last = ((ti.min(high, ti.Vector([width, height]) * SUBPIXEL) - half) >> SUBPIXEL_BITS).cast(
+        ti.i32
+    )
     return first.x, first.y, last.x, last.y
 
 
@@ -220,8 +236,14 @@ def _clear(visibility: ti.template()):
 
 
 @ti.kernel
-def rasterize_visibility(positions: ti.template(), triangles: ti.template(), triangle_count: ti.i32,
-                         view_projection: ti.math.mat4, near: ti.f32, visibility: ti.template()):
+def rasterize_visibility(
+    positions: ti.template(),
+    triangles: ti.template(),
+    triangle_count: ti.i32,
+    view_projection: ti.math.mat4,
+    near: ti.f32,
+    visibility: ti.template(),
+):
     """Clear ``visibility`` to VISIBILITY_CLEAR, then for each triangle t < triangle_count
     (vertex ids ``triangles[3t:3t+3]`` into ``positions`` [m]) write, per covered pixel,
     ``min(key)`` with key = ``(depth_key << 32) | t`` (i64, see the module docstring).
@@ -231,8 +253,9 @@ def rasterize_visibility(positions: ti.template(), triangles: ti.template(), tri
     _clear(visibility)
     width, height = ti.static(visibility.shape)
     for t in range(triangle_count):
-        corners, screen, inv_w = _clip_and_snap(positions, triangles, t, view_projection, near,
-                                                width, height)
+        corners, screen, inv_w = _clip_and_snap(
+            positions, triangles, t, view_projection, near, width, height
+        )
         for part in range(corners - 2):
             a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part)
             if area2 > 0:
@@ -268,7 +291,9 @@ class BoxPixels:
         self.end = ti.field(ti.i32)
         self.block_start = ti.field(ti.i32)
         self.total = ti.field(ti.i32)
-        builder = ti.FieldsBuilder()  # 32-bit types only: Vulkan misplaces small fields after i64 ones
+        builder = (
+            ti.FieldsBuilder()
+        )  # 32-bit types only: Vulkan misplaces small fields after i64 ones
         builder.dense(ti.i, parts).place(self.corner, self.inv_w, self.box, self.count, self.end)
         builder.dense(ti.i, blocks).place(self.block_start)
         builder.place(self.total)
@@ -282,9 +307,15 @@ def _add_counts(a, b):
 
 
 @ti.kernel
-def rasterize_visibility_by_pixel(positions: ti.template(), triangles: ti.template(),
-                                  triangle_count: ti.i32, view_projection: ti.math.mat4, near: ti.f32,
-                                  visibility: ti.template(), box_pixels: ti.template()):
+def rasterize_visibility_by_pixel(
+    positions: ti.template(),
+    triangles: ti.template(),
+    triangle_count: ti.i32,
+    view_projection: ti.math.mat4,
+    near: ti.f32,
+    visibility: ti.template(),
+    box_pixels: ti.template(),
+):
     """The same keys as :func:`rasterize_visibility`, one thread per bounding-box pixel
     of each fan part (the GPU path: big triangles spread over many threads, and the
     atomic stays at the top level of its loop, which Mesa's lavapipe needs). A thread
@@ -295,8 +326,9 @@ def rasterize_visibility_by_pixel(positions: ti.template(), triangles: ti.templa
     width, height = ti.static(visibility.shape)
     parts, block = 2 * triangle_count, ti.static(box_pixels.BLOCK)
     for t in range(triangle_count):
-        corners, screen, inv_w = _clip_and_snap(positions, triangles, t, view_projection, near,
-                                                width, height)
+        corners, screen, inv_w = _clip_and_snap(
+            positions, triangles, t, view_projection, near, width, height
+        )
         for part in ti.static(range(2)):
             a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part)
             x0, y0, x1, y1 = _box(a, b, c, width, height)
@@ -316,7 +348,10 @@ def rasterize_visibility_by_pixel(positions: ti.template(), triangles: ti.templa
     for _ in range(1):  # one thread
         running = 0
         for k in range(blocks):
-            running, box_pixels.block_start[k] = _add_counts(running, box_pixels.block_start[k]), running
+            running, box_pixels.block_start[k] = (
+                _add_counts(running, box_pixels.block_start[k]),
+                running,
+            )
         box_pixels.total[None] = running
     for k in range(blocks):
         running = box_pixels.block_start[k]
@@ -345,10 +380,18 @@ def rasterize_visibility_by_pixel(positions: ti.template(), triangles: ti.templa
 
 
 @ti.kernel
-def resolve_gbuffer(positions: ti.template(), normals: ti.template(), triangles: ti.template(),
-                    visibility: ti.template(), eye: ti.math.vec3, view_projection: ti.math.mat4,
-                    gbuffer_depth: ti.template(), gbuffer_position: ti.template(),
-                    gbuffer_normal: ti.template(), gbuffer_triangle: ti.template()):
+def resolve_gbuffer(
+    positions: ti.template(),
+    normals: ti.template(),
+    triangles: ti.template(),
+    visibility: ti.template(),
+    eye: ti.math.vec3,
+    view_projection: ti.math.mat4,
+    gbuffer_depth: ti.template(),
+    gbuffer_position: ti.template(),
+    gbuffer_normal: ti.template(),
+    gbuffer_triangle: ti.template(),
+):
     """Per pixel: the winning triangle t of ``visibility`` (or background), intersected
     with the ray from ``eye`` [m] through the pixel centre (Möller-Trumbore in f32,
     vertices taken relative to the eye; barycentrics clamped to [0, 1] and
@@ -424,8 +467,9 @@ class GBuffer:
             builder.dense(ti.ij, (self.width, self.height)).place(f)
         self.tree = builder.finalize()
 
-    def render(self, positions, normals, triangles, triangle_count: int, eye, view_projection,
-               near: float) -> None:
+    def render(
+        self, positions, normals, triangles, triangle_count: int, eye, view_projection, near: float
+    ) -> None:
         """Rasterize ``triangle_count`` triangles of ``positions`` [m] (flat vertex ids in
         ``triangles``) seen from ``eye`` [m] through ``view_projection`` (4x4, see
         :func:`camera_matrices`), clipped at view depth ``near`` [m], and resolve the
@@ -443,6 +487,15 @@ class GBuffer:
             rasterize_visibility_by_pixel(*args, self.box_pixels)
         else:
             rasterize_visibility(*args)
-        resolve_gbuffer(positions, normals, triangles, self.visibility, np.asarray(eye, np.float32),
-                        matrix, self.depth, self.position, self.normal, self.triangle)
-
+        resolve_gbuffer(
+            positions,
+            normals,
+            triangles,
+            self.visibility,
+            np.asarray(eye, np.float32),
+            matrix,
+            self.depth,
+            self.position,
+            self.normal,
+            self.triangle,
+        )

@@ -43,8 +43,14 @@ def object_colour(index):
 
 
 @ti.kernel
-def shade(gbuffer: ti.template(), materials: ti.template(), lighting: ti.template(),
-          light: ti.template(), frame: ti.template(), view: ti.i32):
+def shade(
+    gbuffer: ti.template(),
+    materials: ti.template(),
+    lighting: ti.template(),
+    light: ti.template(),
+    frame: ti.template(),
+    view: ti.i32,
+):
     """Write ``frame[x, y]`` from the G-buffer (both ``(width, height)``, x right,
     y up: GGUI's layout).
 
@@ -63,19 +69,24 @@ def shade(gbuffer: ti.template(), materials: ti.template(), lighting: ti.templat
             distance = to_eye.norm(1e-9)
             v = to_eye / distance
             if view == 0:
-                spot = ti.math.smoothstep(light.cos_outer[None], light.cos_inner[None],
-                                          -v.dot(light.forward[None]))
-                direct = surface_brdf_cos(n, v, v, albedo, roughness, metalness, mucus) * \
-                    (light.intensity[None] * spot / (distance * distance))
-                ambient = ibl_diffuse(lighting, n, v, albedo, metalness, mucus) + \
-                    ibl_specular(lighting, n, v, albedo, roughness, metalness, mucus)
+                spot = ti.math.smoothstep(
+                    light.cos_outer[None], light.cos_inner[None], -v.dot(light.forward[None])
+                )
+                direct = surface_brdf_cos(n, v, v, albedo, roughness, metalness, mucus) * (
+                    light.intensity[None] * spot / (distance * distance)
+                )
+                ambient = ibl_diffuse(lighting, n, v, albedo, metalness, mucus) + ibl_specular(
+                    lighting, n, v, albedo, roughness, metalness, mucus
+                )
                 colour = tone_map((direct + light.ambient[None] * ambient) * light.exposure[None])
             elif view == 1:
                 colour = albedo
             elif view == 2:
                 colour = 0.5 * n + 0.5
             elif view == 3:
-                colour = ti.Vector([1.0, 1.0, 1.0]) * (1.0 - ti.min(distance / light.far[None], 1.0))
+                colour = ti.Vector([1.0, 1.0, 1.0]) * (
+                    1.0 - ti.min(distance / light.far[None], 1.0)
+                )
             elif view == 4:
                 colour = ti.Vector([roughness, roughness, roughness])
             elif view == 5:

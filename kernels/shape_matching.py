@@ -38,8 +38,9 @@ from taichi_lap.kernels.rotation import extract_rotation, quaternion_to_matrix
 
 
 @ti.func
-def predict_particle(model: ti.template(), state: ti.template(), control: ti.template(), i,
-                     gravity, h):
+def predict_particle(
+    model: ti.template(), state: ti.template(), control: ti.template(), i, gravity, h
+):
     """Alg. 1 lines 4-5 for particle ``i``, then contacts: writes p and collided."""
     x = state.x[i]
     p = x
@@ -63,8 +64,14 @@ def has_springs(model: ti.template(), i):
 
 
 @ti.kernel
-def predict(model: ti.template(), state: ti.template(), control: ti.template(),
-            gravity: ti.math.vec3, h: ti.f32, springs_only: ti.i32):
+def predict(
+    model: ti.template(),
+    state: ti.template(),
+    control: ti.template(),
+    gravity: ti.math.vec3,
+    h: ti.f32,
+    springs_only: ti.i32,
+):
     """Alg. 1 lines 3-6 and contacts for every particle, or only for those with
     springs when the others were predicted by :func:`update_goals`. Reads x, v, goal;
     writes p, collided. ``gravity`` [m/s²], ``h`` [s]."""
@@ -105,8 +112,9 @@ def cluster_frames(model: ti.template(), state: ti.template()):
             moment += state.chunk_moment[chunk]
         state.cluster_center[c] = model.cluster_rest_center[c] + first / model.cluster_mass[c]
         # R is scale-invariant: normalise A so f32 stays accurate for tiny clusters
-        q = extract_rotation(moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30),
-                             state.cluster_quaternion[c])
+        q = extract_rotation(
+            moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30), state.cluster_quaternion[c]
+        )
         state.cluster_quaternion[c] = q
         state.cluster_rotation[c] = quaternion_to_matrix(q)
 
@@ -127,7 +135,9 @@ def averaged_cluster_goal(model: ti.template(), state: ti.template(), i, p):
         total = ti.Vector([0.0, 0.0, 0.0])
         for j in range(begin, end):
             c = model.membership_cluster[j]
-            total += state.cluster_rotation[c] @ model.membership_offset[j] + state.cluster_center[c]
+            total += (
+                state.cluster_rotation[c] @ model.membership_offset[j] + state.cluster_center[c]
+            )
         goal = total / (end - begin)
     return goal
 
@@ -153,16 +163,24 @@ def project_to_goals(model: ti.template(), state: ti.template(), control: ti.tem
         if model.inv_mass[i] > 0.0 and model.membership_start[i + 1] > model.membership_start[i]:
             p = state.p[i]
             goal, _ = limited_goal(model, state, i, p)
-            p, hit = resolve_contacts(model, state, control, i,
-                                      p + model.stiffness[i] * (goal - p), state.x[i])
+            p, hit = resolve_contacts(
+                model, state, control, i, p + model.stiffness[i] * (goal - p), state.x[i]
+            )
             state.p[i] = p
             if hit:
                 state.collided[i] = 1
 
 
 @ti.kernel
-def update_goals(model: ti.template(), state: ti.template(), control: ti.template(), h: ti.f32,
-                 speed_limit: ti.f32, gravity: ti.math.vec3, predict_next: ti.i32):
+def update_goals(
+    model: ti.template(),
+    state: ti.template(),
+    control: ti.template(),
+    h: ti.f32,
+    speed_limit: ti.f32,
+    gravity: ti.math.vec3,
+    predict_next: ti.i32,
+):
     """Alg. 1 lines 12-25: recovery factor, limited goals, velocity and position
     update, health check; with ``predict_next`` also the next substep's prediction of
     every particle without springs (those need all neighbours updated first). Reads

@@ -42,8 +42,16 @@ _PRIMES = (73856093, 19349663, 83492791)
 
 
 @ti.func
-def store_pair(pairs: ti.template(), count: ti.template(), capacity: ti.template(),
-               write: ti.template(), base, found, i, j):
+def store_pair(
+    pairs: ti.template(),
+    count: ti.template(),
+    capacity: ti.template(),
+    write: ti.template(),
+    base,
+    found,
+    i,
+    j,
+):
     """Pair (i, j), the ``found``-th of its point: ``write`` 1 into slot base + found
     (reserved beforehand), 2 into a slot taken by one atomic on ``count[None]``;
     dropped past ``capacity`` (the count still says how many there were)."""
@@ -55,8 +63,9 @@ def store_pair(pairs: ti.template(), count: ti.template(), capacity: ti.template
 
 
 @ti.func
-def exclusive_scan(count: ti.template(), start: ti.template(), n, block_start: ti.template(),
-                   block: ti.template()):
+def exclusive_scan(
+    count: ti.template(), start: ti.template(), n, block_start: ti.template(), block: ti.template()
+):
     """start[i] = count[0] + ... + count[i - 1] for i = 0..n (start[n] the total): block
     totals in parallel, a short serial scan over them, offsets inside the blocks in
     parallel. ``block_start`` holds ceil(n / block) entries. Call it at a kernel's top
@@ -89,8 +98,9 @@ class SpatialHash:
     ``pair_capacity`` pairs (i < j) into ``pairs`` and the true count into ``pair_count``.
     """
 
-    def __init__(self, capacity: int, table_size: int, cell_size: float,
-                 pair_capacity: int | None = None):
+    def __init__(
+        self, capacity: int, table_size: int, cell_size: float, pair_capacity: int | None = None
+    ):
         if capacity < 1 or table_size < 1 or not cell_size > 0:
             raise ValueError("capacity and table_size must be >= 1, cell_size > 0")
         self.capacity, self.table_size, self.cell_size = capacity, table_size, float(cell_size)
@@ -225,7 +235,9 @@ class SpatialHash:
             raise ValueError(f"radius {radius} must lie in [0, cell_size={self.cell_size}]")
 
     @ti.func
-    def _visit(self, points: ti.template(), i, radius, upper: ti.template(), write: ti.template(), base):
+    def _visit(
+        self, points: ti.template(), i, radius, upper: ti.template(), write: ti.template(), base
+    ):
         """Count neighbours j of point i (only j > i if ``upper``); ``write`` pairs (i, j):
         0 no, 1 from slot ``base`` on, 2 to slots taken by one atomic per pair."""
         x = points[i]
@@ -238,8 +250,16 @@ class SpatialHash:
                 near = (points[j] - x).norm_sqr() <= r2
                 if (j > i if ti.static(upper) else j != i) and near:
                     if ti.static(write):
-                        store_pair(self.pairs, self.pair_count, self.pair_capacity, write, base,
-                                   found, i, j)
+                        store_pair(
+                            self.pairs,
+                            self.pair_count,
+                            self.pair_capacity,
+                            write,
+                            base,
+                            found,
+                            i,
+                            j,
+                        )
                     found += 1
         return found
 

@@ -72,9 +72,18 @@ loops, see :mod:`kernels.spatial_hash`). Lengths in metres.
 
 import taichi as ti
 
-from taichi_lap.kernels.circumsphere import (C_BOUNDING, C_CANDIDATES, C_LISTED, C_RESCANNED,
-                                             C_TISSUE, C_TOOL, C_TOOL_CANDIDATES, C_TRIANGLES,
-                                             POLYGON, skin_vertices)
+from taichi_lap.kernels.circumsphere import (
+    C_BOUNDING,
+    C_CANDIDATES,
+    C_LISTED,
+    C_RESCANNED,
+    C_TISSUE,
+    C_TOOL,
+    C_TOOL_CANDIDATES,
+    C_TRIANGLES,
+    POLYGON,
+    skin_vertices,
+)
 from taichi_lap.kernels.contact import MAX_TOOLS
 from taichi_lap.kernels.polygon_collision import add_corner, polygon_pair, polygon_tool
 from taichi_lap.kernels.spatial_hash import exclusive_scan, store_pair
@@ -204,8 +213,9 @@ def facing(c_t, n_t, c_u, n_u):
 @ti.func
 def facing_pair(coll: ti.template(), t, u):
     """t and u face each other at the substep's start (:func:`facing`)."""
-    return facing(coll.start_centroid[t], coll.start_normal[t], coll.start_centroid[u],
-                  coll.start_normal[u])
+    return facing(
+        coll.start_centroid[t], coll.start_normal[t], coll.start_centroid[u], coll.start_normal[u]
+    )
 
 
 @ti.func
@@ -257,9 +267,16 @@ def sphere_pair(coll: ti.template(), t, u):
     hit, translation = 0, ti.Vector([0.0, 0.0, 0.0])
     if in_cone(coll, t, direction) and in_cone(coll, u, -direction):
         hit, translation = sphere_pair_translation(
-            coll.sphere_center[t], coll.sphere_radius[t], coll.displacement[t],
-            coll.tri_inv_mass[t], coll.sphere_center[u], coll.sphere_radius[u],
-            coll.displacement[u], coll.tri_inv_mass[u], coll.start_normal[t])
+            coll.sphere_center[t],
+            coll.sphere_radius[t],
+            coll.displacement[t],
+            coll.tri_inv_mass[t],
+            coll.sphere_center[u],
+            coll.sphere_radius[u],
+            coll.displacement[u],
+            coll.tri_inv_mass[u],
+            coll.start_normal[t],
+        )
     return hit, translation
 
 
@@ -273,8 +290,11 @@ def xyz(sphere):
 def tool_motion(coll: ti.template(), control: ti.template(), k):
     """How far [m] tool k's shaft ends and jaw end moved since the last frame."""
     prev = coll.tool_prev[k]
-    return ti.max((control.tool_a[k] - prev.tip).norm(), (control.tool_b[k] - prev.tail).norm(),
-                  (control.tool_jaw[k] - prev.jaw).norm())
+    return ti.max(
+        (control.tool_a[k] - prev.tip).norm(),
+        (control.tool_b[k] - prev.tail).norm(),
+        (control.tool_jaw[k] - prev.jaw).norm(),
+    )
 
 
 @ti.func
@@ -295,8 +315,9 @@ def any_tool_near(coll: ti.template(), sphere):
 
 
 @ti.kernel
-def update_bounds(model: ti.template(), state: ti.template(), control: ti.template(),
-                  coll: ti.template()):
+def update_bounds(
+    model: ti.template(), state: ti.template(), control: ti.template(), coll: ti.template()
+):
     """The pass over the whole surface: skin the vertices from p and x (vertex_p,
     vertex_x), bound every triangle by its broad sphere (``broad_sphere``: centroid,
     largest corner distance + centroid displacement over the substep), list as active
@@ -311,19 +332,27 @@ def update_bounds(model: ti.template(), state: ti.template(), control: ti.templa
     coll.active_count[None] = 0
     for k in ti.static(range(MAX_TOOLS)):  # bounding capsules: tip, axis, 1 / |axis|², reach
         axis = control.tool_b[k] - control.tool_a[k]
-        reach = ti.max(control.tool_radius[k], coll.tool_reach[k],
-                       tool_extent(control_pose(control, k))) + tool_motion(coll, control, k)
+        reach = ti.max(
+            control.tool_radius[k], coll.tool_reach[k], tool_extent(control_pose(control, k))
+        ) + tool_motion(coll, control, k)
         coll.tool_cull_a[k], coll.tool_cull_axis[k] = control.tool_a[k], axis
-        coll.tool_cull[k] = ti.Vector([1.0 / ti.max(axis.dot(axis), 1e-30), 0.0, 0.0,
-                                       ti.select(control.tool_active[k] != 0, reach, -1.0)])
+        coll.tool_cull[k] = ti.Vector(
+            [
+                1.0 / ti.max(axis.dot(axis), 1e-30),
+                0.0,
+                0.0,
+                ti.select(control.tool_active[k] != 0, reach, -1.0),
+            ]
+        )
     skin_vertices(model, state, coll)
     for t in range(coll.triangle_count):
         v = coll.tri_vertex[t]
         a, b, c = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]
         center = (a + b + c) / 3.0
         motion = center - (coll.vertex_x[v[0]] + coll.vertex_x[v[1]] + coll.vertex_x[v[2]]) / 3.0
-        far = ti.max((a - center).norm_sqr(), ti.max((b - center).norm_sqr(),
-                                                     (c - center).norm_sqr()))
+        far = ti.max(
+            (a - center).norm_sqr(), ti.max((b - center).norm_sqr(), (c - center).norm_sqr())
+        )
         sphere = ti.Vector([center[0], center[1], center[2], ti.sqrt(far) + motion.norm()])
         coll.broad_sphere[t] = sphere
         if ti.static(coll.tissue_pairs):
@@ -366,8 +395,11 @@ def excluded(coll: ti.template(), t, u):
     d = xyz(b) - xyz(a)
     near = coll.rest_exclusion * (a[3] + b[3])
     if d.dot(d) < near * near:
-        out = out or coll.tri_body[u] == coll.tri_body[t] \
+        out = (
+            out
+            or coll.tri_body[u] == coll.tri_body[t]
             or not facing(xyz(a), coll.rest_normal[t], xyz(b), coll.rest_normal[u])
+        )
     return out
 
 
@@ -381,8 +413,9 @@ def broad_overlap(coll: ti.template(), t, u, margin):
 
 
 @ti.func
-def scan_pairs(coll: ti.template(), grid: ti.template(), found: ti.template(), t,
-               write: ti.template(), base):
+def scan_pairs(
+    coll: ti.template(), grid: ti.template(), found: ti.template(), t, write: ti.template(), base
+):
     """Moved triangle t's partners from the hash (module docstring): pairs (t, u) with u
     not moved or t < u (a moved u lists the others). ``write``: 0 count, 1 write from
     slot ``base`` on, 2 write to slots taken by one atomic per pair. Returns (pairs,
@@ -419,8 +452,11 @@ def scan_pairs(coll: ti.template(), grid: ti.template(), found: ti.template(), t
                 seen += 1
         for m in range(n_near):
             u = grid.sorted_index[near[m]]
-            if (not coll.moved[u] or t < u) and broad_overlap(coll, t, u, coll.pair_margin) \
-                    and not excluded(coll, t, u):
+            if (
+                (not coll.moved[u] or t < u)
+                and broad_overlap(coll, t, u, coll.pair_margin)
+                and not excluded(coll, t, u)
+            ):
                 if ti.static(write):
                     store_pair(found.pair, found.count, found.capacity, write, base, count, t, u)
                 count += 1
@@ -450,8 +486,7 @@ def list_pairs(coll: ti.template(), grid: ti.template(), found: ti.template()):
 
 
 @ti.kernel
-def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(),
-               found: ti.template()):
+def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found: ti.template()):
     """Sizes of the new pair rows: a triangle that did not move keeps its partners that
     did not move; every found pair adds to both rows. Writes new.cursor (kept), new.size,
     new.start (prefix sum) and, to compare with the capacities, broad[B_FOUND] and
@@ -474,8 +509,7 @@ def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(),
 
 
 @ti.kernel
-def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(),
-              found: ti.template()):
+def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found: ti.template()):
     """The new rows of :func:`count_rows`, each sorted by partner (the order the
     contacts are summed in: runs stay bit-reproducible); the rescan's counts go to the
     counters."""
@@ -592,15 +626,24 @@ def tool_contacts(coll: ti.template(), control: ti.template(), t, acc, hits):
                     n, acc, hits = polygon_tool(coll, t, k, pose, acc, hits)
                     contacts += n
                 elif coll.tri_inv_mass[t] > 0.0:
-                    acc, hits = add_to_corners(acc, hits, sphere_tool_translation(
-                        coll, k, pose, center, r, coll.displacement[t]))
+                    acc, hits = add_to_corners(
+                        acc,
+                        hits,
+                        sphere_tool_translation(coll, k, pose, center, r, coll.displacement[t]),
+                    )
                     contacts += 1
     return candidates, contacts, acc, hits
 
 
 @ti.kernel
-def detect_and_respond(model: ti.template(), state: ti.template(), control: ti.template(),
-                       coll: ti.template(), rows: ti.template(), tissue: ti.i32):
+def detect_and_respond(
+    model: ti.template(),
+    state: ti.template(),
+    control: ti.template(),
+    coll: ti.template(),
+    rows: ti.template(),
+    tissue: ti.i32,
+):
     """The module docstring: contacts of the active triangles (corner translations,
     averaged; tissue pairs only if ``tissue``), then per particle under a contact the
     bound corners' translations averaged with the binding weights move p and set
@@ -617,8 +660,9 @@ def detect_and_respond(model: ti.template(), state: ti.template(), control: ti.t
         if ti.static(coll.tools):
             tool_candidates, tool, acc, hits = tool_contacts(coll, control, t, acc, hits)
         for k in ti.static(range(3)):
-            coll.corner_delta[3 * t + k] = ti.Vector([acc[k, 0], acc[k, 1], acc[k, 2]]) \
-                / ti.max(ti.cast(hits[k], ti.f32), 1.0)
+            coll.corner_delta[3 * t + k] = ti.Vector([acc[k, 0], acc[k, 1], acc[k, 2]]) / ti.max(
+                ti.cast(hits[k], ti.f32), 1.0
+            )
             coll.corner_count[3 * t + k] = hits[k]
         ti.atomic_add(coll.counter[C_BOUNDING], bounding)
         ti.atomic_add(coll.counter[C_TISSUE], contacts)

@@ -29,13 +29,24 @@ MAX_TOOL_SHAPES = 4
 """Shape slots per tool."""
 
 SHAPE_NONE, SHAPE_CONTROL, SHAPE_SPHERE, SHAPE_CAPSULE, SHAPE_BOX, SHAPE_JAWS = range(6)
-SHAPE_KINDS = {"control": SHAPE_CONTROL, "jaws": SHAPE_JAWS, "sphere": SHAPE_SPHERE,
-               "capsule": SHAPE_CAPSULE, "box": SHAPE_BOX}
+SHAPE_KINDS = {
+    "control": SHAPE_CONTROL,
+    "jaws": SHAPE_JAWS,
+    "sphere": SHAPE_SPHERE,
+    "capsule": SHAPE_CAPSULE,
+    "box": SHAPE_BOX,
+}
 FAR = 1e6
 """Distance reported for an empty slot [m]."""
 
-ToolPose = ti.types.struct(tip=ti.math.vec3, tail=ti.math.vec3, radius=ti.f32,
-                           frame=ti.math.mat3, jaw=ti.math.vec3, jaw_radius=ti.f32)
+ToolPose = ti.types.struct(
+    tip=ti.math.vec3,
+    tail=ti.math.vec3,
+    radius=ti.f32,
+    frame=ti.math.mat3,
+    jaw=ti.math.vec3,
+    jaw_radius=ti.f32,
+)
 """Where a tool is (module docstring): shaft ``tip``-``tail`` of ``radius``, ``frame``,
 jaws ``jaw``-``tip`` of ``jaw_radius`` [m]."""
 
@@ -43,9 +54,14 @@ jaws ``jaw``-``tip`` of ``jaw_radius`` [m]."""
 @ti.func
 def control_pose(control: ti.template(), k):
     """Tool k's :data:`ToolPose` as :class:`Control` places it."""
-    return ToolPose(tip=control.tool_a[k], tail=control.tool_b[k], radius=control.tool_radius[k],
-                    frame=control.tool_frame[k], jaw=control.tool_jaw[k],
-                    jaw_radius=control.tool_jaw_radius[k])
+    return ToolPose(
+        tip=control.tool_a[k],
+        tail=control.tool_b[k],
+        radius=control.tool_radius[k],
+        frame=control.tool_frame[k],
+        jaw=control.tool_jaw[k],
+        jaw_radius=control.tool_jaw_radius[k],
+    )
 
 
 @ti.func
@@ -113,8 +129,9 @@ def shape_distance(shapes: ti.template(), slot, pose, x):
     an empty slot)."""
     dist, grad = FAR, ti.Vector([0.0, 1.0, 0.0])
     if shapes.shape_kind[slot] == SHAPE_BOX:
-        dist, grad = box_distance(pose.tip + pose.frame @ shapes.shape_a[slot],
-                                  shapes.shape_size[slot], pose.frame, x)
+        dist, grad = box_distance(
+            pose.tip + pose.frame @ shapes.shape_a[slot], shapes.shape_size[slot], pose.frame, x
+        )
     else:
         round_, a, b, r = round_shape(shapes, slot, pose)
         if round_:
@@ -134,8 +151,9 @@ def tool_distance(shapes: ti.template(), tool, pose, x):
 
 
 @ti.kernel
-def push_particles_out_of_tools(model: ti.template(), state: ti.template(),
-                                control: ti.template(), shapes: ti.template()):
+def push_particles_out_of_tools(
+    model: ti.template(), state: ti.template(), control: ti.template(), shapes: ti.template()
+):
     """Particles of radius r [m] inside a tool's union of shapes move to its surface
     (PBD projection, Müller et al. 2007 §3.4) and are flagged collided (seed 000
     Alg. 1 line 13-14, as :mod:`kernels.contact` does for capsules). Reads and writes

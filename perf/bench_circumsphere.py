@@ -52,9 +52,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import arguments, report, result
 
 METHODS = ("circumsphere", "bounding_sphere", "polygon")
-RADIUS = 0.008        # cylinder radius ρ = d_exa [m]
+RADIUS = 0.008  # cylinder radius ρ = d_exa [m]
 HALF = (0.03, 0.015, 0.02)  # block half extents [m]
-DEPTH = 0.006         # indentation [m]
+DEPTH = 0.006  # indentation [m]
 PRESS, HOLD, LIFT = 30, 20, 10  # frames
 
 
@@ -62,14 +62,22 @@ def block_session(spacing: float):
     from taichi_lap.scene import from_tables
     from taichi_lap.session import Session
 
-    organ = {"name": "block", "model": "tet_clusters",
-             "geometry": {"generator": "box", "half_extents": list(HALF)},
-             "material": {"particle_spacing": spacing, "stiffness": 0.5, "damping": 1.0,
-                          "recover_rate": 0.05, "eta_on_contact": 0.7},
-             "attachments": [{"kind": "fixed", "box_min": [-1, -1, -1],
-                              "box_max": [1, -HALF[1] + 0.5 * spacing, 1]}]}
-    return Session(from_tables([organ], gravity=[0.0, 0.0, 0.0]), use_cache=False,
-                   progress=False)
+    organ = {
+        "name": "block",
+        "model": "tet_clusters",
+        "geometry": {"generator": "box", "half_extents": list(HALF)},
+        "material": {
+            "particle_spacing": spacing,
+            "stiffness": 0.5,
+            "damping": 1.0,
+            "recover_rate": 0.05,
+            "eta_on_contact": 0.7,
+        },
+        "attachments": [
+            {"kind": "fixed", "box_min": [-1, -1, -1], "box_max": [1, -HALF[1] + 0.5 * spacing, 1]}
+        ],
+    }
+    return Session(from_tables([organ], gravity=[0.0, 0.0, 0.0]), use_cache=False, progress=False)
 
 
 def cylinder_height(frame: int) -> float:
@@ -155,22 +163,33 @@ def scene_cases(quick: bool) -> list[dict]:
         collision = session.solver.collision  # the scene's own pipeline, timed
         collision.timing = True
         scene_window(session, script, collision, 0, 2, 0)  # compile
-        params = {"particles": session.model.particle_count,
-                  "triangles": session.model.surface_triangle_count, "detail": detail,
-                  "substeps": session.solver.settings.substeps,
-                  "settle_time_s": scene.settings["settle_time"],
-                  "shape_iterations": session.solver.settings.shape_iterations}
+        params = {
+            "particles": session.model.particle_count,
+            "triangles": session.model.surface_triangle_count,
+            "detail": detail,
+            "substeps": session.solver.settings.substeps,
+            "settle_time_s": scene.settings["settle_time"],
+            "shape_iterations": session.solver.settings.shape_iterations,
+        }
         for window, (first, end, drop) in WINDOWS.items():
             off = scene_window(session, script, None, first, end, drop)
             on = scene_window(session, script, collision, first, end, drop)
             case = f"{name}-{window}"
-            rows = [result(case, params, "frame_ms_off", off["frame"]),
-                    result(case, params, "frame_ms_on", on["frame"]),
-                    result(case, params, "collision_ms", on["collision"])]
+            rows = [
+                result(case, params, "frame_ms_off", off["frame"]),
+                result(case, params, "frame_ms_on", on["frame"]),
+                result(case, params, "collision_ms", on["collision"]),
+            ]
             print(case, " ".join(f"{r['metric']} {r['median']:.1f}" for r in rows), flush=True)
-            results += rows + [result(case, {**params, "phase": phase}, "collision_phase_ms",
-                                      [p[phase] for p in on["phases"]])
-                               for phase in on["phases"][0]]
+            results += rows + [
+                result(
+                    case,
+                    {**params, "phase": phase},
+                    "collision_phase_ms",
+                    [p[phase] for p in on["phases"]],
+                )
+                for phase in on["phases"][0]
+            ]
     return results
 
 
@@ -196,13 +215,21 @@ def box_plot(results: list[dict], path: Path) -> bool:
     fig, ax = plt.subplots(figsize=(10, 4.5))
     colours = {"circumsphere": "tab:blue", "bounding_sphere": "tab:orange", "polygon": "tab:green"}
     for m, method in enumerate(METHODS):
-        stats = [{"med": r["median"], "q1": r["q1"], "q3": r["q3"], "whislo": r["min"],
-                  "whishi": r["max"], "label": str(r["params"]["iterations"])}
-                 for it in iterations for r in rows
-                 if r["params"]["method"] == method and r["params"]["iterations"] == it]
+        stats = [
+            {
+                "med": r["median"],
+                "q1": r["q1"],
+                "q3": r["q3"],
+                "whislo": r["min"],
+                "whishi": r["max"],
+                "label": str(r["params"]["iterations"]),
+            }
+            for it in iterations
+            for r in rows
+            if r["params"]["method"] == method and r["params"]["iterations"] == it
+        ]
         positions = [k * 4 + m for k in range(len(stats))]
-        parts = ax.bxp(stats, positions=positions, widths=0.8, showfliers=False,
-                       patch_artist=True)
+        parts = ax.bxp(stats, positions=positions, widths=0.8, showfliers=False, patch_artist=True)
         for box in parts["boxes"]:
             box.set_facecolor(colours[method])
         ax.plot([], [], color=colours[method], lw=6, label=method)
@@ -234,12 +261,19 @@ def main():
     cases = [("cylinder", False, counts)]
     if not quick:
         cases.append(("cylinder+self", True, (1, 5, 10)))
-    params_base = {"particles": session.model.particle_count,
-                   "triangles": session.model.surface_triangle_count, "radius_m": RADIUS}
+    params_base = {
+        "particles": session.model.particle_count,
+        "triangles": session.model.surface_triangle_count,
+        "radius_m": RADIUS,
+    }
     results = []
     for case, self_collision, iteration_counts in cases:
-        collisions = {method: TissueCollision(session.model, method=method, timing=True,
-                                              tissue_pairs=self_collision) for method in METHODS}
+        collisions = {
+            method: TissueCollision(
+                session.model, method=method, timing=True, tissue_pairs=self_collision
+            )
+            for method in METHODS
+        }
         for method, collision in collisions.items():  # compile the kernels once
             run(session, collision, controls, 1, 2)
         for iterations in iteration_counts:
@@ -248,9 +282,15 @@ def main():
                 params = {**params_base, "method": method, "iterations": iterations}
                 results.append({**result(case, params, "rel_error", errors), **quartiles(errors)})
                 results.append(result(case, params, "ms_per_frame", times))
-                print(case, method, iterations, f"rel_error median {results[-2]['median']:+.4f} "
-                      f"[{results[-2]['min']:+.4f}, {results[-2]['max']:+.4f}]",
-                      f"{results[-1]['median']:.2f} ms/frame", flush=True)
+                print(
+                    case,
+                    method,
+                    iterations,
+                    f"rel_error median {results[-2]['median']:+.4f} "
+                    f"[{results[-2]['min']:+.4f}, {results[-2]['max']:+.4f}]",
+                    f"{results[-1]['median']:.2f} ms/frame",
+                    flush=True,
+                )
     results += scene_cases(quick)
     report("circumsphere", args.arch, results, args.json)
     box_plot(results, Path(args.json).with_suffix(".png"))

@@ -59,27 +59,46 @@ def liver_session(detail: float, vessels: bool, as_scene: bool = False):
 def deform_cases(quick: bool, runs: int) -> list[dict]:
     from taichi_lap.sim.reference import ReferenceShapeMatching
 
-    sizes = [("10k", 10_000, False), ("50k", 50_000, False)] if quick else \
-        [("10k", 10_000, False), ("50k", 50_000, False), ("liver-full", None, True),
-         ("500k", 500_000, False)]
+    sizes = (
+        [("10k", 10_000, False), ("50k", 50_000, False)]
+        if quick
+        else [
+            ("10k", 10_000, False),
+            ("50k", 50_000, False),
+            ("liver-full", None, True),
+            ("500k", 500_000, False),
+        ]
+    )
     out = []
     for case, target, vessels in sizes:
         detail = 1.0 if target is None else target / LIVER_ONLY_PARTICLES
         session = liver_session(detail, vessels)
-        params = {"particles": session.model.particle_count, "clusters": session.model.cluster_total,
-                  "memberships": int(len(session.data.cluster_member)),
-                  "substeps": session.solver.settings.substeps,
-                  "shape_iterations": session.solver.settings.shape_iterations}
+        params = {
+            "particles": session.model.particle_count,
+            "clusters": session.model.cluster_total,
+            "memberships": int(len(session.data.cluster_member)),
+            "substeps": session.solver.settings.substeps,
+            "shape_iterations": session.solver.settings.shape_iterations,
+        }
         out.append(result(case, params, "ms_per_step", timed(session.step, runs)))
         print(out[-1]["case"], out[-1]["metric"], f"{out[-1]['median']:.2f}", flush=True)
         settings, scene = session.solver.settings, session.scene
         reference = ReferenceShapeMatching(
-            session.data, substeps=settings.substeps, shape_iterations=settings.shape_iterations,
+            session.data,
+            substeps=settings.substeps,
+            shape_iterations=settings.shape_iterations,
             gravity=settings.gravity,
-            planes=[(p["point"], p["normal"], p["friction"]) for p in scene.planes])
+            planes=[(p["point"], p["normal"], p["friction"]) for p in scene.planes],
+        )
         numpy_runs = max(2, min(runs, 5 if params["particles"] < 200_000 else 2))
-        out.append(result(case, params, "numpy_ms_per_step",
-                          timed(partial(reference.step, DT), numpy_runs, warmup=1)))
+        out.append(
+            result(
+                case,
+                params,
+                "numpy_ms_per_step",
+                timed(partial(reference.step, DT), numpy_runs, warmup=1),
+            )
+        )
         print(out[-1]["case"], out[-1]["metric"], f"{out[-1]['median']:.2f}", flush=True)
     return out
 
@@ -88,14 +107,27 @@ def fascia_session(size: int, solver: str, iterations: int):
     from taichi_lap.scene import from_tables
     from taichi_lap.session import Session
 
-    organ = {"name": "fascia", "model": "fascia_lra",
-             "geometry": {"generator": "sheet", "width": 0.2, "depth": 0.2, "resolution_x": size - 1,
-                          "resolution_z": size - 1, "sag": 0.0},
-             "material": {"lra_relaxation": 0.25, "lra_anchors": 4, "damping": 2.0},
-             "attachments": [{"kind": "lra_anchor", "box_min": [-1, -1, -1],
-                              "box_max": [1, 1, -0.0995]}]}
-    return Session(from_tables([organ], iterations=iterations, constraint_solver=solver),
-                   use_cache=False, progress=False)
+    organ = {
+        "name": "fascia",
+        "model": "fascia_lra",
+        "geometry": {
+            "generator": "sheet",
+            "width": 0.2,
+            "depth": 0.2,
+            "resolution_x": size - 1,
+            "resolution_z": size - 1,
+            "sag": 0.0,
+        },
+        "material": {"lra_relaxation": 0.25, "lra_anchors": 4, "damping": 2.0},
+        "attachments": [
+            {"kind": "lra_anchor", "box_min": [-1, -1, -1], "box_max": [1, 1, -0.0995]}
+        ],
+    }
+    return Session(
+        from_tables([organ], iterations=iterations, constraint_solver=solver),
+        use_cache=False,
+        progress=False,
+    )
 
 
 def edge_strain(data, x):
@@ -115,14 +147,18 @@ def fascia_cases(quick: bool, runs: int) -> list[dict]:
     size = 64 if quick else 128
     out = []
     for solver in ("jacobi", "gauss_seidel"):
-        for iterations in ((10,) if quick else (5, 10, 20, 40)):
+        for iterations in (10,) if quick else (5, 10, 20, 40):
             session = fascia_session(size, solver, iterations)
             model = session.model
             for _ in range(120):  # two seconds of hanging
                 session.step()
-            params = {"particles": model.particle_count, "constraints": model.distance_count,
-                      "solver": solver, "iterations": iterations,
-                      "colors": len(model.color_ranges) if solver == "gauss_seidel" else 0}
+            params = {
+                "particles": model.particle_count,
+                "constraints": model.distance_count,
+                "solver": solver,
+                "iterations": iterations,
+                "colors": len(model.color_ranges) if solver == "gauss_seidel" else 0,
+            }
             case = f"fascia-{size}"
             times, mean_strain, p99_strain = [], [], []
             for _ in range(runs):
@@ -134,8 +170,14 @@ def fascia_cases(quick: bool, runs: int) -> list[dict]:
             out.append(result(case, params, "ms_per_step", times))
             out.append(result(case, params, "mean_strain", mean_strain))
             out.append(result(case, params, "p99_strain", p99_strain))
-            print(case, solver, iterations, f"{out[-3]['median']:.2f} ms",
-                  f"strain mean {out[-2]['median']:.4f} p99 {out[-1]['median']:.4f}", flush=True)
+            print(
+                case,
+                solver,
+                iterations,
+                f"{out[-3]['median']:.2f} ms",
+                f"strain mean {out[-2]['median']:.4f} p99 {out[-1]['median']:.4f}",
+                flush=True,
+            )
     return out
 
 
@@ -148,22 +190,38 @@ def startup_probe():
     runtime.init("cpu")
     session = liver_session(1.0, True, as_scene=True)
     session.step()
-    print(f"STARTUP {time.perf_counter() - start:.3f} BUILD {session.build_seconds:.3f} "
-          f"SETTLE {session.settle_seconds:.3f}")
+    print(
+        f"STARTUP {time.perf_counter() - start:.3f} BUILD {session.build_seconds:.3f} "
+        f"SETTLE {session.settle_seconds:.3f}"
+    )
 
 
 def startup_cases() -> list[dict]:
     out = []
     with tempfile.TemporaryDirectory() as tmp:
-        env = dict(os.environ, TAICHI_LAP_CACHE=str(Path(tmp) / "models"),
-                   TI_OFFLINE_CACHE_FILE_PATH=str(Path(tmp) / "kernels"))
+        env = dict(
+            os.environ,
+            TAICHI_LAP_CACHE=str(Path(tmp) / "models"),
+            TI_OFFLINE_CACHE_FILE_PATH=str(Path(tmp) / "kernels"),
+        )
         for case in ("cold-start", "cached-start"):
-            proc = subprocess.run([sys.executable, __file__, "--startup-probe"], env=env,
-                                  capture_output=True, text=True, check=True)
+            proc = subprocess.run(
+                [sys.executable, __file__, "--startup-probe"],
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+            )
             line = next(l for l in proc.stdout.splitlines() if l.startswith("STARTUP"))
             _, total, _, build, _, settle = line.split()
-            out.append(result(case, {"model_build_s": float(build), "settle_s": float(settle)},
-                              "seconds", [float(total)]))
+            out.append(
+                result(
+                    case,
+                    {"model_build_s": float(build), "settle_s": float(settle)},
+                    "seconds",
+                    [float(total)],
+                )
+            )
             print(case, total, "s", flush=True)
     return out
 

@@ -63,16 +63,20 @@ def statistics_of(history: dict, start: int, duration: float) -> dict:
     qp = history["qp"][-count:]
     windows = max(int(duration // 10.0), 1)
     per_window = np.array_split(period, windows)
-    missed = [float(np.count_nonzero(w > MISSED * 1e3)) * (10.0 / (duration / windows))
-              for w in per_window]
+    missed = [
+        float(np.count_nonzero(w > MISSED * 1e3)) * (10.0 / (duration / windows))
+        for w in per_window
+    ]
     return {"period": period, "compute": compute, "qp": qp[qp > 0] * 1e6, "missed": missed}
 
 
 def rows(case: str, params: dict, samples: dict) -> list[dict]:
     out = []
     period = result(case, params, "period_ms", samples["period"].tolist())
-    period.update(p99=float(np.percentile(samples["period"], 99)),
-                  p999=float(np.percentile(samples["period"], 99.9)))
+    period.update(
+        p99=float(np.percentile(samples["period"], 99)),
+        p999=float(np.percentile(samples["period"], 99.9)),
+    )
     out.append(period)
     out.append(result(case, params, "missed_2ms_per_10s", samples["missed"]))
     compute = result(case, params, "tick_compute_us", samples["compute"].tolist())
@@ -87,15 +91,21 @@ def rows(case: str, params: dict, samples: dict) -> list[dict]:
 
 def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     from taichi_lap.devices import Pose
-    from taichi_lap.haptics import (ProxySettings, SceneSnapshot, ServoProcess, ServoSettings,
-                                    SurfaceClusters)
+    from taichi_lap.haptics import (
+        ProxySettings,
+        SceneSnapshot,
+        ServoProcess,
+        ServoSettings,
+        SurfaceClusters,
+    )
     from taichi_lap.haptics.bridge import tool_capsule
     from taichi_lap.haptics.servo import scripted_device
 
     tool = session.scene.tools[0]
     surface = SurfaceClusters(session.data)
-    snapshot = SceneSnapshot.create(clusters=surface.cluster_count,
-                                    particles=surface.particle_count)
+    snapshot = SceneSnapshot.create(
+        clusters=surface.cluster_count, particles=surface.particle_count
+    )
     x = session.state.x.to_numpy()
     surface.publish(snapshot, x)
     direction = np.asarray(tool["direction"], dtype=np.float64)
@@ -127,19 +137,27 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     finally:
         snapshot.close()
     samples = statistics_of(history, start_count, duration)
-    params = {"duration_s": duration, "fifo": fifo, "ticks": len(samples["compute"]),
-              "particles": session.model.particle_count,
-              "surface_clusters": surface.cluster_count,
-              "surface_particles": surface.particle_count,
-              "frames": len(frame_ms), "frame_ms": round(statistics.median(frame_ms), 2),
-              "publish_ms": round(statistics.median(publish_ms), 2),
-              "frames_in_contact": contact_ticks, "qp_fallbacks": tool_state.qp_fallbacks,
-              "qp_failures": tool_state.qp_failures}
-    print(f"{case}: SCHED_FIFO {'granted' if fifo else 'refused'}; "
-          f"period p99 {np.percentile(samples['period'], 99):.4f} ms, "
-          f"p99.9 {np.percentile(samples['period'], 99.9):.4f} ms, "
-          f"max {samples['period'].max():.3f} ms; missed > 2 ms per 10 s {samples['missed']}",
-          flush=True)
+    params = {
+        "duration_s": duration,
+        "fifo": fifo,
+        "ticks": len(samples["compute"]),
+        "particles": session.model.particle_count,
+        "surface_clusters": surface.cluster_count,
+        "surface_particles": surface.particle_count,
+        "frames": len(frame_ms),
+        "frame_ms": round(statistics.median(frame_ms), 2),
+        "publish_ms": round(statistics.median(publish_ms), 2),
+        "frames_in_contact": contact_ticks,
+        "qp_fallbacks": tool_state.qp_fallbacks,
+        "qp_failures": tool_state.qp_failures,
+    }
+    print(
+        f"{case}: SCHED_FIFO {'granted' if fifo else 'refused'}; "
+        f"period p99 {np.percentile(samples['period'], 99):.4f} ms, "
+        f"p99.9 {np.percentile(samples['period'], 99.9):.4f} ms, "
+        f"max {samples['period'].max():.3f} ms; missed > 2 ms per 10 s {samples['missed']}",
+        flush=True,
+    )
     return rows(case, params, samples)
 
 

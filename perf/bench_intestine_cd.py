@@ -54,8 +54,9 @@ CASES = {"1x": (100, 10), "10x": (1001, 40)}
 10x, so the lighter masses need four times the substeps to stay stable."""
 
 
-def found_fraction(exact: np.ndarray, exact_gap: np.ndarray, stochastic: np.ndarray,
-                   neighbour: np.ndarray):
+def found_fraction(
+    exact: np.ndarray, exact_gap: np.ndarray, stochastic: np.ndarray, neighbour: np.ndarray
+):
     """(found regions, colliding regions, pair recall) of the stochastic colliding
     pairs against the exact pairs in contact and their gaps [m]."""
     from taichi_lap.sim.intestine_collision import region_labels
@@ -66,8 +67,11 @@ def found_fraction(exact: np.ndarray, exact_gap: np.ndarray, stochastic: np.ndar
     label = region_labels(exact, neighbour)
     key = exact[:, 0].astype(np.int64) * (1 << 31) + exact[:, 1]
     hit = colliding & np.isin(key, stochastic[:, 0].astype(np.int64) * (1 << 31) + stochastic[:, 1])
-    return (len(np.unique(label[hit])), len(np.unique(label[colliding])),
-            float(hit.sum() / colliding.sum()))
+    return (
+        len(np.unique(label[hit])),
+        len(np.unique(label[colliding])),
+        float(hit.sum() / colliding.sum()),
+    )
 
 
 def run_case(case: str, points: int, substeps: int, frames: int) -> list[dict]:
@@ -79,8 +83,10 @@ def run_case(case: str, points: int, substeps: int, frames: int) -> list[dict]:
     from taichi_lap.session import Session, scene_script
     from taichi_lap.sim.intestine_collision import ExactDetector, IntestineCollision
 
-    scene = scene_mod.load("intestine", {"organs.intestine.geometry.points_per_row": points,
-                                         "scene.substeps": substeps})
+    scene = scene_mod.load(
+        "intestine",
+        {"organs.intestine.geometry.points_per_row": points, "scene.substeps": substeps},
+    )
     session = Session(scene, use_cache=False, progress=False)
     model, state, control = session.model, session.state, session.control
     settings = session.solver.settings
@@ -90,8 +96,18 @@ def run_case(case: str, points: int, substeps: int, frames: int) -> list[dict]:
     device = scene_script(scene)
     h = session.dt / substeps
     exact.run(state.p)  # compile outside the timings
-    samples = {k: [] for k in ("recall", "pair_recall", "ms_stochastic", "ms_bruteforce",
-                               "time_ratio_vs_bruteforce", "ms_response", "regions")}
+    samples = {
+        k: []
+        for k in (
+            "recall",
+            "pair_recall",
+            "ms_stochastic",
+            "ms_bruteforce",
+            "time_ratio_vs_bruteforce",
+            "ms_response",
+            "regions",
+        )
+    }
     for frame in range(frames):
         apply_poses(control, scene.tools, device.poses(state.time) if device else {})
         for k in range(substeps):
@@ -106,14 +122,22 @@ def run_case(case: str, points: int, substeps: int, frames: int) -> list[dict]:
                 exact.run(state.p)
                 ti.sync()
                 exact_ms = (time.perf_counter() - start) * 1e3
-                found, total, pair_recall = found_fraction(*exact.pairs(),
-                                                           collision.colliding_pairs(), neighbour)
+                found, total, pair_recall = found_fraction(
+                    *exact.pairs(), collision.colliding_pairs(), neighbour
+                )
             start = time.perf_counter()
             collision.respond(state, h)
             ti.sync()
             respond_ms = (time.perf_counter() - start) * 1e3
-            shape_matching.update_goals(model, state, control, h, settings.speed_limit,
-                                        settings.gravity, int(k < substeps - 1))
+            shape_matching.update_goals(
+                model,
+                state,
+                control,
+                h,
+                settings.speed_limit,
+                settings.gravity,
+                int(k < substeps - 1),
+            )
         state.time += session.dt
         if state.fault[None]:
             raise RuntimeError(f"{case}: simulation fault at frame {frame}")
@@ -126,10 +150,14 @@ def run_case(case: str, points: int, substeps: int, frames: int) -> list[dict]:
             samples["ms_bruteforce"].append(exact_ms)
             samples["time_ratio_vs_bruteforce"].append(detect_ms / exact_ms)
             samples["ms_response"].append(respond_ms)
-    params = {"segments": collision.segment_count,
-              "triangles": collision.element_count - collision.segment_count,
-              "frames": frames, "substeps": substeps, "random_pairs": collision.random_pairs,
-              "threshold_m": collision.threshold}
+    params = {
+        "segments": collision.segment_count,
+        "triangles": collision.element_count - collision.segment_count,
+        "frames": frames,
+        "substeps": substeps,
+        "random_pairs": collision.random_pairs,
+        "threshold_m": collision.threshold,
+    }
     out = [result(case, params, metric, values) for metric, values in samples.items() if values]
     for r in out:
         print(case, r["metric"], f"median {r['median']:.4g} min {r['min']:.4g}", flush=True)

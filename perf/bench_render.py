@@ -42,8 +42,9 @@ def uv_sphere(triangles: int) -> tuple[np.ndarray, np.ndarray]:
         faces.append((len(positions) - 1, ring(rings - 2, s), ring(rings - 2, s + 1)))
     r, s = np.meshgrid(np.arange(rings - 2), np.arange(segments), indexing="ij")
     a, b, c, d = ring(r, s), ring(r, s + 1), ring(r + 1, s), ring(r + 1, s + 1)
-    quads = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
-                            np.stack([b, d, c], -1).reshape(-1, 3)])
+    quads = np.concatenate(
+        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)]
+    )
     return positions.astype(np.float32), np.concatenate([np.asarray(faces), quads]).astype(np.int32)
 
 
@@ -56,8 +57,14 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
     from taichi_lap.render.scene_mesh import ArrayMesh
 
     rest, faces = uv_sphere(triangles)
-    mesh = ArrayMesh(faces, np.zeros(len(faces), np.int32), [PRESETS["liver"]],
-                     vertex_count=len(rest), smooth_count=len(rest), positions=rest)
+    mesh = ArrayMesh(
+        faces,
+        np.zeros(len(faces), np.int32),
+        [PRESETS["liver"]],
+        vertex_count=len(rest),
+        smooth_count=len(rest),
+        positions=rest,
+    )
     rest_field = ti.Vector.field(3, ti.f32, len(rest))
     rest_field.from_numpy(rest)
 
@@ -65,12 +72,22 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
     def deform(phase: ti.f32):
         for v in rest_field:
             p = rest_field[v]
-            bump = 0.12 * ti.sin(40.0 * p.x + phase) * ti.sin(35.0 * p.y - phase) \
+            bump = (
+                0.12
+                * ti.sin(40.0 * p.x + phase)
+                * ti.sin(35.0 * p.y - phase)
                 * ti.sin(30.0 * p.z + 0.5 * phase)
+            )
             mesh.positions[v] = p * (1.0 + bump)
 
-    camera = EndoscopeCamera(eye=np.array(EYE), target=np.zeros(3), up=np.array([0.0, 1.0, 0.0]),
-                             fov=60.0, near=0.002, far=1.0)
+    camera = EndoscopeCamera(
+        eye=np.array(EYE),
+        target=np.zeros(3),
+        up=np.array([0.0, 1.0, 0.0]),
+        fov=60.0,
+        near=0.002,
+        far=1.0,
+    )
     renderer = Renderer(mesh, camera, size=(width, height))
     passes: dict[str, list[float]] = {}
     frames = []
@@ -86,10 +103,15 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
                 passes.setdefault(name, []).append(ms)
     case = f"{width}x{height}-{triangles // 1000}k"
     covered = int((renderer.gbuffer.triangle.to_numpy() >= 0).sum())
-    params = {"width": width, "height": height, "triangles": len(faces),
-              "covered_fraction": round(covered / (width * height), 3)}
-    return [result(case, params, "ms_per_frame", frames)] + \
-        [result(case, params, f"ms_{name}", samples) for name, samples in passes.items()]
+    params = {
+        "width": width,
+        "height": height,
+        "triangles": len(faces),
+        "covered_fraction": round(covered / (width * height), 3),
+    }
+    return [result(case, params, "ms_per_frame", frames)] + [
+        result(case, params, f"ms_{name}", samples) for name, samples in passes.items()
+    ]
 
 
 def main():

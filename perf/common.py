@@ -46,9 +46,15 @@ def timed(func, runs: int, warmup: int = 2) -> list[float]:
 
 
 def result(case: str, params: dict, metric: str, samples: list[float]) -> dict:
-    return {"case": case, "params": params, "metric": metric,
-            "median": statistics.median(samples), "min": min(samples), "max": max(samples),
-            "runs": len(samples)}
+    return {
+        "case": case,
+        "params": params,
+        "metric": metric,
+        "median": statistics.median(samples),
+        "min": min(samples),
+        "max": max(samples),
+        "runs": len(samples),
+    }
 
 
 def report(benchmark: str, arch: str, results: list[dict], path: str):
@@ -60,10 +66,17 @@ def report(benchmark: str, arch: str, results: list[dict], path: str):
     print(f"{'case':<{width}}{'metric':<22}{'median':>12}{'min':>12}{'max':>12}{'runs':>6}  params")
     for r in results:
         params = ", ".join(f"{k}={v}" for k, v in r["params"].items())
-        print(f"{r['case']:<{width}}{r['metric']:<22}{r['median']:>12.4g}{r['min']:>12.4g}"
-              f"{r['max']:>12.4g}{r['runs']:>6}  {params}")
-    out = {"benchmark": benchmark, "machine": machine(),
-           "taichi": ".".join(map(str, taichi.__version__)), "arch": arch, "results": results}
+        print(
+            f"{r['case']:<{width}}{r['metric']:<22}{r['median']:>12.4g}{r['min']:>12.4g}"
+            f"{r['max']:>12.4g}{r['runs']:>6}  {params}"
+        )
+    out = {
+        "benchmark": benchmark,
+        "machine": machine(),
+        "taichi": ".".join(map(str, taichi.__version__)),
+        "arch": arch,
+        "results": results,
+    }
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_suffix(target.suffix + ".tmp")

@@ -54,14 +54,25 @@ def _connected(device, session: Session):
         device.close()
 
 
-def run_headless(scene: Scene, device, *, frames: int, out: str, size, use_cache: bool = True,
-                 record: str | None = None) -> Session:
+def run_headless(
+    scene: Scene,
+    device,
+    *,
+    frames: int,
+    out: str,
+    size,
+    use_cache: bool = True,
+    record: str | None = None,
+) -> Session:
     """Simulate ``frames`` frames and write each rendered frame to ``out``; with
     ``record``, append the session to that recording file."""
     session = Session(scene, use_cache=use_cache)
     renderer = Renderer.for_scene(scene, session.data, size=size)
-    with _connected(device, session), maybe_recording(record, session, device) as recorder, \
-            FrameWriter(out, fps=1.0 / session.dt) as writer:
+    with (
+        _connected(device, session),
+        maybe_recording(record, session, device) as recorder,
+        FrameWriter(out, fps=1.0 / session.dt) as writer,
+    ):
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
             _advance(session, device, recorder)
             _render(session, renderer)
@@ -69,8 +80,15 @@ def run_headless(scene: Scene, device, *, frames: int, out: str, size, use_cache
     return session
 
 
-def run_window(scene: Scene, device, *, frames: int | None, size, use_cache: bool = True,
-               record: str | None = None) -> Session:
+def run_window(
+    scene: Scene,
+    device,
+    *,
+    frames: int | None,
+    size,
+    use_cache: bool = True,
+    record: str | None = None,
+) -> Session:
     """The interactive window: mouse-driven tool, endoscope on keys and right button;
     with ``record``, append the session to that recording file."""
     from taichi_lap.viewer import Viewer

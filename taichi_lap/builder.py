@@ -24,7 +24,12 @@ from tqdm import tqdm
 import taichi_lap
 from taichi_lap.build import clusters as clustering
 from taichi_lap.build.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
-from taichi_lap.build.organs import OrganParts, add_long_range_attachments, build_organ, select_region
+from taichi_lap.build.organs import (
+    OrganParts,
+    add_long_range_attachments,
+    build_organ,
+    select_region,
+)
 from taichi_lap.errors import InputError
 from taichi_lap.scene import Scene
 from taichi_lap.scene_schema import CLUSTER_MODELS
@@ -32,8 +37,10 @@ from taichi_lap.scene_schema import CLUSTER_MODELS
 log = logging.getLogger("taichi_lap")
 
 _MATERIAL_FOR_MODEL = {
-    "stiffness": CLUSTER_MODELS, "recover_rate": CLUSTER_MODELS,
-    "eta_on_contact": CLUSTER_MODELS, "lra_relaxation": ("fascia_lra",),
+    "stiffness": CLUSTER_MODELS,
+    "recover_rate": CLUSTER_MODELS,
+    "eta_on_contact": CLUSTER_MODELS,
+    "lra_relaxation": ("fascia_lra",),
 }
 
 
@@ -127,8 +134,14 @@ def build_model(scene: Scene, *, use_cache: bool = True, progress: bool = True) 
 
 def assemble(scene: Scene, *, progress: bool = True) -> ModelData:
     """Build every organ and concatenate them into one :class:`ModelData`."""
-    bar = tqdm(total=len(scene.organs), desc=f"building {scene.settings['name']}", unit="organ",
-               delay=1.0, disable=None if progress else True, leave=False)
+    bar = tqdm(
+        total=len(scene.organs),
+        desc=f"building {scene.settings['name']}",
+        unit="organ",
+        delay=1.0,
+        disable=None if progress else True,
+        leave=False,
+    )
     parts: list[OrganParts] = []
     for organ in scene.organs:
         bar.set_postfix_str(organ.name)
@@ -152,8 +165,13 @@ def _apply_region_attachments(scene: Scene, organ, parts: OrganParts):
     for k, att in enumerate(organ.attachments):
         if att.kind == "join":
             continue
-        chosen = select_region(parts, att.region, source=scene.source,
-                               key=f"{organ.key}.attachments[{k}]", organ=organ.name)
+        chosen = select_region(
+            parts,
+            att.region,
+            source=scene.source,
+            key=f"{organ.key}.attachments[{k}]",
+            organ=organ.name,
+        )
         parts.pinned[chosen] = True
         if att.kind == "lra_anchor":
             anchors.append(chosen)
@@ -171,27 +189,41 @@ def _concatenate(scene: Scene, parts: list[OrganParts]) -> ModelData:
     for index, (organ, part) in enumerate(zip(scene.organs, parts)):
         first, last = int(offsets[index]), int(offsets[index + 1])
         for name in PARTICLE_MATERIAL:
-            if name in organ.material and organ.model in _MATERIAL_FOR_MODEL.get(name, (organ.model,)):
+            if name in organ.material and organ.model in _MATERIAL_FOR_MODEL.get(
+                name, (organ.model,)
+            ):
                 material[name][first:last] = organ.material[name]
         cluster_start = sum(c.count for c in cluster_parts)
         if part.clusters is not None:
             cluster_parts.append(_shift_clusters(part.clusters, first))
-        cluster_parts += [_join(scene, parts, offsets, organ, att, index)
-                          for att in organ.attachments if att.kind == "join"]
-        records.append(OrganRecord(
-            name=organ.name, model=organ.model, particles=(first, last),
-            triangles=(triangles, triangles + len(part.surface_triangles)),
-            surface_vertices=(int(surface_offsets[index]), int(surface_offsets[index + 1])),
-            tets=(tets, tets + len(part.tets)),
-            clusters=(cluster_start, sum(c.count for c in cluster_parts)),
-            struts=part.struts, springs=len(part.spring_pairs), row_length=part.row_length))
+        cluster_parts += [
+            _join(scene, parts, offsets, organ, att, index)
+            for att in organ.attachments
+            if att.kind == "join"
+        ]
+        records.append(
+            OrganRecord(
+                name=organ.name,
+                model=organ.model,
+                particles=(first, last),
+                triangles=(triangles, triangles + len(part.surface_triangles)),
+                surface_vertices=(int(surface_offsets[index]), int(surface_offsets[index + 1])),
+                tets=(tets, tets + len(part.tets)),
+                clusters=(cluster_start, sum(c.count for c in cluster_parts)),
+                struts=part.struts,
+                springs=len(part.spring_pairs),
+                row_length=part.row_length,
+            )
+        )
         triangles += len(part.surface_triangles)
         tets += len(part.tets)
     clusters = clustering.concatenate(cluster_parts)
 
     def cat(name, width=None, shift=None):
         """Concatenate one array of every part; indices shifted to global."""
-        arrays = [getattr(p, name) + (0 if shift is None else shift[k]) for k, p in enumerate(parts)]
+        arrays = [
+            getattr(p, name) + (0 if shift is None else shift[k]) for k, p in enumerate(parts)
+        ]
         out = np.concatenate(arrays)
         return out.reshape(-1, width) if width else out
 
@@ -199,25 +231,37 @@ def _concatenate(scene: Scene, parts: list[OrganParts]) -> ModelData:
         return cat(name, width, offsets).astype(np.int64)
 
     return ModelData(
-        rest_position=cat("positions", 3), mass=cat("mass"), pinned=cat("pinned").astype(bool),
-        radius=cat("radius"), organ=np.repeat(np.arange(len(parts)), np.diff(offsets)),
-        material=material, cluster_start=clusters.start, cluster_member=clusters.members,
+        rest_position=cat("positions", 3),
+        mass=cat("mass"),
+        pinned=cat("pinned").astype(bool),
+        radius=cat("radius"),
+        organ=np.repeat(np.arange(len(parts)), np.diff(offsets)),
+        material=material,
+        cluster_start=clusters.start,
+        cluster_member=clusters.members,
         cluster_radius=clusters.radius,
-        distance_pair=particle_index("distance_pairs", 2), distance_rest=cat("distance_rest"),
+        distance_pair=particle_index("distance_pairs", 2),
+        distance_rest=cat("distance_rest"),
         distance_stiffness=cat("distance_stiffness"),
-        lra_particle=particle_index("lra_particle"), lra_anchor=particle_index("lra_anchor"),
+        lra_particle=particle_index("lra_particle"),
+        lra_anchor=particle_index("lra_anchor"),
         lra_rest=cat("lra_rest"),
-        spring_pair=particle_index("spring_pairs", 2), spring_rest=cat("spring_rest"),
-        spring_stiffness=cat("spring_stiffness"), spring_damping=cat("spring_damping"),
-        tets=particle_index("tets", 4), surface_index=particle_index("surface_index", 4),
+        spring_pair=particle_index("spring_pairs", 2),
+        spring_rest=cat("spring_rest"),
+        spring_stiffness=cat("spring_stiffness"),
+        spring_damping=cat("spring_damping"),
+        tets=particle_index("tets", 4),
+        surface_index=particle_index("surface_index", 4),
         surface_weight=cat("surface_weight", 4),
         surface_triangles=cat("surface_triangles", 3, surface_offsets).astype(np.int64),
-        organs=records)
+        organs=records,
+    )
 
 
 def _shift_clusters(c: clustering.Clusters, base: int) -> clustering.Clusters:
-    return clustering.Clusters(start=c.start, members=c.members + base, center=c.center,
-                               radius=c.radius)
+    return clustering.Clusters(
+        start=c.start, members=c.members + base, center=c.center, radius=c.radius
+    )
 
 
 def _join(scene: Scene, parts, offsets, organ, att, index) -> clustering.Clusters:
@@ -231,9 +275,13 @@ def _join(scene: Scene, parts, offsets, organ, att, index) -> clustering.Cluster
     joined = clustering.joining_clusters(positions, own, theirs, radius)
     if joined.count == 0:
         key = f"{organ.key}.attachments[{organ.attachments.index(att)}]"
-        raise InputError(scene.source, key, f"organs {organ.name!r} and {att.organ!r} within "
-                                            f"{radius:g} m of each other were expected, they "
-                                            f"do not touch")
+        raise InputError(
+            scene.source,
+            key,
+            f"organs {organ.name!r} and {att.organ!r} within "
+            f"{radius:g} m of each other were expected, they "
+            f"do not touch",
+        )
     return joined
 
 
@@ -256,7 +304,11 @@ def load_model(path: Path) -> ModelData:
     """Read a model written by :func:`save_model`."""
     with np.load(path, allow_pickle=False) as archive:
         arrays = {k: archive[k] for k in archive.files}
-    organs = [OrganRecord(**{k: tuple(v) if isinstance(v, list) else v for k, v in r.items()})
-              for r in json.loads(str(arrays.pop("organs_json")))]
-    material = {k.split(".", 1)[1]: arrays.pop(k) for k in list(arrays) if k.startswith("material.")}
+    organs = [
+        OrganRecord(**{k: tuple(v) if isinstance(v, list) else v for k, v in r.items()})
+        for r in json.loads(str(arrays.pop("organs_json")))
+    ]
+    material = {
+        k.split(".", 1)[1]: arrays.pop(k) for k in list(arrays) if k.startswith("material.")
+    }
     return ModelData(material=material, organs=organs, **arrays)

@@ -22,16 +22,23 @@ from taichi_lap.errors import InputError, SimulationFault
 def _parser() -> argparse.ArgumentParser:
     from taichi_lap.runtime import ARCH_CHOICES
 
-    parser = argparse.ArgumentParser(prog="taichi-lap", description="Laparoscopic surgery "
-                                     "simulator on Taichi (position-based soft tissue).")
+    parser = argparse.ArgumentParser(
+        prog="taichi-lap",
+        description="Laparoscopic surgery simulator on Taichi (position-based soft tissue).",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress and backend")
     sub = parser.add_subparsers(dest="command", required=True)
 
     def scene_args(p):
         p.add_argument("scene", help="built-in scene name (see `taichi-lap list`) or a .toml file")
-        p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                       help="override a scene value, e.g. scene.detail=0.1 or "
-                            "organs.liver.material.stiffness=0.5")
+        p.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help="override a scene value, e.g. scene.detail=0.1 or "
+            "organs.liver.material.stiffness=0.5",
+        )
         p.add_argument("--no-cache", action="store_true", help="rebuild the model")
 
     run = sub.add_parser("run", help="simulate a scene in a window or headless")
@@ -40,14 +47,21 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--headless", action="store_true", help="never open a window")
     run.add_argument("--frames", type=int, default=None, help="stop after N frames")
     run.add_argument("--out", default=None, help="headless output: .mp4, .gif or a folder of PNGs")
-    run.add_argument("--device", action="append", default=None,
-                     help="mouse, none, openhaptics[:NAME], script:PATH, replay:RECORDING "
-                          "(default: mouse in a window, the scene's tool scripts headless); "
-                          "repeat for several at once: each mouse or openhaptics device "
-                          "drives the next tool of the scene")
-    run.add_argument("--record", default=None, metavar="PATH",
-                     help="append every frame's device input and every event to a new "
-                          "session file (.tlap)")
+    run.add_argument(
+        "--device",
+        action="append",
+        default=None,
+        help="mouse, none, openhaptics[:NAME], script:PATH, replay:RECORDING "
+        "(default: mouse in a window, the scene's tool scripts headless); "
+        "repeat for several at once: each mouse or openhaptics device "
+        "drives the next tool of the scene",
+    )
+    run.add_argument(
+        "--record",
+        default=None,
+        metavar="PATH",
+        help="append every frame's device input and every event to a new session file (.tlap)",
+    )
     run.add_argument("--size", default="1280x720", help="image size WxH")
     run.add_argument("--threads", type=int, default=None, help="CPU threads (reproducible runs)")
 
@@ -89,7 +103,9 @@ def cmd_check(args) -> int:
     from taichi_lap.stats import format_table, model_statistics
 
     scene = _load_scene(args)
-    stats = model_statistics(build_model(scene, use_cache=not args.no_cache, progress=not args.json))
+    stats = model_statistics(
+        build_model(scene, use_cache=not args.no_cache, progress=not args.json)
+    )
     print(json.dumps(stats, indent=2) if args.json else format_table(stats))
     return 0
 
@@ -116,8 +132,10 @@ def cmd_info(args) -> int:
 
     print(f"taichi-lap {taichi_lap.__version__}")
     print(f"python {platform.python_version()} ({platform.machine()}, {platform.system()})")
-    print(f"taichi {'.'.join(map(str, taichi.__version__))}, numpy {numpy.__version__}, "
-          f"trimesh {trimesh.__version__}")
+    print(
+        f"taichi {'.'.join(map(str, taichi.__version__))}, numpy {numpy.__version__}, "
+        f"trimesh {trimesh.__version__}"
+    )
     print(f"backends: {', '.join(available_backends())}")
     print(f"display: {'yes' if has_display() else 'no (run falls back to headless)'}")
     print(f"OpenHaptics libHD: {ctypes.util.find_library('HD') or 'not found'}")
@@ -142,9 +160,13 @@ def _device(args, scene, headless: bool):
         return _one_device(choices[0], scene, headless, set())
     for choice in choices:
         if choice.startswith("replay:") or choice in ("auto", "none"):
-            raise InputError("--device", choice, "devices that can share the scene (mouse, "
-                                                 "openhaptics[:NAME], script:PATH) were expected "
-                                                 "when --device is given more than once")
+            raise InputError(
+                "--device",
+                choice,
+                "devices that can share the scene (mouse, "
+                "openhaptics[:NAME], script:PATH) were expected "
+                "when --device is given more than once",
+            )
     devices, taken = [], set()
     for choice in choices:
         devices.append(_one_device(choice, scene, headless, taken))
@@ -160,27 +182,34 @@ def _one_device(choice: str, scene, headless: bool, taken: set[int]):
     if choice == "auto":
         choice = "scene" if headless else "mouse"
     if choice.startswith("script:"):
-        return ScriptedDevice.from_file(choice[len("script:"):], scene.tools)
+        return ScriptedDevice.from_file(choice[len("script:") :], scene.tools)
     if choice.startswith("replay:"):
-        recording = read_recording(choice[len("replay:"):], ticks=False)
+        recording = read_recording(choice[len("replay:") :], ticks=False)
         recording.check_scene(scene)
         return ReplayDevice(recording)
     if choice == "scene":
         return scene_script(scene)
     if choice == "mouse":
         if headless:
-            raise InputError("--device", choice, "a device that works headless (none, "
-                                                 "script:PATH) was expected")
+            raise InputError(
+                "--device", choice, "a device that works headless (none, script:PATH) was expected"
+            )
         return MouseDevice(_tool_for(choice, scene, taken)) if scene.tools else None
     if choice == "openhaptics" or choice.startswith("openhaptics:"):
         from taichi_lap.haptics.bridge import openhaptics_bridge
 
-        return openhaptics_bridge(_tool_for(choice, scene, taken), choice.partition(":")[2] or None,
-                                  os.environ.get("TAICHI_LAP_LIBHD"))
+        return openhaptics_bridge(
+            _tool_for(choice, scene, taken),
+            choice.partition(":")[2] or None,
+            os.environ.get("TAICHI_LAP_LIBHD"),
+        )
     if choice == "none":
         return None
-    raise InputError("--device", choice, "mouse, none, openhaptics[:NAME], script:PATH or "
-                                         "replay:PATH was expected")
+    raise InputError(
+        "--device",
+        choice,
+        "mouse, none, openhaptics[:NAME], script:PATH or replay:PATH was expected",
+    )
 
 
 def _tool_for(choice: str, scene, taken: set[int]) -> dict:
@@ -190,10 +219,14 @@ def _tool_for(choice: str, scene, taken: set[int]) -> dict:
     bound = [k for k, tool in enumerate(tools) if tool["device"] == choice and k not in taken]
     free = [k for k, tool in enumerate(tools) if not tool["device"] and k not in taken]
     if not bound and not free:
-        raise InputError(scene.source, "tools", f"a tool for --device {choice} was expected "
-                                                f"(one whose device is {choice!r} or one with no "
-                                                f"device), the scene has {len(tools)} and other "
-                                                f"devices drive {len(taken)}")
+        raise InputError(
+            scene.source,
+            "tools",
+            f"a tool for --device {choice} was expected "
+            f"(one whose device is {choice!r} or one with no "
+            f"device), the scene has {len(tools)} and other "
+            f"devices drive {len(taken)}",
+        )
     index = (bound or free)[0]
     taken.add(index)
     return tools[index]
@@ -208,8 +241,11 @@ def _replay_settings(args, recording):
     if args.frames is None:
         args.frames = recorded
     elif args.frames > recorded:
-        raise InputError("--frames", str(args.frames), f"at most {recorded} (the frames in "
-                                                       f"{recording.path}) was expected")
+        raise InputError(
+            "--frames",
+            str(args.frames),
+            f"at most {recorded} (the frames in {recording.path}) was expected",
+        )
     if args.arch == "auto" and recording.start["arch"] in available_backends():
         args.arch = recording.start["arch"]
     if args.threads is None:
@@ -240,12 +276,25 @@ def cmd_run(args) -> int:
     runtime.init(args.arch, threads=args.threads, random_seed=scene.settings["seed"])
     if headless:
         out = args.out or f"{scene.settings['name']}.mp4"
-        session = app.run_headless(scene, device, frames=args.frames, out=out, size=size,
-                                   use_cache=not args.no_cache, record=args.record)
+        session = app.run_headless(
+            scene,
+            device,
+            frames=args.frames,
+            out=out,
+            size=size,
+            use_cache=not args.no_cache,
+            record=args.record,
+        )
         print(f"wrote {out}")
     else:
-        session = app.run_window(scene, device, frames=args.frames, size=size,
-                                 use_cache=not args.no_cache, record=args.record)
+        session = app.run_window(
+            scene,
+            device,
+            frames=args.frames,
+            size=size,
+            use_cache=not args.no_cache,
+            record=args.record,
+        )
     if args.record is not None:
         print(f"recorded {args.record}")
     if replay is not None:
@@ -262,20 +311,27 @@ def cmd_render(args) -> int:
         raise InputError("--out", args.out, "a .png file was expected")
     scene = _load_scene(args)
     runtime.init(args.arch, random_seed=scene.settings["seed"])
-    app.render_still(scene, frames=args.frames, out=args.out, size=_size(args.size),
-                     use_cache=not args.no_cache)
+    app.render_still(
+        scene, frames=args.frames, out=args.out, size=_size(args.size), use_cache=not args.no_cache
+    )
     print(f"wrote {args.out}")
     return 0
 
 
-COMMANDS = {"run": cmd_run, "render": cmd_render, "check": cmd_check, "list": cmd_list,
-            "info": cmd_info}
+COMMANDS = {
+    "run": cmd_run,
+    "render": cmd_render,
+    "check": cmd_check,
+    "list": cmd_list,
+    "info": cmd_info,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s: %(message)s"
+    )
     try:
         return COMMANDS[args.command](args)
     except InputError as exc:

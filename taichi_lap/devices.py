@@ -63,8 +63,11 @@ def _unit(v) -> np.ndarray:
 class ScriptedDevice:
     """Poses interpolated from keyframes per tool; ``source`` names the script."""
 
-    def __init__(self, keyframes: dict[str, list[tuple[float, np.ndarray, np.ndarray, bool]]],
-                 source: str = ""):
+    def __init__(
+        self,
+        keyframes: dict[str, list[tuple[float, np.ndarray, np.ndarray, bool]]],
+        source: str = "",
+    ):
         self.keyframes = keyframes
         self.source = source
 
@@ -75,12 +78,18 @@ class ScriptedDevice:
         try:
             raw = tomllib.loads(path.read_text(encoding="utf-8"))
         except OSError as exc:
-            raise InputError(str(path), "", f"a readable script file was expected: {exc.strerror}") \
-                from None
+            raise InputError(
+                str(path), "", f"a readable script file was expected: {exc.strerror}"
+            ) from None
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise InputError(str(path), "", f"valid TOML was expected: {exc}") from None
-        check_table(str(path), "", raw, {"version": Param("int", REQUIRED, "format version",
-                                                          lo=1, hi=1)}, ignore=("keyframe",))
+        check_table(
+            str(path),
+            "",
+            raw,
+            {"version": Param("int", REQUIRED, "format version", lo=1, hi=1)},
+            ignore=("keyframe",),
+        )
         frames = raw.get("keyframe", [])
         if not isinstance(frames, list) or not frames:
             raise InputError(str(path), "keyframe", "one or more [[keyframe]] tables were expected")
@@ -94,19 +103,28 @@ class ScriptedDevice:
             key = f"keyframe[{k}]"
             frame = check_table(source, key, table, KEYFRAME_PARAMS)
             if frame["tool"] not in names:
-                raise InputError(source, f"{key}.tool", f"one of the scene's tools "
-                                                        f"({', '.join(names) or 'none'}) was "
-                                                        f"expected, found {frame['tool']!r}")
+                raise InputError(
+                    source,
+                    f"{key}.tool",
+                    f"one of the scene's tools "
+                    f"({', '.join(names) or 'none'}) was "
+                    f"expected, found {frame['tool']!r}",
+                )
             track = keyframes.setdefault(frame["tool"], [])
             if track and frame["time"] < track[-1][0]:
-                raise InputError(source, f"{key}.time", f"times in increasing order were expected, "
-                                                        f"found {frame['time']} after {track[-1][0]}")
-            direction = frame["direction"] or (track[-1][2] if track else
-                                               names[frame["tool"]]["direction"])
-            closed = frame["grasp"] if frame["grasp"] is not None else \
-                (track[-1][3] if track else False)
-            track.append((frame["time"], np.asarray(frame["tip"], float), _unit(direction),
-                          closed))
+                raise InputError(
+                    source,
+                    f"{key}.time",
+                    f"times in increasing order were expected, "
+                    f"found {frame['time']} after {track[-1][0]}",
+                )
+            direction = frame["direction"] or (
+                track[-1][2] if track else names[frame["tool"]]["direction"]
+            )
+            closed = (
+                frame["grasp"] if frame["grasp"] is not None else (track[-1][3] if track else False)
+            )
+            track.append((frame["time"], np.asarray(frame["tip"], float), _unit(direction), closed))
         return cls(keyframes, source)
 
     def _after(self, track, time: float) -> int:
@@ -115,8 +133,10 @@ class ScriptedDevice:
 
     def buttons(self, time: float) -> dict[str, int]:
         """Per tool the grasp button of the last keyframe at or before ``time``."""
-        return {name: GRASP_BUTTON if track[max(self._after(track, time) - 1, 0)][3] else 0
-                for name, track in self.keyframes.items()}
+        return {
+            name: GRASP_BUTTON if track[max(self._after(track, time) - 1, 0)][3] else 0
+            for name, track in self.keyframes.items()
+        }
 
     def poses(self, time: float) -> dict[str, Pose]:
         out = {}
@@ -185,13 +205,19 @@ class MouseDevice:
 def applied_poses(tools: list[dict], poses: dict[str, Pose]) -> dict[str, Pose]:
     """Every placed tool's pose, in scene order: the device's, or the scene pose for a
     tool no device drives."""
-    return {tool["name"]: poses.get(tool["name"]) or Pose(np.asarray(tool["tip"], float),
-                                                          _unit(tool["direction"]))
-            for tool in tools[:MAX_TOOLS]}
+    return {
+        tool["name"]: poses.get(tool["name"])
+        or Pose(np.asarray(tool["tip"], float), _unit(tool["direction"]))
+        for tool in tools[:MAX_TOOLS]
+    }
 
 
-def apply_poses(control: Control, tools: list[dict], poses: dict[str, Pose],
-                buttons: dict[str, int] | None = None):
+def apply_poses(
+    control: Control,
+    tools: list[dict],
+    poses: dict[str, Pose],
+    buttons: dict[str, int] | None = None,
+):
     """Write each tool's capsule (tip to tip + length·direction) into ``control``;
     a tool no device drives keeps its scene pose. Graspers and scissors have jaws; a
     grasper's are closed while its ``GRASP_BUTTON`` is pressed."""
@@ -200,10 +226,14 @@ def apply_poses(control: Control, tools: list[dict], poses: dict[str, Pose],
     for index, tool in enumerate(tools[:MAX_TOOLS]):
         pose = placed[tool["name"]]
         jaws = tool["kind"] in JAW_KINDS
-        control.set_tool(index, pose.tip, pose.tip + tool["length"] * pose.direction,
-                         tool["radius"], grasp=tool["kind"] == "grasper" and bool(
-                             buttons.get(tool["name"], 0) & GRASP_BUTTON),
-                         jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0)
+        control.set_tool(
+            index,
+            pose.tip,
+            pose.tip + tool["length"] * pose.direction,
+            tool["radius"],
+            grasp=tool["kind"] == "grasper" and bool(buttons.get(tool["name"], 0) & GRASP_BUTTON),
+            jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0,
+        )
 
 
 class DeviceSet:
@@ -213,20 +243,30 @@ class DeviceSet:
 
     def __init__(self, devices: list):
         self.devices = devices
-        self.source = ", ".join(f"{type(d).__name__}" + (f"({d.source})" if getattr(
-            d, "source", "") else "") for d in devices)
+        self.source = ", ".join(
+            f"{type(d).__name__}" + (f"({d.source})" if getattr(d, "source", "") else "")
+            for d in devices
+        )
 
     def poses(self, time: float) -> dict[str, Pose]:
         return {name: pose for device in self.devices for name, pose in device.poses(time).items()}
 
     def buttons(self, time: float) -> dict[str, int]:
-        return {name: value for device in self.devices if hasattr(device, "buttons")
-                for name, value in device.buttons(time).items()}
+        return {
+            name: value
+            for device in self.devices
+            if hasattr(device, "buttons")
+            for name, value in device.buttons(time).items()
+        }
 
     def drain_ticks(self) -> list[tuple[float, dict]]:
         """The haptic ticks of every device since the last call, in clock order."""
-        ticks = [tick for device in self.devices if hasattr(device, "drain_ticks")
-                 for tick in device.drain_ticks()]
+        ticks = [
+            tick
+            for device in self.devices
+            if hasattr(device, "drain_ticks")
+            for tick in device.drain_ticks()
+        ]
         return sorted(ticks, key=lambda tick: tick[0])
 
     def update(self, *args):

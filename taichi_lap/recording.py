@@ -68,19 +68,28 @@ from taichi_lap.runtime import current_arch
 
 MAGIC = b"\x89TLAP\r\n\x1a"
 VERSION = 1
-HEADER = struct.Struct("<8sI")          # magic, version
-RECORD_HEAD = struct.Struct("<BI")      # tag, payload length [bytes]
+HEADER = struct.Struct("<8sI")  # magic, version
+RECORD_HEAD = struct.Struct("<BI")  # tag, payload length [bytes]
 CRC = struct.Struct("<I")
 TAG_EVENT, TAG_FRAME, TAG_TICK = b"E"[0], b"F"[0], b"T"[0]
-FRAME_HEAD = struct.Struct("<dIdB")     # time [s], frame, clock [s], tool count
-FRAME_TOOL = struct.Struct("<B3d3dI")   # tool index, tip [m], direction, buttons
-TICK_HEAD = struct.Struct("<dB")        # clock [s], tool count
+FRAME_HEAD = struct.Struct("<dIdB")  # time [s], frame, clock [s], tool count
+FRAME_TOOL = struct.Struct("<B3d3dI")  # tool index, tip [m], direction, buttons
+TICK_HEAD = struct.Struct("<dB")  # clock [s], tool count
 TICK_TOOL = struct.Struct("<B3f3fI3f")  # tool index, tip [m], direction, buttons, force [N]
-MAX_PAYLOAD = 1 << 24                   # [bytes]; a longer length field is damage
-FSYNC_INTERVAL = 1.0                    # [s]
-BUFFER_LIMIT = 1 << 16                  # [bytes] of buffered ticks written without a flush call
-EVENT_KINDS = ("session_start", "device", "session_end", "grasp", "release", "cut",
-               "cautery_on", "cautery_off", "vessel_damage")
+MAX_PAYLOAD = 1 << 24  # [bytes]; a longer length field is damage
+FSYNC_INTERVAL = 1.0  # [s]
+BUFFER_LIMIT = 1 << 16  # [bytes] of buffered ticks written without a flush call
+EVENT_KINDS = (
+    "session_start",
+    "device",
+    "session_end",
+    "grasp",
+    "release",
+    "cut",
+    "cautery_on",
+    "cautery_off",
+    "vessel_damage",
+)
 CHECKSUM_FIELDS = ("x", "v", "goal", "eta", "collided")
 
 
@@ -124,8 +133,9 @@ def encode_record(tag: int, payload: bytes) -> bytes:
 def encode_event(kind: str, *, time: float, frame: int, **fields) -> bytes:
     """An event record; ``kind`` is one of ``EVENT_KINDS``, fields are JSON data."""
     if kind not in EVENT_KINDS:
-        raise ValueError(f"event kind: one of {', '.join(EVENT_KINDS)} was expected, "
-                         f"found {kind!r}")
+        raise ValueError(
+            f"event kind: one of {', '.join(EVENT_KINDS)} was expected, found {kind!r}"
+        )
     event = {"kind": kind, "time": float(time), "frame": int(frame), **fields}
     return encode_record(TAG_EVENT, json.dumps(event, default=_json_value).encode())
 
@@ -166,8 +176,9 @@ class RecordStream:
             os.close(fd)
             Path(tmp).unlink(missing_ok=True)
         _fsync_directory(path.parent)
-        return cls(str(path), os.open(path, os.O_WRONLY | os.O_APPEND | getattr(os, "O_BINARY", 0)),
-                   tools)
+        return cls(
+            str(path), os.open(path, os.O_WRONLY | os.O_APPEND | getattr(os, "O_BINARY", 0)), tools
+        )
 
     def append(self, record: bytes):
         """Buffer one encoded record; written at the next flush."""
@@ -185,7 +196,8 @@ class RecordStream:
         its (pose, buttons, force [N]). The caller flushes when it suits its loop."""
         payload = TICK_HEAD.pack(clock, len(tools)) + b"".join(
             TICK_TOOL.pack(self.tools.index(name), *pose.tip, *pose.direction, buttons, *force)
-            for name, (pose, buttons, force) in tools.items())
+            for name, (pose, buttons, force) in tools.items()
+        )
         self.append(encode_record(TAG_TICK, payload))
 
     def flush(self):
@@ -193,7 +205,7 @@ class RecordStream:
         view = memoryview(bytes(self._buffer))
         self._buffer.clear()
         while view:
-            view = view[os.write(self._fd, view):]
+            view = view[os.write(self._fd, view) :]
         if monotonic() - self._synced >= FSYNC_INTERVAL:
             os.fsync(self._fd)
             self._synced = monotonic()
@@ -206,8 +218,11 @@ class RecordStream:
 
 def existing_file_error(path: str, key: str = "") -> InputError:
     """The error for a recording path that exists: recordings are never overwritten."""
-    return InputError(path, key, "a new file was expected (recordings are never "
-                                 "overwritten), found an existing file")
+    return InputError(
+        path,
+        key,
+        "a new file was expected (recordings are never overwritten), found an existing file",
+    )
 
 
 def _fsync_directory(directory: Path):
@@ -225,18 +240,26 @@ def run_settings() -> dict:
     backend, the CPU thread count (the order of parallel work) and the versions."""
     import taichi_lap
 
-    return {"arch": current_arch(), "threads": ti.lang.impl.current_cfg().cpu_max_num_threads,
-            "versions": {"taichi_lap": taichi_lap.__version__,
-                         "taichi": ".".join(map(str, ti.__version__)),
-                         "numpy": np.__version__, "python": platform.python_version()}}
+    return {
+        "arch": current_arch(),
+        "threads": ti.lang.impl.current_cfg().cpu_max_num_threads,
+        "versions": {
+            "taichi_lap": taichi_lap.__version__,
+            "taichi": ".".join(map(str, ti.__version__)),
+            "numpy": np.__version__,
+            "python": platform.python_version(),
+        },
+    }
 
 
 def describe_device(device) -> dict:
     """A device as ``device`` event fields: its class and, where it has one, its source."""
     if device is None:
         return {"device": "none"}
-    return {"device": type(device).__name__, **({"source": device.source}
-                                                 if getattr(device, "source", "") else {})}
+    return {
+        "device": type(device).__name__,
+        **({"source": device.source} if getattr(device, "source", "") else {}),
+    }
 
 
 class SessionRecorder:
@@ -251,10 +274,20 @@ class SessionRecorder:
         digest, raw = scene_fingerprint(scene)
         tools = list(applied_poses(scene.tools, {}))
         start = encode_event(
-            "session_start", time=state.time, frame=state.frame, scene=scene.settings["name"],
-            source=scene.source, digest=digest, raw_scene=raw, seed=scene.settings["seed"],
-            dt=session.dt, **run_settings(), tools=tools, clock=monotonic(),
-            started=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"))
+            "session_start",
+            time=state.time,
+            frame=state.frame,
+            scene=scene.settings["name"],
+            source=scene.source,
+            digest=digest,
+            raw_scene=raw,
+            seed=scene.settings["seed"],
+            dt=session.dt,
+            **run_settings(),
+            tools=tools,
+            clock=monotonic(),
+            started=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        )
         self.stream = RecordStream.create(path, start, tools)
         self.record_device(device)
 
@@ -280,24 +313,34 @@ class SessionRecorder:
         buttons = buttons or {}
         placed = applied_poses(self.session.scene.tools, poses or {})
         payload = FRAME_HEAD.pack(state.time, state.frame, monotonic(), len(placed))
-        payload += b"".join(FRAME_TOOL.pack(index, *pose.tip, *pose.direction, buttons.get(name, 0))
-                            for index, (name, pose) in enumerate(placed.items()))
+        payload += b"".join(
+            FRAME_TOOL.pack(index, *pose.tip, *pose.direction, buttons.get(name, 0))
+            for index, (name, pose) in enumerate(placed.items())
+        )
         self.stream.append(encode_record(TAG_FRAME, payload))
         self.stream.flush()
 
     def close(self, status: str = "complete"):
         """Append ``session_end`` (status, frames, checksum) and close the file."""
         state = self.session.state
-        self.record_event("session_end", status=status, frames=state.frame,
-                          checksum=state_checksum(state))
+        self.record_event(
+            "session_end", status=status, frames=state.frame, checksum=state_checksum(state)
+        )
         self.stream.close()
 
     def __enter__(self) -> "SessionRecorder":
         return self
 
     def __exit__(self, kind, error, traceback):
-        self.close("complete" if kind is None else "interrupted" if kind is KeyboardInterrupt
-                   else f"fault: {error}" if kind is SimulationFault else f"error: {kind.__name__}")
+        self.close(
+            "complete"
+            if kind is None
+            else "interrupted"
+            if kind is KeyboardInterrupt
+            else f"fault: {error}"
+            if kind is SimulationFault
+            else f"error: {kind.__name__}"
+        )
 
 
 @contextlib.contextmanager

@@ -20,16 +20,31 @@ import numpy as np
 
 from taichi_lap.devices import Pose
 from taichi_lap.errors import InputError
-from taichi_lap.recording import (CRC, FRAME_HEAD, FRAME_TOOL, HEADER, MAGIC, MAX_PAYLOAD,
-                                  RECORD_HEAD, TAG_EVENT, TAG_FRAME, TAG_TICK, TICK_HEAD,
-                                  TICK_TOOL, VERSION, run_settings, scene_fingerprint,
-                                  state_checksum)
+from taichi_lap.recording import (
+    CRC,
+    FRAME_HEAD,
+    FRAME_TOOL,
+    HEADER,
+    MAGIC,
+    MAX_PAYLOAD,
+    RECORD_HEAD,
+    TAG_EVENT,
+    TAG_FRAME,
+    TAG_TICK,
+    TICK_HEAD,
+    TICK_TOOL,
+    VERSION,
+    run_settings,
+    scene_fingerprint,
+    state_checksum,
+)
 
 log = logging.getLogger("taichi_lap")
 
-REQUIRED_FIELDS = {"session_start": ("source", "digest", "raw_scene", "arch", "threads", "versions",
-                                     "tools"),
-                   "session_end": ("status", "frames", "checksum")}
+REQUIRED_FIELDS = {
+    "session_start": ("source", "digest", "raw_scene", "arch", "threads", "versions", "tools"),
+    "session_end": ("status", "frames", "checksum"),
+}
 
 
 @dataclass
@@ -84,11 +99,16 @@ class Recording:
         digest, raw = scene_fingerprint(scene)
         if digest == self.start["digest"]:
             return
-        found = "; ".join(f"{key} = {_brief(given)} (recorded: {_brief(recorded)})"
-                          for key, recorded, given in _differences(self.start["raw_scene"], raw))
-        raise InputError(self.path, "session_start.digest",
-                         f"the recorded scene {self.start['source']!r} was expected, found "
-                         f"{scene.source!r} with {found or 'other mesh files'}")
+        found = "; ".join(
+            f"{key} = {_brief(given)} (recorded: {_brief(recorded)})"
+            for key, recorded, given in _differences(self.start["raw_scene"], raw)
+        )
+        raise InputError(
+            self.path,
+            "session_start.digest",
+            f"the recorded scene {self.start['source']!r} was expected, found "
+            f"{scene.source!r} with {found or 'other mesh files'}",
+        )
 
     def compare_final_state(self, state) -> tuple[bool, str]:
         """``(matches, report)`` for a replay's final state against ``session_end``."""
@@ -96,18 +116,27 @@ class Recording:
         if end is None:
             return True, f"{self.path}: no session_end record: final state not compared"
         if state.frame != end["frames"]:
-            return True, (f"replayed {state.frame} of {end['frames']} recorded frames: final "
-                          f"state not compared")
+            return True, (
+                f"replayed {state.frame} of {end['frames']} recorded frames: final "
+                f"state not compared"
+            )
         checksum = state_checksum(state)
         if checksum == end["checksum"]:
-            return True, (f"replay matches {self.path}: final state sha256 {checksum[:16]} "
-                          f"after {state.frame} frames")
+            return True, (
+                f"replay matches {self.path}: final state sha256 {checksum[:16]} "
+                f"after {state.frame} frames"
+            )
         here = run_settings()
-        differ = ", ".join(f"{key} {self.start[key]} recorded, {here[key]} here"
-                           for key in here if self.start[key] != here[key])
-        return False, (f"{self.path}: session_end.checksum: the recorded final state "
-                       f"{end['checksum'][:16]} was expected after {state.frame} frames, found "
-                       f"{checksum[:16]} ({differ or 'same backend, threads and versions'})")
+        differ = ", ".join(
+            f"{key} {self.start[key]} recorded, {here[key]} here"
+            for key in here
+            if self.start[key] != here[key]
+        )
+        return False, (
+            f"{self.path}: session_end.checksum: the recorded final state "
+            f"{end['checksum'][:16]} was expected after {state.frame} frames, found "
+            f"{checksum[:16]} ({differ or 'same backend, threads and versions'})"
+        )
 
 
 def _differences(recorded, given, key: str = "") -> list[tuple[str, object, object]]:
@@ -115,8 +144,11 @@ def _differences(recorded, given, key: str = "") -> list[tuple[str, object, obje
     if isinstance(recorded, dict) and isinstance(given, dict):
         found = []
         for name in sorted(set(recorded) | set(given)):
-            found += _differences(recorded.get(name, "(not set)"), given.get(name, "(not set)"),
-                                  f"{key}.{name}" if key else name)
+            found += _differences(
+                recorded.get(name, "(not set)"),
+                given.get(name, "(not set)"),
+                f"{key}.{name}" if key else name,
+            )
         return found[:3]
     if isinstance(recorded, list) and isinstance(given, list) and len(recorded) == len(given):
         found = []
@@ -142,13 +174,18 @@ class ReplayDevice:
     def poses(self, time: float) -> dict[str, Pose]:
         frames = self.recording.frames
         if self._next >= len(frames):
-            raise InputError(self.source, "frames", f"at most {len(frames)} frames to replay "
-                                                    f"were expected, found a request for more")
+            raise InputError(
+                self.source,
+                "frames",
+                f"at most {len(frames)} frames to replay were expected, found a request for more",
+            )
         frame = frames[self._next]
         if frame.time != time:
-            raise InputError(self.source, f"frame {frame.frame}", f"the session at t = "
-                                                                  f"{frame.time!r} s was expected, "
-                                                                  f"found t = {time!r} s")
+            raise InputError(
+                self.source,
+                f"frame {frame.frame}",
+                f"the session at t = {frame.time!r} s was expected, found t = {time!r} s",
+            )
         self._next += 1
         return frame.poses
 
@@ -162,8 +199,9 @@ def _decode_frame(payload: bytes, tools: list[str]) -> Frame:
     _expect_size(payload, FRAME_HEAD.size + count * FRAME_TOOL.size, f"a frame of {count} tools")
     frame = Frame(time, number, clock, {}, {})
     for k in range(count):
-        index, *values, buttons = FRAME_TOOL.unpack_from(payload,
-                                                         FRAME_HEAD.size + k * FRAME_TOOL.size)
+        index, *values, buttons = FRAME_TOOL.unpack_from(
+            payload, FRAME_HEAD.size + k * FRAME_TOOL.size
+        )
         name = _tool_name(tools, index)
         frame.poses[name] = Pose(np.array(values[:3]), np.array(values[3:]))
         frame.buttons[name] = buttons
@@ -192,8 +230,10 @@ def _decode_event(payload: bytes) -> dict:
         raise ValueError(f"an event object with a kind was expected, found {payload[:60]!r}")
     missing = [name for name in REQUIRED_FIELDS.get(event["kind"], ()) if name not in event]
     if missing:
-        raise ValueError(f"a {event['kind']} event with {', '.join(missing)} was expected, "
-                         f"found {', '.join(event)}")
+        raise ValueError(
+            f"a {event['kind']} event with {', '.join(missing)} was expected, "
+            f"found {', '.join(event)}"
+        )
     return event
 
 
@@ -222,13 +262,17 @@ def read_recording(path: str | Path, *, ticks: bool = True) -> Recording:
 
 def _read(path: str, file, ticks: bool) -> Recording:
     head = file.read(HEADER.size)
-    if not MAGIC.startswith(head[:len(MAGIC)]) or not head:
-        found = head[:len(MAGIC)].hex(" ") or "an empty file"
-        raise InputError(path, "header", f"a taichi-lap recording (magic {MAGIC.hex(' ')}) was "
-                                         f"expected, found {found}")
+    if not MAGIC.startswith(head[: len(MAGIC)]) or not head:
+        found = head[: len(MAGIC)].hex(" ") or "an empty file"
+        raise InputError(
+            path,
+            "header",
+            f"a taichi-lap recording (magic {MAGIC.hex(' ')}) was expected, found {found}",
+        )
     if len(head) < HEADER.size:
-        raise InputError(path, "header", f"a {HEADER.size}-byte header was expected, found "
-                                         f"{len(head)} bytes")
+        raise InputError(
+            path, "header", f"a {HEADER.size}-byte header was expected, found {len(head)} bytes"
+        )
     version = HEADER.unpack(head)[1]
     if version != VERSION:
         raise InputError(path, "header.version", f"version {VERSION} was expected, found {version}")
@@ -241,25 +285,29 @@ def _read(path: str, file, ticks: bool) -> Recording:
             return _truncated(recording, offset, key, "an incomplete record")
         tag, length = RECORD_HEAD.unpack(head)
         if length > MAX_PAYLOAD:
-            raise InputError(path, key, f"a record length up to {MAX_PAYLOAD} bytes was "
-                                        f"expected, found {length}")
+            raise InputError(
+                path, key, f"a record length up to {MAX_PAYLOAD} bytes was expected, found {length}"
+            )
         body = file.read(length + CRC.size)
         if len(body) < length + CRC.size:
             return _truncated(recording, offset, key, "an incomplete record")
         payload, (crc,) = body[:length], CRC.unpack(body[length:])
         actual = zlib.crc32(payload, zlib.crc32(head))
         if crc != actual:
-            raise InputError(path, key, f"CRC-32 {crc:08x} was expected, found {actual:08x} "
-                                        f"(a damaged record)")
+            raise InputError(
+                path, key, f"CRC-32 {crc:08x} was expected, found {actual:08x} (a damaged record)"
+            )
         try:
             if tag == TAG_EVENT:
                 recording.events.append(_decode_event(payload))
                 if index == 0 and recording.start["kind"] != "session_start":
-                    raise ValueError(f"a session_start event was expected, found "
-                                     f"{recording.start['kind']!r}")
+                    raise ValueError(
+                        f"a session_start event was expected, found {recording.start['kind']!r}"
+                    )
             elif index == 0:
-                raise ValueError(f"a session_start event was expected, found a record tagged "
-                                 f"{chr(tag)!r}")
+                raise ValueError(
+                    f"a session_start event was expected, found a record tagged {chr(tag)!r}"
+                )
             elif tag == TAG_FRAME:
                 recording.frames.append(_decode_frame(payload, recording.tools))
             elif tag == TAG_TICK and ticks:
@@ -269,16 +317,24 @@ def _read(path: str, file, ticks: bool) -> Recording:
         offset += RECORD_HEAD.size + length + CRC.size
         index += 1
     if not recording.events:
-        raise InputError(path, "record 0", "a session_start event was expected, found the end "
-                                           "of the file")
+        raise InputError(
+            path, "record 0", "a session_start event was expected, found the end of the file"
+        )
     return recording
 
 
 def _truncated(recording: Recording, offset: int, key: str, what: str) -> Recording:
     if not recording.events:
-        raise InputError(recording.path, key, f"a complete session_start event was expected, "
-                                              f"found {what}")
+        raise InputError(
+            recording.path, key, f"a complete session_start event was expected, found {what}"
+        )
     recording.truncated_at = offset
-    log.warning("%s: truncated at byte %d (%s): read %d frames and %d events before it",
-                recording.path, offset, what, len(recording.frames), len(recording.events))
+    log.warning(
+        "%s: truncated at byte %d (%s): read %d frames and %d events before it",
+        recording.path,
+        offset,
+        what,
+        len(recording.frames),
+        len(recording.events),
+    )
     return recording

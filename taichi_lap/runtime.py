@@ -27,8 +27,9 @@ def _is_supported(arch_name: str) -> bool:
     return arch is not None and bool(ti.lang.misc.is_arch_supported(arch))
 
 
-def init(arch: str = "auto", *, debug: bool = False, threads: int | None = None,
-         random_seed: int = 0) -> str:
+def init(
+    arch: str = "auto", *, debug: bool = False, threads: int | None = None, random_seed: int = 0
+) -> str:
     """Initialise Taichi once and return the backend name actually used.
 
     ``arch`` is one of ``auto``, ``cpu``, ``cuda``, ``vulkan``, ``metal``.
@@ -40,9 +41,14 @@ def init(arch: str = "auto", *, debug: bool = False, threads: int | None = None,
         raise ValueError(f"arch must be one of {', '.join(ARCH_CHOICES)}, got {arch!r}")
     if _current_arch is not None and arch in (_current_arch, "auto"):
         return _current_arch
-    kwargs = dict(default_fp=ti.f32, default_ip=ti.i32, debug=debug,
-                  random_seed=random_seed, offline_cache=True,
-                  log_level=os.environ.get("TAICHI_LAP_TI_LOG", "warn"))
+    kwargs = dict(
+        default_fp=ti.f32,
+        default_ip=ti.i32,
+        debug=debug,
+        random_seed=random_seed,
+        offline_cache=True,
+        log_level=os.environ.get("TAICHI_LAP_TI_LOG", "warn"),
+    )
     if threads:
         kwargs["cpu_max_num_threads"] = int(threads)
     if arch == "auto":

@@ -16,9 +16,19 @@ from pathlib import Path
 from typing import Any
 
 from taichi_lap.errors import InputError
-from taichi_lap.scene_schema import (ATTACHMENT_PARAMS, CAMERA_PARAMS, CLUSTER_MODELS,
-                                     GEOMETRY_COMMON, MATERIAL_PARAMS, MESH_PARAMS,
-                                     ORGAN_PARAMS, PLANE_PARAMS, SCENE_PARAMS, TOOL_PARAMS, UNITS)
+from taichi_lap.scene_schema import (
+    ATTACHMENT_PARAMS,
+    CAMERA_PARAMS,
+    CLUSTER_MODELS,
+    GEOMETRY_COMMON,
+    MATERIAL_PARAMS,
+    MESH_PARAMS,
+    ORGAN_PARAMS,
+    PLANE_PARAMS,
+    SCENE_PARAMS,
+    TOOL_PARAMS,
+    UNITS,
+)
 from taichi_lap.schema import REQUIRED, check_table, check_value, describe
 from taichi_lap.scenes.anatomy.params import Param
 
@@ -80,8 +90,11 @@ class Scene:
 
 def builtin_names() -> list[str]:
     """Names of the scenes shipped with the package."""
-    return sorted(p.name[:-5] for p in resources.files("taichi_lap.scenes").iterdir()
-                  if p.name.endswith(".toml"))
+    return sorted(
+        p.name[:-5]
+        for p in resources.files("taichi_lap.scenes").iterdir()
+        if p.name.endswith(".toml")
+    )
 
 
 def resolve(name_or_path: str) -> Path:
@@ -93,8 +106,12 @@ def resolve(name_or_path: str) -> Path:
         return path
     if path.suffix == ".toml":
         raise InputError(name_or_path, "", "a readable scene file was expected, it does not exist")
-    raise InputError(name_or_path, "", f"a built-in scene ({', '.join(builtin_names())}) or a "
-                                       f"path to a .toml file was expected, found neither")
+    raise InputError(
+        name_or_path,
+        "",
+        f"a built-in scene ({', '.join(builtin_names())}) or a "
+        f"path to a .toml file was expected, found neither",
+    )
 
 
 def load(name_or_path: str, overrides: dict[str, Any] | None = None) -> Scene:
@@ -115,12 +132,19 @@ def load(name_or_path: str, overrides: dict[str, Any] | None = None) -> Scene:
     return validate(raw, source, path.parent)
 
 
-def from_tables(organs: list[dict], *, tools: list[dict] | None = None,
-                planes: list[dict] | None = None, **settings) -> Scene:
+def from_tables(
+    organs: list[dict],
+    *,
+    tools: list[dict] | None = None,
+    planes: list[dict] | None = None,
+    **settings,
+) -> Scene:
     """A scene from Python tables (as they would be read from TOML), for scripts,
     benchmarks and tests: ``from_tables([{"name": ..., "model": ...}], substeps=2)``."""
-    raw: dict[str, Any] = {"scene": {"name": "scripted", **settings},
-                           "organs": copy.deepcopy(organs)}
+    raw: dict[str, Any] = {
+        "scene": {"name": "scripted", **settings},
+        "organs": copy.deepcopy(organs),
+    }
     if tools:
         raw["tools"] = copy.deepcopy(tools)
     if planes:
@@ -147,7 +171,7 @@ def _override(raw: dict, dotted: str, value: Any, source: str):
         if isinstance(node, list):
             named = [item for item in node if isinstance(item, dict) and item.get("name") == part]
             if not named:
-                raise InputError(source, ".".join(parts[:depth + 1]), "no entry with that name")
+                raise InputError(source, ".".join(parts[: depth + 1]), "no entry with that name")
             node = named[0]
         else:
             node = node.setdefault(part, {})
@@ -158,8 +182,9 @@ def _override(raw: dict, dotted: str, value: Any, source: str):
 
 def _list_of_tables(source: str, key: str, value: Any) -> list[dict]:
     if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-        raise InputError(source, key, f"an array of tables ([[{key}]]) was expected, "
-                                      f"found {describe(value)}")
+        raise InputError(
+            source, key, f"an array of tables ([[{key}]]) was expected, found {describe(value)}"
+        )
     return value
 
 
@@ -168,8 +193,9 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     known = {"scene", "camera", "environment", "tools", "organs"}
     for key in raw:
         if key not in known:
-            raise InputError(source, key, f"unknown top-level key; expected one of: "
-                                          f"{', '.join(sorted(known))}")
+            raise InputError(
+                source, key, f"unknown top-level key; expected one of: {', '.join(sorted(known))}"
+            )
     if "scene" not in raw:
         raise InputError(source, "scene", "a [scene] table was expected, it is missing")
     settings = check_table(source, "scene", raw["scene"], SCENE_PARAMS)
@@ -177,12 +203,16 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     environment = raw.get("environment", {})
     check_table(source, "environment", environment, {}, ignore=("planes",))
     planes = []
-    for k, table in enumerate(_list_of_tables(source, "environment.planes",
-                                              environment.get("planes", []))):
+    for k, table in enumerate(
+        _list_of_tables(source, "environment.planes", environment.get("planes", []))
+    ):
         plane = check_table(source, f"environment.planes[{k}]", table, PLANE_PARAMS)
         if sum(c * c for c in plane["normal"]) < 1e-12:
-            raise InputError(source, f"environment.planes[{k}].normal",
-                             "a non-zero vector was expected, found [0, 0, 0]")
+            raise InputError(
+                source,
+                f"environment.planes[{k}].normal",
+                "a non-zero vector was expected, found [0, 0, 0]",
+            )
         planes.append(plane)
     tools = _tools(source, _list_of_tables(source, "tools", raw.get("tools", [])))
     organ_tables = _list_of_tables(source, "organs", raw.get("organs", []))
@@ -190,8 +220,16 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
         raise InputError(source, "organs", "at least one [[organs]] table was expected, found none")
     organs = [_organ(source, directory, f"organs[{k}]", t) for k, t in enumerate(organ_tables)]
     _check_names(source, organs, tools)
-    return Scene(source=source, directory=directory, settings=settings, camera=camera,
-                 planes=planes, tools=tools, organs=organs, raw=copy.deepcopy(raw))
+    return Scene(
+        source=source,
+        directory=directory,
+        settings=settings,
+        camera=camera,
+        planes=planes,
+        tools=tools,
+        organs=organs,
+        raw=copy.deepcopy(raw),
+    )
 
 
 def _tools(source: str, tables: list[dict]) -> list[dict]:
@@ -201,8 +239,9 @@ def _tools(source: str, tables: list[dict]) -> list[dict]:
     from taichi_lap.sim.control import MAX_TOOLS
 
     if len(tables) > MAX_TOOLS:
-        raise InputError(source, "tools", f"at most {MAX_TOOLS} tools were expected, "
-                                          f"found {len(tables)}")
+        raise InputError(
+            source, "tools", f"at most {MAX_TOOLS} tools were expected, found {len(tables)}"
+        )
     tools = []
     for k, table in enumerate(tables):
         tool = check_table(source, f"tools[{k}]", table, TOOL_PARAMS, ignore=("script",))
@@ -216,19 +255,31 @@ def _tools(source: str, tables: list[dict]) -> list[dict]:
 
 
 def _organ(source: str, directory: Path, key: str, table: dict) -> OrganSpec:
-    head = check_table(source, key, table, ORGAN_PARAMS,
-                       ignore=("geometry", "material", "attachments"))
+    head = check_table(
+        source, key, table, ORGAN_PARAMS, ignore=("geometry", "material", "attachments")
+    )
     if "geometry" not in table:
         raise InputError(source, f"{key}.geometry", "a geometry table was expected, it is missing")
     geometry = _geometry(source, directory, f"{key}.geometry", table["geometry"], head["model"])
-    material = check_table(source, f"{key}.material", table.get("material", {}),
-                           MATERIAL_PARAMS[head["model"]])
-    attachments = [_attachment(source, f"{key}.attachments[{k}]", t, head["model"])
-                   for k, t in enumerate(_list_of_tables(source, f"{key}.attachments",
-                                                         table.get("attachments", [])))]
-    return OrganSpec(name=head["name"], model=head["model"], appearance=head["appearance"],
-                     color=head["color"],
-                     geometry=geometry, material=material, attachments=attachments, key=key)
+    material = check_table(
+        source, f"{key}.material", table.get("material", {}), MATERIAL_PARAMS[head["model"]]
+    )
+    attachments = [
+        _attachment(source, f"{key}.attachments[{k}]", t, head["model"])
+        for k, t in enumerate(
+            _list_of_tables(source, f"{key}.attachments", table.get("attachments", []))
+        )
+    ]
+    return OrganSpec(
+        name=head["name"],
+        model=head["model"],
+        appearance=head["appearance"],
+        color=head["color"],
+        geometry=geometry,
+        material=material,
+        attachments=attachments,
+        key=key,
+    )
 
 
 def _geometry(source: str, directory: Path, key: str, table: Any, model: str) -> GeometrySpec:
@@ -241,59 +292,97 @@ def _geometry(source: str, directory: Path, key: str, table: Any, model: str) ->
     if "mesh" in table:
         spec = check_table(source, key, table, {**MESH_PARAMS, **GEOMETRY_COMMON})
         if model == "mass_spring":
-            raise InputError(source, f"{key}.mesh", "model mass_spring takes the 'intestine' "
-                                                    "generator, found a mesh file")
+            raise InputError(
+                source,
+                f"{key}.mesh",
+                "model mass_spring takes the 'intestine' generator, found a mesh file",
+            )
         mesh = directory / spec["mesh"]
         if not mesh.is_file():
-            raise InputError(source, f"{key}.mesh", f"mesh file {mesh} was expected, it does not "
-                                                    f"exist")
-        return GeometrySpec(generator=None, params={}, mesh=mesh,
-                            units=UNITS[spec["units"]], translate=spec["translate"],
-                            rotate=spec["rotate"])
-    name = check_value(source, f"{key}.generator", table["generator"],
-                       Param("str", REQUIRED, "generator", choices=tuple(sorted(GENERATORS))))
+            raise InputError(
+                source, f"{key}.mesh", f"mesh file {mesh} was expected, it does not exist"
+            )
+        return GeometrySpec(
+            generator=None,
+            params={},
+            mesh=mesh,
+            units=UNITS[spec["units"]],
+            translate=spec["translate"],
+            rotate=spec["rotate"],
+        )
+    name = check_value(
+        source,
+        f"{key}.generator",
+        table["generator"],
+        Param("str", REQUIRED, "generator", choices=tuple(sorted(GENERATORS))),
+    )
     generator = GENERATORS[name]
     wanted = _PRODUCES_FOR_MODEL[model]
     if generator.produces not in wanted:
-        raise InputError(source, f"{key}.generator", f"a generator making {' or '.join(wanted)} "
-                                                     f"was expected for model {model}, found "
-                                                     f"{name!r} (makes {generator.produces})")
-    spec = check_table(source, key, table, {**generator.params, **GEOMETRY_COMMON},
-                       ignore=("generator",))
+        raise InputError(
+            source,
+            f"{key}.generator",
+            f"a generator making {' or '.join(wanted)} "
+            f"was expected for model {model}, found "
+            f"{name!r} (makes {generator.produces})",
+        )
+    spec = check_table(
+        source, key, table, {**generator.params, **GEOMETRY_COMMON}, ignore=("generator",)
+    )
     params = {k: spec[k] for k in generator.params}
-    return GeometrySpec(generator=name, params=params, mesh=None, units=1.0,
-                        translate=spec["translate"], rotate=spec["rotate"])
+    return GeometrySpec(
+        generator=name,
+        params=params,
+        mesh=None,
+        units=1.0,
+        translate=spec["translate"],
+        rotate=spec["rotate"],
+    )
 
 
 def _attachment(source: str, key: str, table: dict, model: str) -> AttachmentSpec:
     spec = check_table(source, key, table, ATTACHMENT_PARAMS)
     kind = spec["kind"]
-    region = {k: spec[k] for k in ("box_min", "box_max", "center", "radius", "rows")
-              if spec[k] is not None}
+    region = {
+        k: spec[k]
+        for k in ("box_min", "box_max", "center", "radius", "rows")
+        if spec[k] is not None
+    }
     if kind == "join":
         if model not in CLUSTER_MODELS:
-            raise InputError(source, f"{key}.kind", f"join needs a cluster model "
-                                                    f"({', '.join(CLUSTER_MODELS)}), found {model}")
+            raise InputError(
+                source,
+                f"{key}.kind",
+                f"join needs a cluster model ({', '.join(CLUSTER_MODELS)}), found {model}",
+            )
         if spec["organ"] is None:
-            raise InputError(source, f"{key}.organ", "the organ to join was expected, it is missing")
+            raise InputError(
+                source, f"{key}.organ", "the organ to join was expected, it is missing"
+            )
         return AttachmentSpec(kind=kind, region={}, organ=spec["organ"], radius=spec["radius"])
     if spec["organ"] is not None:
-        raise InputError(source, f"{key}.organ", f"'organ' applies to join only, found it on {kind}")
+        raise InputError(
+            source, f"{key}.organ", f"'organ' applies to join only, found it on {kind}"
+        )
     if kind == "lra_anchor" and model != "fascia_lra":
         raise InputError(source, f"{key}.kind", f"lra_anchor needs model fascia_lra, found {model}")
     has_box = "box_min" in region or "box_max" in region
     has_sphere = "center" in region or "radius" in region
     has_rows = "rows" in region
     if has_box + has_sphere + has_rows != 1:
-        raise InputError(source, key, "one region was expected: box_min and box_max, center and "
-                                      "radius, or rows")
+        raise InputError(
+            source, key, "one region was expected: box_min and box_max, center and radius, or rows"
+        )
     if has_box and not ("box_min" in region and "box_max" in region):
         raise InputError(source, key, "a box region needs both box_min and box_max")
     if has_sphere and not ("center" in region and "radius" in region):
         raise InputError(source, key, "a sphere region needs both center and radius")
     if has_rows and model != "mass_spring":
-        raise InputError(source, f"{key}.rows", f"rows select spring-sheet rows (model "
-                                                f"mass_spring), found model {model}")
+        raise InputError(
+            source,
+            f"{key}.rows",
+            f"rows select spring-sheet rows (model mass_spring), found model {model}",
+        )
     return AttachmentSpec(kind=kind, region=region)
 
 
@@ -301,8 +390,11 @@ def _check_names(source: str, organs: list[OrganSpec], tools: list[dict]):
     seen: dict[str, str] = {}
     for organ in organs:
         if organ.name in seen:
-            raise InputError(source, f"{organ.key}.name", f"a unique organ name was expected, "
-                                                          f"{organ.name!r} is also {seen[organ.name]}")
+            raise InputError(
+                source,
+                f"{organ.key}.name",
+                f"a unique organ name was expected, {organ.name!r} is also {seen[organ.name]}",
+            )
         seen[organ.name] = organ.key
     by_name = {o.name: o for o in organs}
     for organ in organs:
@@ -312,11 +404,18 @@ def _check_names(source: str, organs: list[OrganSpec], tools: list[dict]):
             other = by_name.get(att.organ)
             key = f"{organ.key}.attachments[{k}].organ"
             if other is None:
-                raise InputError(source, key, f"the name of an organ in this scene was expected, "
-                                              f"found {att.organ!r}")
+                raise InputError(
+                    source,
+                    key,
+                    f"the name of an organ in this scene was expected, found {att.organ!r}",
+                )
             if other is organ or other.model not in CLUSTER_MODELS:
-                raise InputError(source, key, f"another organ with a cluster model was expected, "
-                                              f"found {att.organ!r} ({other.model})")
+                raise InputError(
+                    source,
+                    key,
+                    f"another organ with a cluster model was expected, "
+                    f"found {att.organ!r} ({other.model})",
+                )
     names = [t["name"] for t in tools]
     if len(set(names)) != len(names):
         raise InputError(source, "tools", "unique tool names were expected")

@@ -19,36 +19,65 @@ SCENE_PARAMS = {
     "description": Param("str", "", "one line shown by `taichi-lap list`"),
     "dt": Param("float", 1.0 / 60.0, "frame time step", lo=1e-4, hi=0.1, unit="s"),
     "substeps": Param("int", 1, "substeps per frame", lo=1, hi=200),
-    "shape_iterations": Param("int", 5, "shape-matching passes per substep (Alg. 1 lines 7-23)",
-                              lo=1, hi=100),
+    "shape_iterations": Param(
+        "int", 5, "shape-matching passes per substep (Alg. 1 lines 7-23)", lo=1, hi=100
+    ),
     "iterations": Param("int", 10, "distance/LRA constraint iterations per substep", lo=1, hi=500),
-    "constraint_solver": Param("str", "jacobi", "distance constraint solver",
-                               choices=("jacobi", "gauss_seidel")),
-    "over_relaxation": Param("float", 1.5, "Jacobi over-relaxation ω (Macklin et al. 2014)",
-                             lo=0.1, hi=2.0),
+    "constraint_solver": Param(
+        "str", "jacobi", "distance constraint solver", choices=("jacobi", "gauss_seidel")
+    ),
+    "over_relaxation": Param(
+        "float", 1.5, "Jacobi over-relaxation ω (Macklin et al. 2014)", lo=0.1, hi=2.0
+    ),
     "gravity": Param("vec3", [0.0, -9.81, 0.0], "gravity", lo=-1000, hi=1000, unit="m/s²"),
     "seed": Param("int", 0, "seed of every random source", lo=0, hi=2**31 - 1),
-    "detail": Param("float", 1.0, "particle-count multiplier (smaller scenes for tests)",
-                    lo=1e-3, hi=8.0),
-    "settle_time": Param("float", 0.0, "simulated time run from the rest shape, tools at their "
-                                        "scene poses and collision off, before frame 0: the "
-                                        "session starts with the organs at rest under gravity",
-                         lo=0.0, hi=60.0, unit="s"),
-    "speed_limit": Param("float", 50.0, "particle speed reported as a simulation fault",
-                         lo=1e-3, hi=1e6, unit="m/s"),
-    "collision": Param("str", "off", "tissue collision of surface triangles (seed 000 §4)",
-                       choices=("off", "circumsphere", "bounding_sphere", "polygon")),
-    "collision_scale_phi": Param("float", 3.0, "tissue collision: φ of Eq. 4 (seed 000 §7: 3)",
-                                 lo=0.0, hi=100.0),
+    "detail": Param(
+        "float", 1.0, "particle-count multiplier (smaller scenes for tests)", lo=1e-3, hi=8.0
+    ),
+    "settle_time": Param(
+        "float",
+        0.0,
+        "simulated time run from the rest shape, tools at their "
+        "scene poses and collision off, before frame 0: the "
+        "session starts with the organs at rest under gravity",
+        lo=0.0,
+        hi=60.0,
+        unit="s",
+    ),
+    "speed_limit": Param(
+        "float", 50.0, "particle speed reported as a simulation fault", lo=1e-3, hi=1e6, unit="m/s"
+    ),
+    "collision": Param(
+        "str",
+        "off",
+        "tissue collision of surface triangles (seed 000 §4)",
+        choices=("off", "circumsphere", "bounding_sphere", "polygon"),
+    ),
+    "collision_scale_phi": Param(
+        "float", 3.0, "tissue collision: φ of Eq. 4 (seed 000 §7: 3)", lo=0.0, hi=100.0
+    ),
     "self_collision": Param("bool", True, "intestine and mesentery self-collision (seed 001 §4)"),
-    "collision_threshold": Param("float", 0.02, "self-collision: pairs are tracked while their "
-                                                "gap is below this", lo=1e-5, hi=1.0, unit="m"),
-    "collision_random_pairs": Param("int", 0, "self-collision: new random pairs per substep "
-                                              "(0: max(64, segments / 2))", lo=0, hi=1_000_000),
-    "collision_passes": Param("int", 8, "self-collision: response sweeps per substep", lo=1,
-                              hi=200),
-    "collision_skin": Param("float", 0.001, "self-collision: gap counted as contact", lo=0.0,
-                            hi=0.1, unit="m"),
+    "collision_threshold": Param(
+        "float",
+        0.02,
+        "self-collision: pairs are tracked while their gap is below this",
+        lo=1e-5,
+        hi=1.0,
+        unit="m",
+    ),
+    "collision_random_pairs": Param(
+        "int",
+        0,
+        "self-collision: new random pairs per substep (0: max(64, segments / 2))",
+        lo=0,
+        hi=1_000_000,
+    ),
+    "collision_passes": Param(
+        "int", 8, "self-collision: response sweeps per substep", lo=1, hi=200
+    ),
+    "collision_skin": Param(
+        "float", 0.001, "self-collision: gap counted as contact", lo=0.0, hi=0.1, unit="m"
+    ),
 }
 CAMERA_PARAMS = {
     "position": Param("vec3", [0.0, 0.1, 0.35], "endoscope tip", lo=-100, hi=100, unit="m"),
@@ -69,30 +98,48 @@ TOOL_PARAMS = {
     "radius": Param("float", 0.0025, "shaft radius", lo=1e-4, hi=0.05, unit="m"),
     "length": Param("float", 0.25, "shaft length inside the body", lo=1e-3, hi=1.0, unit="m"),
     "tip": Param("vec3", [0.0, 0.08, 0.0], "initial tip position", lo=-100, hi=100, unit="m"),
-    "direction": Param("vec3", [0.0, 1.0, 0.0], "from the tip towards the handle", lo=-1e3,
-                       hi=1e3),
-    "workspace_scale": Param("float", 0.001, "haptic device: scene metres per device "
-                                             "millimetre; the device origin maps to the tip",
-                             lo=1e-6, hi=1.0, unit="m/mm"),
-    "device": Param("str", "", "the device that drives this tool (mouse, openhaptics or "
-                               "openhaptics:NAME); other tools take the devices left, in order"),
-    "grasp_stiffness": Param("float", 0.001, "haptic device: k of the grasp pull force, Hooke's "
-                                             "law over the grasped tet edges (seed 002 §3.4)",
-                             lo=0.0, hi=1e4, unit="N/m"),
+    "direction": Param("vec3", [0.0, 1.0, 0.0], "from the tip towards the handle", lo=-1e3, hi=1e3),
+    "workspace_scale": Param(
+        "float",
+        0.001,
+        "haptic device: scene metres per device millimetre; the device origin maps to the tip",
+        lo=1e-6,
+        hi=1.0,
+        unit="m/mm",
+    ),
+    "device": Param(
+        "str",
+        "",
+        "the device that drives this tool (mouse, openhaptics or "
+        "openhaptics:NAME); other tools take the devices left, in order",
+    ),
+    "grasp_stiffness": Param(
+        "float",
+        0.001,
+        "haptic device: k of the grasp pull force, Hooke's "
+        "law over the grasped tet edges (seed 002 §3.4)",
+        lo=0.0,
+        hi=1e4,
+        unit="N/m",
+    ),
 }
 ORGAN_PARAMS = {
     "name": Param("str", REQUIRED, "organ name, unique in the scene"),
     "model": Param("str", REQUIRED, "tissue model", choices=MODELS),
-    "appearance": Param("str", "serosa", "render material preset (seed 000 §6.1)",
-                        choices=tuple(PRESETS)),
-    "color": Param("vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0,
-                   hi=1.0),
+    "appearance": Param(
+        "str", "serosa", "render material preset (seed 000 §6.1)", choices=tuple(PRESETS)
+    ),
+    "color": Param(
+        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
+    ),
 }
 GEOMETRY_COMMON = {
-    "translate": Param("vec3", [0.0, 0.0, 0.0], "offset applied after rotation", lo=-100, hi=100,
-                       unit="m"),
-    "rotate": Param("vec3", [0.0, 0.0, 0.0], "rotation about x, then y, then z", lo=-720,
-                    hi=720, unit="deg"),
+    "translate": Param(
+        "vec3", [0.0, 0.0, 0.0], "offset applied after rotation", lo=-100, hi=100, unit="m"
+    ),
+    "rotate": Param(
+        "vec3", [0.0, 0.0, 0.0], "rotation about x, then y, then z", lo=-720, hi=720, unit="deg"
+    ),
 }
 MESH_PARAMS = {
     "mesh": Param("str", REQUIRED, "OBJ/STL/PLY file, relative to the scene file"),
@@ -104,57 +151,85 @@ _DAMPING = Param("float", 1.0, "velocity damping rate", lo=0.0, hi=1000.0, unit=
 _SHAPE = {
     "mass": _MASS,
     "damping": _DAMPING,
-    "stiffness": Param("float", 0.4, "α, pull towards the goal per substep (Alg. 1)", lo=0.0,
-                       hi=1.0),
-    "recover_rate": Param("float", 0.01, "R_r, decrease of η per substep (Alg. 1)", lo=0.0,
-                          hi=1.0),
-    "eta_on_contact": Param("float", 0.7, "η set where a tool touches (seed 000 §7: 0.7; "
-                                          "Alg. 1: 1)", lo=0.0, hi=1.0),
-    "cluster_radius": Param("float", None, "cluster radius; default gives ≈50 particles per "
-                                           "cluster count (seed 002 Table 1)", lo=1e-4, hi=1.0,
-                            unit="m"),
-    "organ_cluster": Param("bool", True, "add one cluster holding the whole organ, so it keeps "
-                                         "its overall shape under gravity"),
+    "stiffness": Param(
+        "float", 0.4, "α, pull towards the goal per substep (Alg. 1)", lo=0.0, hi=1.0
+    ),
+    "recover_rate": Param("float", 0.01, "R_r, decrease of η per substep (Alg. 1)", lo=0.0, hi=1.0),
+    "eta_on_contact": Param(
+        "float", 0.7, "η set where a tool touches (seed 000 §7: 0.7; Alg. 1: 1)", lo=0.0, hi=1.0
+    ),
+    "cluster_radius": Param(
+        "float",
+        None,
+        "cluster radius; default gives ≈50 particles per cluster count (seed 002 Table 1)",
+        lo=1e-4,
+        hi=1.0,
+        unit="m",
+    ),
+    "organ_cluster": Param(
+        "bool",
+        True,
+        "add one cluster holding the whole organ, so it keeps its overall shape under gravity",
+    ),
 }
 _EDGES = {
     "edge_stiffness": Param("float", 1.0, "stiffness of the surface edges", lo=0.0, hi=1.0),
 }
 MATERIAL_PARAMS = {
     "shape_matching": _SHAPE,
-    "tet_clusters": {**_SHAPE, "particle_spacing": Param(
-        "float", 0.004, "BCC lattice cube edge (seed 002: 2.9 mm gives Table 1)", lo=2e-4,
-        hi=0.1, unit="m")},
+    "tet_clusters": {
+        **_SHAPE,
+        "particle_spacing": Param(
+            "float",
+            0.004,
+            "BCC lattice cube edge (seed 002: 2.9 mm gives Table 1)",
+            lo=2e-4,
+            hi=0.1,
+            unit="m",
+        ),
+    },
     "fascia_lra": {
-        "mass": _MASS, "damping": _DAMPING, **_EDGES,
-        "bending_stiffness": Param("float", 0.05, "stiffness across neighbouring triangles",
-                                   lo=0.0, hi=1.0),
-        "lra_relaxation": Param("float", 0.25, "β of Eq. 3 (seed 000 §7: 0.1-0.4)", lo=0.0,
-                                hi=1.0),
-        "lra_anchors": Param("int", 4, "nearest attached vertices each vertex keeps", lo=1,
-                             hi=64),
+        "mass": _MASS,
+        "damping": _DAMPING,
+        **_EDGES,
+        "bending_stiffness": Param(
+            "float", 0.05, "stiffness across neighbouring triangles", lo=0.0, hi=1.0
+        ),
+        "lra_relaxation": Param("float", 0.25, "β of Eq. 3 (seed 000 §7: 0.1-0.4)", lo=0.0, hi=1.0),
+        "lra_anchors": Param("int", 4, "nearest attached vertices each vertex keeps", lo=1, hi=64),
     },
     "truss": {
-        "mass": _MASS, "damping": _DAMPING, **_EDGES,
-        "cone_angle": Param("float", 0.3, "θ, half-angle of the strut cone (Alg. 2)", lo=0.01,
-                            hi=1.5, unit="rad"),
-        "bending_threshold": Param("float", math.pi / 3, "θ_threshold (seed 000 §7: π/3)",
-                                   lo=0.0, hi=math.pi, unit="rad"),
+        "mass": _MASS,
+        "damping": _DAMPING,
+        **_EDGES,
+        "cone_angle": Param(
+            "float", 0.3, "θ, half-angle of the strut cone (Alg. 2)", lo=0.01, hi=1.5, unit="rad"
+        ),
+        "bending_threshold": Param(
+            "float", math.pi / 3, "θ_threshold (seed 000 §7: π/3)", lo=0.0, hi=math.pi, unit="rad"
+        ),
         "min_stiffness": Param("float", 0.05, "k_min (seed 000 §7: 0.05)", lo=0.0, hi=1.0),
     },
     "mass_spring": {
         "damping": Param("float", 0.2, "velocity damping rate", lo=0.0, hi=1000.0, unit="1/s"),
-        "intestine_mass": Param("float", 0.6, "mass of the intestine row", lo=1e-6, hi=100.0,
-                                unit="kg"),
-        "mesentery_mass": Param("float", 0.3, "mass of the other rows", lo=1e-6, hi=100.0,
-                                unit="kg"),
-        "intestine_stiffness": Param("float", 60.0, "springs along the intestine", lo=0.0,
-                                     hi=1e6, unit="N/m"),
-        "mesentery_stiffness": Param("float", 15.0, "springs of the mesentery", lo=0.0,
-                                     hi=1e6, unit="N/m"),
-        "bending_stiffness": Param("float", 5.0, "springs skipping one intestine mass", lo=0.0,
-                                   hi=1e6, unit="N/m"),
-        "spring_damping": Param("float", 0.05, "damping of every spring", lo=0.0, hi=1e4,
-                                unit="N s/m"),
+        "intestine_mass": Param(
+            "float", 0.6, "mass of the intestine row", lo=1e-6, hi=100.0, unit="kg"
+        ),
+        "mesentery_mass": Param(
+            "float", 0.3, "mass of the other rows", lo=1e-6, hi=100.0, unit="kg"
+        ),
+        "intestine_stiffness": Param(
+            "float", 60.0, "springs along the intestine", lo=0.0, hi=1e6, unit="N/m"
+        ),
+        "mesentery_stiffness": Param(
+            "float", 15.0, "springs of the mesentery", lo=0.0, hi=1e6, unit="N/m"
+        ),
+        "bending_stiffness": Param(
+            "float", 5.0, "springs skipping one intestine mass", lo=0.0, hi=1e6, unit="N/m"
+        ),
+        "spring_damping": Param(
+            "float", 0.05, "damping of every spring", lo=0.0, hi=1e4, unit="N s/m"
+        ),
     },
 }
 ATTACHMENT_PARAMS = {
@@ -162,9 +237,9 @@ ATTACHMENT_PARAMS = {
     "box_min": Param("vec3", None, "region: lower corner of a box", lo=-100, hi=100, unit="m"),
     "box_max": Param("vec3", None, "region: upper corner of a box", lo=-100, hi=100, unit="m"),
     "center": Param("vec3", None, "region: centre of a sphere", lo=-100, hi=100, unit="m"),
-    "radius": Param("float", None, "region: sphere radius; join: reach", lo=1e-5, hi=100,
-                    unit="m"),
-    "rows": Param("intlist", None, "region: rows of a spring sheet (0 = intestine)", lo=-1000,
-                  hi=1000),
+    "radius": Param("float", None, "region: sphere radius; join: reach", lo=1e-5, hi=100, unit="m"),
+    "rows": Param(
+        "intlist", None, "region: rows of a spring sheet (0 = intestine)", lo=-1000, hi=1000
+    ),
     "organ": Param("str", None, "join: the organ to tie to"),
 }

@@ -21,8 +21,14 @@ REQUIRED = object()
 
 def describe(value: Any) -> str:
     """A short description of a TOML value for error messages."""
-    names = {bool: "a boolean", int: "an integer", float: "a number", str: "a string",
-             list: "an array", dict: "a table"}
+    names = {
+        bool: "a boolean",
+        int: "an integer",
+        float: "a number",
+        str: "a string",
+        list: "an array",
+        dict: "a table",
+    }
     kind = names.get(type(value), type(value).__name__)
     text = repr(value)
     if len(text) > 40:
@@ -70,26 +76,32 @@ def check_value(file: str, key: str, value: Any, param: Param) -> Any:
         if not isinstance(value, str):
             raise InputError(file, key, f"a string was expected, found {describe(value)}")
         if param.choices is not None and value not in param.choices:
-            raise InputError(file, key, f"one of {', '.join(param.choices)} was expected, "
-                                        f"found {value!r}")
+            raise InputError(
+                file, key, f"one of {', '.join(param.choices)} was expected, found {value!r}"
+            )
         return value
     if kind == "vec3":
         return _vec3(file, key, value, param)
     if kind == "vec3list":
         if not isinstance(value, list) or not value:
-            raise InputError(file, key, f"a non-empty array of [x, y, z] points was expected, "
-                                        f"found {describe(value)}")
+            raise InputError(
+                file,
+                key,
+                f"a non-empty array of [x, y, z] points was expected, found {describe(value)}",
+            )
         return [_vec3(file, f"{key}[{k}]", v, param) for k, v in enumerate(value)]
     if kind == "intlist":
         if not isinstance(value, list) or not value:
-            raise InputError(file, key, f"a non-empty array of integers was expected, "
-                                        f"found {describe(value)}")
+            raise InputError(
+                file, key, f"a non-empty array of integers was expected, found {describe(value)}"
+            )
         return [_number(file, f"{key}[{k}]", v, param, integer=True) for k, v in enumerate(value)]
     raise ValueError(f"unknown parameter kind {kind!r}")
 
 
-def check_table(file: str, prefix: str, table: Any, params: dict[str, Param],
-                *, ignore: tuple[str, ...] = ()) -> dict[str, Any]:
+def check_table(
+    file: str, prefix: str, table: Any, params: dict[str, Param], *, ignore: tuple[str, ...] = ()
+) -> dict[str, Any]:
     """Validate ``table`` against ``params``; return a complete dict with defaults.
 
     Keys in ``ignore`` are left for the caller. A default of :data:`REQUIRED` makes
@@ -100,8 +112,9 @@ def check_table(file: str, prefix: str, table: Any, params: dict[str, Param],
     for key in table:
         if key not in params and key not in ignore:
             known = ", ".join(sorted(params)) or "none"
-            raise InputError(file, _join(prefix, key),
-                             f"unknown key in {where}; expected one of: {known}")
+            raise InputError(
+                file, _join(prefix, key), f"unknown key in {where}; expected one of: {known}"
+            )
     out = {}
     for key, param in params.items():
         if key in table:

@@ -20,8 +20,12 @@ log = logging.getLogger("taichi_lap")
 def model_for(scene: Scene, data) -> Model:
     """Upload a built model with the scene's environment and solver choices."""
     planes = [(p["point"], p["normal"], p["friction"]) for p in scene.planes]
-    return Model(data, planes=planes, iterations=scene.settings["iterations"],
-                 constraint_solver=scene.settings["constraint_solver"])
+    return Model(
+        data,
+        planes=planes,
+        iterations=scene.settings["iterations"],
+        constraint_solver=scene.settings["constraint_solver"],
+    )
 
 
 def scene_script(scene: Scene) -> ScriptedDevice | None:
@@ -93,8 +97,12 @@ class Session:
         self._start_state = self.state.snapshot()
         self.reset()
         self.settle_seconds = time.perf_counter() - start
-        log.info("%s settled for %.2f s of simulated time in %.1f s",
-                 self.scene.settings["name"], frames * self.dt, self.settle_seconds)
+        log.info(
+            "%s settled for %.2f s of simulated time in %.1f s",
+            self.scene.settings["name"],
+            frames * self.dt,
+            self.settle_seconds,
+        )
 
     def step(self, poses: dict[str, Pose] | None = None, buttons: dict[str, int] | None = None):
         """Place the tools (``buttons`` per tool name close graspers), advance one

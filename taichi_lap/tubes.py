@@ -46,11 +46,19 @@ class TubeMesh:
     - ``triangle_capacity = 2 * sides * (ring_capacity - 1)`` (index field: 3 per triangle)
     """
 
-    def __init__(self, point_capacity: int, tube_capacity: int = 1, *, sides: int = 12,
-                 max_level: int = 2, tension: float = 0.0):
+    def __init__(
+        self,
+        point_capacity: int,
+        tube_capacity: int = 1,
+        *,
+        sides: int = 12,
+        max_level: int = 2,
+        tension: float = 0.0,
+    ):
         if point_capacity < 2 or tube_capacity < 1 or sides < 3 or not 0 <= max_level <= 6:
-            raise ValueError("need point_capacity >= 2, tube_capacity >= 1, sides >= 3, "
-                             "0 <= max_level <= 6")
+            raise ValueError(
+                "need point_capacity >= 2, tube_capacity >= 1, sides >= 3, 0 <= max_level <= 6"
+            )
         self.point_capacity, self.tube_capacity = int(point_capacity), int(tube_capacity)
         self.sides, self.max_level, self.tension = int(sides), int(max_level), float(tension)
         bands = 2 ** (max_level + 1) - 1
@@ -91,9 +99,21 @@ class TubeMesh:
         self._group = g
         self._output = None
 
-    def update(self, points, radius, tube_range, tube_count: int, vertices, normals, indices, *,
-               vertex_offset: int = 0, index_offset: int = 0, epsilon: float = 0.1,
-               level: int | None = None) -> None:
+    def update(
+        self,
+        points,
+        radius,
+        tube_range,
+        tube_count: int,
+        vertices,
+        normals,
+        indices,
+        *,
+        vertex_offset: int = 0,
+        index_offset: int = 0,
+        epsilon: float = 0.1,
+        level: int | None = None,
+    ) -> None:
         """Tessellate the tubes into the output region (seed 001 §5). No host sync.
 
         ``points`` vec3 [m] and ``radius`` f32 [m] fields, ``tube_range`` an ivec2 field of
@@ -109,9 +129,12 @@ class TubeMesh:
             raise ValueError(f"tube_count {tube_count} exceeds the tube capacity")
         if points.shape[0] > self.point_capacity:
             raise ValueError(f"points field larger than point_capacity {self.point_capacity}")
-        if (vertex_offset < 0 or index_offset < 0
-                or vertex_offset + self.vertex_capacity > min(vertices.shape[0], normals.shape[0])
-                or index_offset + 3 * self.triangle_capacity > indices.shape[0]):
+        if (
+            vertex_offset < 0
+            or index_offset < 0
+            or vertex_offset + self.vertex_capacity > min(vertices.shape[0], normals.shape[0])
+            or index_offset + 3 * self.triangle_capacity > indices.shape[0]
+        ):
             raise ValueError("output fields too small for the tube capacity at these offsets")
         output = (id(vertices), id(normals), id(indices), vertex_offset, index_offset)
         if output != self._output:  # a new region: pad all of it once
@@ -119,8 +142,9 @@ class TubeMesh:
             self.padded_band_end[None] = self.ring_capacity - 1
             self._output = output
         gc.sample_tubes(self, points, radius, tube_range, tube_count, float(epsilon), level)
-        gc.skin_tubes(self, tube_count, level, vertices, normals, indices, vertex_offset,
-                      index_offset)
+        gc.skin_tubes(
+            self, tube_count, level, vertices, normals, indices, vertex_offset, index_offset
+        )
 
     def live_counts(self) -> tuple[int, int]:
         """(vertices, triangles) written by the last update; reads back (syncs)."""
@@ -146,9 +170,17 @@ class TessellationController:
     Deterministic: plain float arithmetic on the measurement sequence.
     """
 
-    def __init__(self, target_ms: float, *, min_level: int = 0, max_level: int = 2,
-                 epsilon_range: tuple[float, float] = (0.0, 0.5), gain: float = 0.5,
-                 deadband: float = 0.05, quality: float | None = None):
+    def __init__(
+        self,
+        target_ms: float,
+        *,
+        min_level: int = 0,
+        max_level: int = 2,
+        epsilon_range: tuple[float, float] = (0.0, 0.5),
+        gain: float = 0.5,
+        deadband: float = 0.05,
+        quality: float | None = None,
+    ):
         if not target_ms > 0 or not 0 <= min_level <= max_level:
             raise ValueError("need target_ms > 0 and 0 <= min_level <= max_level")
         if not 0.0 <= epsilon_range[0] < epsilon_range[1] <= 1.0 or not gain > 0 or deadband < 0:

@@ -57,18 +57,30 @@ class FrameWriter:
             os.close(fd)
             try:
                 if self.out.suffix.lower() == ".mp4":
-                    self._writer = imageio.get_writer(self._tmp, format="FFMPEG", fps=fps,
-                                                      codec="libx264", quality=7,
-                                                      macro_block_size=8)
+                    self._writer = imageio.get_writer(
+                        self._tmp,
+                        format="FFMPEG",
+                        fps=fps,
+                        codec="libx264",
+                        quality=7,
+                        macro_block_size=8,
+                    )
                 else:
                     self._writer = imageio.get_writer(self._tmp, format="GIF", duration=1.0 / fps)
             except Exception as exc:  # imageio raises several types when ffmpeg is missing
                 Path(self._tmp).unlink(missing_ok=True)
-                raise InputError("--out", str(out), f"an MP4 writer was expected (pip install "
-                                                    f"'taichi-lap[video]'), it failed: {exc}") from None
+                raise InputError(
+                    "--out",
+                    str(out),
+                    f"an MP4 writer was expected (pip install "
+                    f"'taichi-lap[video]'), it failed: {exc}",
+                ) from None
         elif self.out.exists() and not self.out.is_dir():
-            raise InputError("--out", str(out), "a folder, or a file ending in .mp4 or .gif, was "
-                                                "expected, found an existing file")
+            raise InputError(
+                "--out",
+                str(out),
+                "a folder, or a file ending in .mp4 or .gif, was expected, found an existing file",
+            )
 
     def write(self, image: np.ndarray):
         if self._writer is not None:

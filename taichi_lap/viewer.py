@@ -22,27 +22,42 @@ FRAME_TARGET_MS = 1000.0 / 30.0
 class Viewer:
     """A :class:`Session` drawn by a :class:`Renderer` into a GGUI window."""
 
-    def __init__(self, session: Session, renderer: Renderer, *, show_window: bool = True,
-                 title: str = "taichi-lap"):
+    def __init__(
+        self,
+        session: Session,
+        renderer: Renderer,
+        *,
+        show_window: bool = True,
+        title: str = "taichi-lap",
+    ):
         self.session = session
         self.renderer = renderer
-        self.window = ti.ui.Window(f"{title}: {session.scene.settings['name']}",
-                                   (renderer.width, renderer.height), show_window=show_window,
-                                   vsync=show_window)
+        self.window = ti.ui.Window(
+            f"{title}: {session.scene.settings['name']}",
+            (renderer.width, renderer.height),
+            show_window=show_window,
+            vsync=show_window,
+        )
         self.canvas = self.window.get_canvas()
         self.paused = False
         self.show_panel = show_window
         self._cursor = None
         mesh = renderer.mesh
-        self.tessellation = TessellationController(
-            FRAME_TARGET_MS, max_level=mesh.tubes[0].max_level) if mesh.tubes else None
-        self._defaults = {"headlight": renderer.params.intensity[None],
-                          "ambient": renderer.params.ambient[None]}
+        self.tessellation = (
+            TessellationController(FRAME_TARGET_MS, max_level=mesh.tubes[0].max_level)
+            if mesh.tubes
+            else None
+        )
+        self._defaults = {
+            "headlight": renderer.params.intensity[None],
+            "ambient": renderer.params.ambient[None],
+        }
 
     def handle_input(self, dt: float):
         """Move the endoscope: w/s/a/d/r/f and right-button drag."""
-        self._cursor = self.renderer.camera.track_window(self.window, dt, drag_button=ti.ui.RMB,
-                                                         last_cursor=self._cursor)
+        self._cursor = self.renderer.camera.track_window(
+            self.window, dt, drag_button=ti.ui.RMB, last_cursor=self._cursor
+        )
 
     def draw(self):
         """Render the session's state and show it with the panel. The tubes'
@@ -50,7 +65,8 @@ class Viewer:
         if self.tessellation is not None and "frame" in self.session.timings:
             mesh = self.renderer.mesh
             mesh.tube_epsilon, mesh.tube_level = self.tessellation.update(
-                self.session.timings["frame"])
+                self.session.timings["frame"]
+            )
         self.renderer.render(self.session.state, self.session.control)
         self.canvas.set_image(self.renderer.frame)
         if self.show_panel:
@@ -61,19 +77,26 @@ class Viewer:
         gui = self.window.get_gui()
         with gui.sub_window("taichi-lap", 0.01, 0.01, 0.28, 0.5):
             frame_ms = session.timings.get("frame", 0.0)
-            gui.text(f"frame {session.state.frame}  t = {session.state.time:.2f} s  "
-                     f"{1e3 / frame_ms if frame_ms > 0 else 0.0:.0f} fps")
+            gui.text(
+                f"frame {session.state.frame}  t = {session.state.time:.2f} s  "
+                f"{1e3 / frame_ms if frame_ms > 0 else 0.0:.0f} fps"
+            )
             for stage, ms in {**session.timings, **renderer.timings}.items():
                 gui.text(f"  {stage}: {ms:.1f} ms")
             if self.tessellation is not None:
-                gui.text(f"tubes: level {renderer.mesh.tube_level}, "
-                         f"epsilon {renderer.mesh.tube_epsilon:.2f}")
-            gui.text(f"particles {session.model.particle_count}  "
-                     f"clusters {session.model.cluster_total}")
+                gui.text(
+                    f"tubes: level {renderer.mesh.tube_level}, "
+                    f"epsilon {renderer.mesh.tube_epsilon:.2f}"
+                )
+            gui.text(
+                f"particles {session.model.particle_count}  clusters {session.model.cluster_total}"
+            )
             for index, tool in enumerate(session.scene.tools):
                 tip = session.control.tool_a[index]
-                gui.text(f"{tool['name']} ({tool['kind']}): tip "
-                         f"{tip[0]:+.3f} {tip[1]:+.3f} {tip[2]:+.3f} m")
+                gui.text(
+                    f"{tool['name']} ({tool['kind']}): tip "
+                    f"{tip[0]:+.3f} {tip[1]:+.3f} {tip[2]:+.3f} m"
+                )
             self.paused = gui.checkbox("pause", self.paused)
             if gui.button("reset"):
                 session.reset()
@@ -83,8 +106,9 @@ class Viewer:
             ambient = gui.checkbox("image-based light", params.ambient[None] > 0.0)
             params.ambient[None] = self._defaults["ambient"] if ambient else 0.0
             params.exposure[None] = gui.slider_float("exposure", params.exposure[None], 0.1, 4.0)
-            renderer.view = gui.slider_int(f"view: {VIEWS[renderer.view]}", renderer.view, 0,
-                                           len(VIEWS) - 1)
+            renderer.view = gui.slider_int(
+                f"view: {VIEWS[renderer.view]}", renderer.view, 0, len(VIEWS) - 1
+            )
             gui.text("LMB drag: tool, q/e: tool depth")
             gui.text("RMB drag: turn scope, w/s a/d r/f: move scope")
 

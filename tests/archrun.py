@@ -29,7 +29,12 @@ def run_on_arch(arch: str, target: str, **kwargs) -> dict[str, np.ndarray]:
         env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
         proc = subprocess.run(
             [sys.executable, "-m", "tests.archrun", arch, target, json.dumps(kwargs), str(out)],
-            cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
         if proc.returncode == 3:
             pytest.skip(f"backend {arch} is not available here: {proc.stderr.strip()[-300:]}")
         if proc.returncode != 0:

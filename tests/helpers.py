@@ -11,8 +11,14 @@ from taichi_lap.session import Session
 def simulation(organs: list[dict], **settings):
     """(scene, data, model, state, control, solver) for a small in-memory scene."""
     session = Session(from_tables(organs, **settings), use_cache=False, progress=False)
-    return (session.scene, session.data, session.model, session.state, session.control,
-            session.solver)
+    return (
+        session.scene,
+        session.data,
+        session.model,
+        session.state,
+        session.control,
+        session.solver,
+    )
 
 
 def state_after(organs: list[dict], frames: int, **settings) -> dict:
@@ -24,10 +30,18 @@ def state_after(organs: list[dict], frames: int, **settings) -> dict:
     return {"x": state.x.to_numpy(), "eta": state.eta.to_numpy()}
 
 
-BOX = {"name": "block", "model": "tet_clusters",
-       "geometry": {"generator": "box", "half_extents": [0.02, 0.012, 0.015]},
-       "material": {"particle_spacing": 0.004, "stiffness": 0.5, "damping": 0.0,
-                    "recover_rate": 0.05, "eta_on_contact": 1.0}}
+BOX = {
+    "name": "block",
+    "model": "tet_clusters",
+    "geometry": {"generator": "box", "half_extents": [0.02, 0.012, 0.015]},
+    "material": {
+        "particle_spacing": 0.004,
+        "stiffness": 0.5,
+        "damping": 0.0,
+        "recover_rate": 0.05,
+        "eta_on_contact": 1.0,
+    },
+}
 
 
 def wait_for(predicate, timeout: float) -> bool:

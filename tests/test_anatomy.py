@@ -33,9 +33,11 @@ def assert_closed(mesh: TriangleMesh):
 
 # ------------------------------------------------------------------ registry
 
+
 def _kind_ok(kind, v, p):
     def num_ok(x):
         return (p.lo is None or x >= p.lo) and (p.hi is None or x <= p.hi)
+
     if kind == "float":
         return isinstance(v, float) and num_ok(v)
     if kind == "int":
@@ -52,8 +54,19 @@ def _kind_ok(kind, v, p):
 
 
 def test_registry_defaults_have_declared_kinds_and_ranges():
-    expected = {"liver", "liver_vessel", "tube", "polyp", "sheet", "ellipsoid", "vessel",
-                "intestine", "sphere", "box", "icosphere"}
+    expected = {
+        "liver",
+        "liver_vessel",
+        "tube",
+        "polyp",
+        "sheet",
+        "ellipsoid",
+        "vessel",
+        "intestine",
+        "sphere",
+        "box",
+        "icosphere",
+    }
     assert expected <= set(GENERATORS)
     for name, gen in GENERATORS.items():
         assert gen.name == name and gen.doc and gen.produces in ("solid", "surface", "spring_sheet")
@@ -84,6 +97,7 @@ def test_build_type_and_determinism(name):
 
 # ------------------------------------------------------------------ intestine
 
+
 def test_intestine_rest_geometry():
     p = defaults("intestine")
     sheet = build("intestine")
@@ -92,7 +106,9 @@ def test_intestine_rest_geometry():
     gut = rows[0]
     seg = np.linalg.norm(np.diff(gut, axis=0), axis=1)
     assert abs(seg.sum() - 4.0) < 0.01 * 4.0
-    assert seg.max() < 1.2 * seg.mean() and seg.min() > 0.3 * seg.mean()  # chords shorten at fold tips
+    assert (
+        seg.max() < 1.2 * seg.mean() and seg.min() > 0.3 * seg.mean()
+    )  # chords shorten at fold tips
     assert np.abs(np.hypot(gut[:, 0], gut[:, 1]) - 0.15).max() < 1e-3
     # folds do not intersect: points >= 0.25 m apart along the gut stay >= 2 r apart
     s = tubes.arc_length(gut)
@@ -117,11 +133,12 @@ def test_intestine_other_parameters():
 
 # ------------------------------------------------------------------ closed meshes
 
+
 def test_tube_wall_is_closed_with_annulus_volume():
     for bend in (0.0, 0.4, 1.2):
         mesh = build("tube", bend=bend)
         t = assert_closed(mesh)
-        exact = np.pi * (0.022 ** 2 - 0.017 ** 2) * 0.15
+        exact = np.pi * (0.022**2 - 0.017**2) * 0.15
         assert abs(t.volume - exact) < 0.05 * exact
         assert np.abs(mesh.vertices.min(0) + mesh.vertices.max(0)).max() < 1e-9  # centred
     # inner wall faces the lumen: at the straight tube, normals of faces near r_in point at the axis
@@ -139,9 +156,9 @@ def test_tube_wall_is_closed_with_annulus_volume():
 
 def test_icosphere_and_ellipsoid_volumes():
     t = assert_closed(build("icosphere"))
-    assert abs(t.volume / (4 / 3 * np.pi * 0.03 ** 3) - 1) < 0.03
+    assert abs(t.volume / (4 / 3 * np.pi * 0.03**3) - 1) < 0.03
     assert np.allclose(np.linalg.norm(t.vertices, axis=1), 0.03, rtol=0.02)
-    assert len(t.faces) == 20 * 4 ** 2
+    assert len(t.faces) == 20 * 4**2
     radii = np.array([0.015, 0.010, 0.012])
     t = assert_closed(build("ellipsoid"))
     assert abs(t.volume / (4 / 3 * np.pi * radii.prod()) - 1) < 0.03
@@ -156,7 +173,7 @@ def test_vessel_tube_follows_spline():
     centre = tubes.catmull_rom(pts, 64)
     length = tubes.arc_length(centre)[-1]
     assert 0.11 < length < 0.13
-    exact = np.pi * 0.003 ** 2 * length + 4 / 3 * np.pi * 0.003 ** 3
+    exact = np.pi * 0.003**2 * length + 4 / 3 * np.pi * 0.003**3
     assert abs(t.volume - exact) < 0.06 * exact
     d = tubes.TubeTree([(centre, 0.003)])(mesh.vertices)
     assert np.abs(d).max() < 0.05 * 0.003
@@ -180,6 +197,7 @@ def test_sheet_is_open_unbiased_grid_facing_up():
 
 # ------------------------------------------------------------------ signed distances
 
+
 def test_sphere_box_exact_values():
     sph = build("sphere").sdf
     p = np.array([[0, 0, 0], [0.05, 0, 0], [0, -0.01, 0], [0.03, 0.04, 0.0]])
@@ -197,7 +215,7 @@ def test_sdf_helpers():
     brute = (np.linalg.norm(pts[:, None] - centres[None], axis=2) - radii).min(1)
     d = sdf.round_cones(pts, a, b, [0.02], [0.01])[:, 0]
     assert np.array_equal(d < 0, brute < 0)
-    assert np.abs(d - brute)[brute > 0].max() < 1e-6        # exact outside
+    assert np.abs(d - brute)[brute > 0].max() < 1e-6  # exact outside
     d1, d2 = sdf.sphere(pts, (0, 0, 0), 0.05), sdf.box(pts, (0.05, 0, 0), (0.02, 0.02, 0.02))
     assert (sdf.smooth_union(d1, d2, 0.01) <= np.minimum(d1, d2) + 1e-15).all()
     g = sdf.gradient(lambda q: sdf.sphere(q, (0, 0, 0), 0.05), pts)
@@ -208,17 +226,26 @@ def test_polyp_shape():
     solid = build("polyp")
     f = solid.sdf
     top = 0.006 + 2 * 0.008
-    p = np.array([[0, 0.001, 0], [0, 0.014, 0], [0, -0.001, 0], [0.005, 0.001, 0],
-                  [0, top, 0], [0.008, 0.014, 0]])
+    p = np.array(
+        [
+            [0, 0.001, 0],
+            [0, 0.014, 0],
+            [0, -0.001, 0],
+            [0.005, 0.001, 0],
+            [0, top, 0],
+            [0.008, 0.014, 0],
+        ]
+    )
     d = f(p)
     assert d[0] < 0 and d[1] < 0 and d[2] > 0 and d[3] > 0
-    assert abs(d[4]) < 1e-9 and abs(d[5]) < 1e-9               # top of head, head equator
+    assert abs(d[4]) < 1e-9 and abs(d[5]) < 1e-9  # top of head, head equator
     grid = RNG.uniform(solid.bounds[0] - 0.005, solid.bounds[1] + 0.005, (20000, 3))
     inside = grid[f(grid) < 0]
     assert (inside >= solid.bounds[0]).all() and (inside <= solid.bounds[1]).all()
 
 
 # ------------------------------------------------------------------ liver
+
 
 def _bcc(lo, hi, h):
     axes = [np.arange(a, b + h, h) for a, b in zip(lo, hi)]
@@ -237,7 +264,7 @@ def test_liver_volume_size_and_bounds(liver_lattice):
     solid, pts, d = liver_lattice
     inside = pts[d < 0]
     # a BCC lattice of 2.9 mm holds 2 points per cube: N = 2 V / h^3 (seed 002 Table 1: 146090)
-    volume = len(inside) * 0.0029 ** 3 / 2
+    volume = len(inside) * 0.0029**3 / 2
     assert 1.6e-3 < volume < 1.95e-3
     assert 0.96 * 146090 < len(inside) < 1.04 * 146090
     lo, hi = inside.min(0), inside.max(0)
@@ -245,11 +272,13 @@ def test_liver_volume_size_and_bounds(liver_lattice):
     assert 0.22 < size[0] < 0.27 and 0.08 < size[1] < 0.13 and 0.13 < size[2] < 0.17
     assert (lo >= solid.bounds[0]).all() and (hi <= solid.bounds[1]).all()
     assert (lo - solid.bounds[0]).max() < 0.004 and (solid.bounds[1] - hi).max() < 0.004
-    assert np.linalg.norm(0.5 * (lo + hi)) < 0.02                # centred near the origin
+    assert np.linalg.norm(0.5 * (lo + hi)) < 0.02  # centred near the origin
+
     # large right lobe (-x), thin tapering left lobe (+x)
     def thickness(x):
         col = inside[np.abs(inside[:, 0] - x) < 0.003]
         return np.ptp(col[:, 1])
+
     assert thickness(-0.05) > 1.8 * thickness(0.08)
 
 
@@ -292,7 +321,7 @@ def test_liver_vessels_inside_liver_and_sdf_matches_mesh(vessel):
         dv = solid.sdf(verts)
         assert dv.max() < 0.05 * rq.min()
         near.append(np.abs(dv) < 0.05 * rq.min())
-        assert (-liver_mod.liver_sdf(1.0)(q) >= rq + 0.002 - 1e-9).all()   # the ring centres too
+        assert (-liver_mod.liver_sdf(1.0)(q) >= rq + 0.002 - 1e-9).all()  # the ring centres too
     assert np.concatenate(near).mean() > 0.5
     assert np.abs(d).min() < 1e-6 and len(v) == sum(len(n) for n in near)
     # the k-d tree pruning keeps the sign everywhere, exact values near the surface, a lower bound far away
@@ -308,8 +337,13 @@ def test_liver_vessels_inside_liver_and_sdf_matches_mesh(vessel):
 def test_vessel_radii_and_portal_triad():
     def radii(name):
         return np.concatenate([r for _, r, _ in liver_mod.vessel_branches(name)])
-    for name, (rmax, rmin) in {"portal_vein": (0.006, 0.002), "hepatic_vein": (0.005, 0.002),
-                               "hepatic_artery": (0.0025, 0.001), "bile_duct": (0.003, 0.0015)}.items():
+
+    for name, (rmax, rmin) in {
+        "portal_vein": (0.006, 0.002),
+        "hepatic_vein": (0.005, 0.002),
+        "hepatic_artery": (0.0025, 0.001),
+        "bile_duct": (0.003, 0.0015),
+    }.items():
         r = radii(name)
         assert abs(r.max() - rmax) < 1e-9 and abs(r.min() - rmin) < 2e-4, name
     # the artery and the bile duct run beside the portal branches without crossing them
@@ -319,7 +353,7 @@ def test_vessel_radii_and_portal_triad():
         for q, r, _ in liver_mod.vessel_branches(name):
             gap = np.linalg.norm(q[:, None] - pp[None], axis=2) - r[:, None] - pr[None]
             assert gap.min() > -1e-4
-            assert np.median(gap.min(1)) < 0.002                   # and stay close to them
+            assert np.median(gap.min(1)) < 0.002  # and stay close to them
     # three hepatic veins start at one confluence
     roots = [p[0] for p, _, k in liver_mod.vessel_branches("hepatic_vein") if k < 0]
     assert len(roots) == 3 and np.ptp(np.array(roots), axis=0).max() < 1e-12

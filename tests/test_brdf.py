@@ -12,7 +12,13 @@ import math
 import numpy as np
 import taichi as ti
 
-from taichi_lap.kernels.brdf import fresnel, fresnel_weight, ggx_distance, smith_visibility, surface_brdf_cos
+from taichi_lap.kernels.brdf import (
+    fresnel,
+    fresnel_weight,
+    ggx_distance,
+    smith_visibility,
+    surface_brdf_cos,
+)
 
 N_THETA, N_PHI = 1024, 256
 ROUGHNESS_GRID = np.round(np.linspace(0.1, 1.0, 10), 2)
@@ -25,7 +31,14 @@ def half_vector_cell(i, j, alpha_grid):
     u = (i + 0.5) / N_THETA
     t = ti.tan(0.5 * math.pi * u)
     theta = ti.atan2(alpha_grid * t, 1.0)
-    d_theta = alpha_grid * 0.5 * math.pi * (1.0 + t * t) / (1.0 + alpha_grid * alpha_grid * t * t) / N_THETA
+    d_theta = (
+        alpha_grid
+        * 0.5
+        * math.pi
+        * (1.0 + t * t)
+        / (1.0 + alpha_grid * alpha_grid * t * t)
+        / N_THETA
+    )
     phi = 2.0 * math.pi * (j + 0.5) / N_PHI
     s = ti.sin(theta)
     h = ti.Vector([s * ti.cos(phi), s * ti.sin(phi), ti.cos(theta)])
@@ -49,7 +62,9 @@ def ggx_projected_area_rows(alphas: ti.types.ndarray(), rows: ti.types.ndarray()
 
 
 @ti.kernel
-def specular_albedo_rows(alphas: ti.types.ndarray(), cos_views: ti.types.ndarray(), rows: ti.types.ndarray()):
+def specular_albedo_rows(
+    alphas: ti.types.ndarray(), cos_views: ti.types.ndarray(), rows: ti.types.ndarray()
+):
     """rows[c, i] = ring i of ∫ D V n·l dl with F = 1 (Eq. 8 with Eq. 9, 10), dl = 4 v·h dh."""
     for c, i in ti.ndrange(alphas.shape[0], N_THETA):
         alpha = alphas[c]
@@ -60,7 +75,14 @@ def specular_albedo_rows(alphas: ti.types.ndarray(), cos_views: ti.types.ndarray
             v_dot_h = v.dot(h)
             l = 2.0 * v_dot_h * h - v
             if v_dot_h > 0.0 and l.z > 0.0:
-                total += ggx_distance(h.z, alpha) * smith_visibility(v.z, l.z, alpha) * l.z * 4.0 * v_dot_h * d_omega
+                total += (
+                    ggx_distance(h.z, alpha)
+                    * smith_visibility(v.z, l.z, alpha)
+                    * l.z
+                    * 4.0
+                    * v_dot_h
+                    * d_omega
+                )
         rows[c, i] = total
 
 
@@ -77,7 +99,9 @@ def surface_albedo_rows(params: ti.types.ndarray(), rows: ti.types.ndarray()):
             v_dot_h = v.dot(h)
             if v_dot_h > 0.0:
                 l = 2.0 * v_dot_h * h - v
-                f = surface_brdf_cos(n, v, l, ti.Vector([1.0, 1.0, 1.0]), params[c, 1], params[c, 2], params[c, 3])
+                f = surface_brdf_cos(
+                    n, v, l, ti.Vector([1.0, 1.0, 1.0]), params[c, 1], params[c, 2], params[c, 3]
+                )
                 total += f * 4.0 * v_dot_h * d_omega
         for k in ti.static(range(3)):
             rows[c, i, k] = total[k]
@@ -92,8 +116,12 @@ def brdf_both_ways(dirs: ti.types.ndarray(), params: ti.types.ndarray(), out: ti
         v = ti.Vector([dirs[c, 1, 0], dirs[c, 1, 1], dirs[c, 1, 2]])
         l = ti.Vector([dirs[c, 2, 0], dirs[c, 2, 1], dirs[c, 2, 2]])
         albedo = ti.Vector([params[c, 0], params[c, 1], params[c, 2]])
-        forward = surface_brdf_cos(n, v, l, albedo, params[c, 3], params[c, 4], params[c, 5]) / n.dot(l)
-        backward = surface_brdf_cos(n, l, v, albedo, params[c, 3], params[c, 4], params[c, 5]) / n.dot(v)
+        forward = surface_brdf_cos(
+            n, v, l, albedo, params[c, 3], params[c, 4], params[c, 5]
+        ) / n.dot(l)
+        backward = surface_brdf_cos(
+            n, l, v, albedo, params[c, 3], params[c, 4], params[c, 5]
+        ) / n.dot(v)
         for k in ti.static(range(3)):
             out[c, 0, k] = forward[k]
             out[c, 1, k] = backward[k]
@@ -119,7 +147,9 @@ def test_ggx_distance_projects_to_unit_area():
     (measured: 1.2e-4 at 0.05, under 1e-6 from 0.1 on)."""
     roughness = np.array([0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0], np.float32)
     alphas = roughness * roughness
-    area = row_integrals(ggx_projected_area_rows, np.zeros((len(alphas), N_THETA), np.float32), alphas)
+    area = row_integrals(
+        ggx_projected_area_rows, np.zeros((len(alphas), N_THETA), np.float32), alphas
+    )
     assert np.abs(area - 1.0).max() < 1e-3, dict(zip(roughness.tolist(), area.tolist()))
 
 
@@ -131,7 +161,9 @@ def test_white_furnace_specular_lobe_loses_energy_never_gains():
     r, angle = np.meshgrid(ROUGHNESS_GRID, VIEW_ANGLES, indexing="ij")
     alphas = (r * r).ravel().astype(np.float32)
     cos_views = np.cos(np.radians(angle)).ravel().astype(np.float32)
-    albedo = row_integrals(specular_albedo_rows, np.zeros((len(alphas), N_THETA), np.float32), alphas, cos_views)
+    albedo = row_integrals(
+        specular_albedo_rows, np.zeros((len(alphas), N_THETA), np.float32), alphas, cos_views
+    )
     albedo = albedo.reshape(r.shape)
     assert albedo.max() <= 1.0 + 1e-3, albedo.max()
     assert albedo[0, 0] > 0.99  # smooth, normal view: almost all energy comes back
@@ -144,11 +176,17 @@ def test_white_furnace_surface_reflects_at_most_what_it_receives():
     metal (roughness 0.1) seen head-on: f32 n·h near 1 has steps of 6e-8, comparable to
     1 - n·h inside so narrow a lobe; the quadrature adds < 1e-4 (against a 4x finer grid).
     Disney diffuse alone can exceed 1; the Fresnel energy factor of Eq. 12 keeps it below."""
-    cases = [(math.cos(math.radians(a)), r, m, w)
-             for a in (0.0, 30.0, 60.0, 75.0, 85.0) for r in (0.1, 0.3, 0.5, 0.7, 1.0)
-             for m in (0.0, 1.0) for w in (0.0, 1.0)]
+    cases = [
+        (math.cos(math.radians(a)), r, m, w)
+        for a in (0.0, 30.0, 60.0, 75.0, 85.0)
+        for r in (0.1, 0.3, 0.5, 0.7, 1.0)
+        for m in (0.0, 1.0)
+        for w in (0.0, 1.0)
+    ]
     params = np.array(cases, np.float32)
-    albedo = row_integrals(surface_albedo_rows, np.zeros((len(params), N_THETA, 3), np.float32), params)
+    albedo = row_integrals(
+        surface_albedo_rows, np.zeros((len(params), N_THETA, 3), np.float32), params
+    )
     worst = int(np.argmax(albedo.max(axis=1)))
     assert albedo.max() <= 1.0 + 2e-3, (cases[worst], albedo[worst])
     assert albedo.min() > 0.25
@@ -169,9 +207,17 @@ def test_brdf_is_reciprocal_in_light_and_view():
         d *= np.sign(np.sum(d * n, axis=1, keepdims=True))  # flip into n's hemisphere
         dirs.append(d)
     dirs = np.stack(dirs, axis=1).astype(np.float32)
-    cos_min = np.minimum(np.sum(dirs[:, 1] * dirs[:, 0], axis=1), np.sum(dirs[:, 2] * dirs[:, 0], axis=1))
-    params = np.concatenate([rng.uniform(0, 1, (count, 3)), rng.uniform(0.1, 1, (count, 1)),
-                             rng.uniform(0, 1, (count, 2))], axis=1).astype(np.float32)
+    cos_min = np.minimum(
+        np.sum(dirs[:, 1] * dirs[:, 0], axis=1), np.sum(dirs[:, 2] * dirs[:, 0], axis=1)
+    )
+    params = np.concatenate(
+        [
+            rng.uniform(0, 1, (count, 3)),
+            rng.uniform(0.1, 1, (count, 1)),
+            rng.uniform(0, 1, (count, 2)),
+        ],
+        axis=1,
+    ).astype(np.float32)
     out = np.zeros((count, 2, 3), np.float32)
     brdf_both_ways(dirs, params, out)
     keep = cos_min > 1e-3  # directions on the horizon divide by ~0

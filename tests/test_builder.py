@@ -23,7 +23,7 @@ def test_lattice_clusters_cover_every_particle_and_overlap_by_one_radius():
     assert owners.min() >= 1
     assert owners.mean() > 2.5  # overlapping: each particle is shared
     for k in range(c.count):
-        members = c.members[c.start[k]:c.start[k + 1]]
+        members = c.members[c.start[k] : c.start[k + 1]]
         assert np.linalg.norm(points[members] - c.center[k], axis=1).max() <= radius * (1 + 1e-9)
     gaps = np.linalg.norm(c.center[:, None] - c.center[None], axis=2)
     np.fill_diagonal(gaps, np.inf)
@@ -31,10 +31,20 @@ def test_lattice_clusters_cover_every_particle_and_overlap_by_one_radius():
 
 
 def test_auto_radius_gives_fifty_particles_per_cluster_count():
-    session = Session(scene_mod.from_tables([{
-        "name": "ball", "model": "tet_clusters", "geometry": {"generator": "sphere", "radius": 0.05},
-        "material": {"particle_spacing": 0.004, "organ_cluster": False}}]),
-        use_cache=False, progress=False)
+    session = Session(
+        scene_mod.from_tables(
+            [
+                {
+                    "name": "ball",
+                    "model": "tet_clusters",
+                    "geometry": {"generator": "sphere", "radius": 0.05},
+                    "material": {"particle_spacing": 0.004, "organ_cluster": False},
+                }
+            ]
+        ),
+        use_cache=False,
+        progress=False,
+    )
     ratio = session.model.particle_count / session.model.cluster_total
     assert 38 < ratio < 62
 
@@ -44,7 +54,7 @@ def test_joined_organs_share_clusters():
     liver, vein = data.organs[0], data.organs[1]
     shared = 0
     for c in range(*vein.clusters):
-        members = data.cluster_member[data.cluster_start[c]:data.cluster_start[c + 1]]
+        members = data.cluster_member[data.cluster_start[c] : data.cluster_start[c + 1]]
         in_liver = (members >= liver.particles[0]) & (members < liver.particles[1])
         shared += bool(in_liver.any() and (~in_liver).any())
     assert shared >= 3
@@ -109,15 +119,26 @@ def test_a_changed_builder_function_misses_the_cache(monkeypatch):
     sources = builder.build_sources()
     changed = next(p for p in sources if p.name == "clusters.py")
     read_bytes = Path.read_bytes
-    monkeypatch.setattr(Path, "read_bytes",
-                        lambda self: read_bytes(self) + b"#" * (self == changed))
+    monkeypatch.setattr(
+        Path, "read_bytes", lambda self: read_bytes(self) + b"#" * (self == changed)
+    )
     assert builder.scene_digest(scene) != before
 
 
 def test_the_cache_key_covers_every_module_a_build_reads():
     names = {path.name for path in builder.build_sources()}
-    assert {"organs.py", "clusters.py", "tetrahedralize.py", "truss.py", "sheets.py",
-            "meshfile.py", "liver.py", "rectum.py", "intestine.py", "sdf.py"} <= names
+    assert {
+        "organs.py",
+        "clusters.py",
+        "tetrahedralize.py",
+        "truss.py",
+        "sheets.py",
+        "meshfile.py",
+        "liver.py",
+        "rectum.py",
+        "intestine.py",
+        "sdf.py",
+    } <= names
 
 
 def test_two_runs_of_a_scene_are_identical():

@@ -37,15 +37,18 @@ def bounding_spheres(corners):
     a, u, v = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
     w = np.cross(u, v)
     w2 = (w * w).sum(axis=1)[:, None]
-    circumcenter = a + ((u * u).sum(axis=1)[:, None] * np.cross(v, w)
-                        + (v * v).sum(axis=1)[:, None] * np.cross(w, u)) / (2.0 * w2)
+    circumcenter = a + (
+        (u * u).sum(axis=1)[:, None] * np.cross(v, w)
+        + (v * v).sum(axis=1)[:, None] * np.cross(w, u)
+    ) / (2.0 * w2)
     edge = np.roll(corners, -1, axis=1) - corners
     length = np.linalg.norm(edge, axis=2)
     rows, longest = np.arange(len(corners)), length.argmax(axis=1)
     sq = np.sort(length, axis=1) ** 2
     obtuse = sq[:, 2] >= sq[:, 0] + sq[:, 1]
-    center = np.where(obtuse[:, None], corners[rows, longest] + 0.5 * edge[rows, longest],
-                      circumcenter)
+    center = np.where(
+        obtuse[:, None], corners[rows, longest] + 0.5 * edge[rows, longest], circumcenter
+    )
     return center, np.linalg.norm(corners - center[:, None], axis=2).max(axis=1)
 
 
@@ -113,21 +116,36 @@ def dual_curvature_of(organ):
     _, data, model, state, _, _ = simulation([organ], gravity=[0, 0, 0])
     collision = TissueCollision(model, tools=False, tissue_pairs=False)
     collision.update_spheres(state)
-    return (collision.curvature.to_numpy(), triangle_areas(data, data.rest_position),
-            collision.tri_neighbour.to_numpy())
+    return (
+        collision.curvature.to_numpy(),
+        triangle_areas(data, data.rest_position),
+        collision.tri_neighbour.to_numpy(),
+    )
 
 
 def test_dual_curvature_is_zero_on_a_flat_patch_and_one_over_r_squared_on_a_sphere():
-    sheet = {"name": "fascia", "model": "fascia_lra",
-             "geometry": {"generator": "sheet", "width": 0.04, "depth": 0.04, "resolution_x": 8,
-                          "resolution_z": 8, "sag": 0.0}}
+    sheet = {
+        "name": "fascia",
+        "model": "fascia_lra",
+        "geometry": {
+            "generator": "sheet",
+            "width": 0.04,
+            "depth": 0.04,
+            "resolution_x": 8,
+            "resolution_z": 8,
+            "sag": 0.0,
+        },
+    }
     k, area, neighbour = dual_curvature_of(sheet)
     interior = (neighbour >= 0).all(axis=1)
     assert interior.sum() > 50
     assert np.abs(k * area).max() < 1e-5  # angle deficit [rad]
     radius = 0.02
-    ball = {"name": "ball", "model": "shape_matching",
-            "geometry": {"generator": "icosphere", "radius": radius, "subdivisions": 3}}
+    ball = {
+        "name": "ball",
+        "model": "shape_matching",
+        "geometry": {"generator": "icosphere", "radius": radius, "subdivisions": 3},
+    }
     k, area, _ = dual_curvature_of(ball)
     assert np.median(k * radius**2) == pytest.approx(1.0, abs=0.05)
     assert (k * area).sum() == pytest.approx(4.0 * math.pi, rel=0.02)  # Gauss-Bonnet
@@ -160,26 +178,38 @@ def test_lazy_update_skips_recomputation_under_delta_and_recomputes_above(box):
 
 
 @ti.kernel
-def exchange(v_t: ti.types.ndarray(dtype=ti.math.vec3), v_u: ti.types.ndarray(dtype=ti.math.vec3),
-             normal: ti.types.ndarray(dtype=ti.math.vec3), w_t: ti.types.ndarray(),
-             w_u: ti.types.ndarray(), out_t: ti.types.ndarray(dtype=ti.math.vec3),
-             out_u: ti.types.ndarray(dtype=ti.math.vec3)):
+def exchange(
+    v_t: ti.types.ndarray(dtype=ti.math.vec3),
+    v_u: ti.types.ndarray(dtype=ti.math.vec3),
+    normal: ti.types.ndarray(dtype=ti.math.vec3),
+    w_t: ti.types.ndarray(),
+    w_u: ti.types.ndarray(),
+    out_t: ti.types.ndarray(dtype=ti.math.vec3),
+    out_u: ti.types.ndarray(dtype=ti.math.vec3),
+):
     for i in range(v_t.shape[0]):
-        out_t[i], out_u[i] = tissue_collision.exchange_impulse(v_t[i], v_u[i], normal[i], w_t[i],
-                                                               w_u[i])
+        out_t[i], out_u[i] = tissue_collision.exchange_impulse(
+            v_t[i], v_u[i], normal[i], w_t[i], w_u[i]
+        )
 
 
 @ti.kernel
-def pair_translation(c: ti.types.ndarray(dtype=ti.math.vec3), r: ti.types.ndarray(),
-                     disp: ti.types.ndarray(dtype=ti.math.vec3), w: ti.types.ndarray(),
-                     out: ti.types.ndarray(dtype=ti.math.vec3)):
+def pair_translation(
+    c: ti.types.ndarray(dtype=ti.math.vec3),
+    r: ti.types.ndarray(),
+    disp: ti.types.ndarray(dtype=ti.math.vec3),
+    w: ti.types.ndarray(),
+    out: ti.types.ndarray(dtype=ti.math.vec3),
+):
     for i in range(c.shape[0] // 2):
         a, b = 2 * i, 2 * i + 1
         up = ti.Vector([0.0, 1.0, 0.0])
-        _, out[a] = tissue_collision.sphere_pair_translation(c[a], r[a], disp[a], w[a], c[b], r[b],
-                                                             disp[b], w[b], up)
-        _, out[b] = tissue_collision.sphere_pair_translation(c[b], r[b], disp[b], w[b], c[a], r[a],
-                                                             disp[a], w[a], up)
+        _, out[a] = tissue_collision.sphere_pair_translation(
+            c[a], r[a], disp[a], w[a], c[b], r[b], disp[b], w[b], up
+        )
+        _, out[b] = tissue_collision.sphere_pair_translation(
+            c[b], r[b], disp[b], w[b], c[a], r[a], disp[a], w[a], up
+        )
 
 
 def test_impulse_exchange_conserves_momentum_and_a_tool_takes_none_of_it():
@@ -194,8 +224,9 @@ def test_impulse_exchange_conserves_momentum_and_a_tool_takes_none_of_it():
     exchange(v_t, v_u, normal, w_t, w_u, out_t, out_u)
     tool = w_u == 0.0
     m_t, m_u = 1.0 / w_t[~tool, None], 1.0 / w_u[~tool, None]
-    assert np.allclose(m_t * out_t[~tool] + m_u * out_u[~tool], m_t * v_t[~tool] + m_u * v_u[~tool],
-                       atol=1e-4)
+    assert np.allclose(
+        m_t * out_t[~tool] + m_u * out_u[~tool], m_t * v_t[~tool] + m_u * v_u[~tool], atol=1e-4
+    )
     assert np.array_equal(out_u[tool], v_u[tool])  # the kinematic tool keeps its velocity
     approach = np.einsum("ij,ij->i", out_t - out_u, normal)
     assert approach.min() > -1e-5  # no approaching normal velocity is left
@@ -219,14 +250,25 @@ def sheet_run(method: str, speed: float):
     down at ``speed`` [m/s] until its axis is 3 mm below the sheet's rest top, then
     held; returns the final axis height and the heights of the top-face particles
     under the axis [m]."""
-    sheet = {"name": "sheet", "model": "tet_clusters",
-             "geometry": {"generator": "box", "half_extents": [0.02, 0.001, 0.015]},
-             "material": {"particle_spacing": 0.001, "stiffness": 0.5, "damping": 1.0,
-                          "recover_rate": 0.05, "eta_on_contact": 0.7},
-             "attachments": [{"kind": "fixed", "box_min": [-1, -1, -1], "box_max": [-0.018, 1, 1]},
-                             {"kind": "fixed", "box_min": [0.018, -1, -1], "box_max": [1, 1, 1]}]}
-    _, data, model, state, no_tools, solver = simulation([sheet], gravity=[0, 0, 0],
-                                                         shape_iterations=5)
+    sheet = {
+        "name": "sheet",
+        "model": "tet_clusters",
+        "geometry": {"generator": "box", "half_extents": [0.02, 0.001, 0.015]},
+        "material": {
+            "particle_spacing": 0.001,
+            "stiffness": 0.5,
+            "damping": 1.0,
+            "recover_rate": 0.05,
+            "eta_on_contact": 0.7,
+        },
+        "attachments": [
+            {"kind": "fixed", "box_min": [-1, -1, -1], "box_max": [-0.018, 1, 1]},
+            {"kind": "fixed", "box_min": [0.018, -1, -1], "box_max": [1, 1, 1]},
+        ],
+    }
+    _, data, model, state, no_tools, solver = simulation(
+        [sheet], gravity=[0, 0, 0], shape_iterations=5
+    )
     solver.collision = TissueCollision(model, method=method, tissue_pairs=False)
     tools = Control()
     radius, y, y_end = 0.0025, 0.001 + 0.0025 + 0.0005, -0.002
@@ -254,10 +296,16 @@ def test_capsule_at_quarter_metre_per_second_does_not_tunnel_through_a_2mm_sheet
 
 def two_blocks():
     """Two blocks 0.5 mm apart, one above the other: (data, model, state, empty Control)."""
-    lower = {**BOX, "name": "lower", "geometry": {"generator": "box",
-                                                  "half_extents": [0.012, 0.006, 0.01]}}
-    upper = {**lower, "name": "upper", "geometry": {**lower["geometry"],
-                                                    "translate": [0.0, 0.0125, 0.0]}}
+    lower = {
+        **BOX,
+        "name": "lower",
+        "geometry": {"generator": "box", "half_extents": [0.012, 0.006, 0.01]},
+    }
+    upper = {
+        **lower,
+        "name": "upper",
+        "geometry": {**lower["geometry"], "translate": [0.0, 0.0125, 0.0]},
+    }
     _, data, model, state, control, _ = simulation([lower, upper], gravity=[0, 0, 0])
     return data, model, state, control
 
@@ -307,8 +355,11 @@ def test_triangles_moving_beyond_the_hash_bound_in_a_substep_are_reported(blocks
     assert "may be missed" in caplog.text
 
 
-UNION = [("control",), ("sphere", [0.0, -0.004, 0.015], 0.004),
-         ("box", [0.006, -0.002, 0.03], [0.003, 0.003, 0.004])]
+UNION = [
+    ("control",),
+    ("sphere", [0.0, -0.004, 0.015], 0.004),
+    ("box", [0.006, -0.002, 0.03], [0.003, 0.003, 0.004]),
+]
 """A tool as a union: the Control capsule, a sphere and a box in the tool frame [m]."""
 
 
@@ -343,16 +394,21 @@ def compute_collision_case(method: str = "circumsphere") -> dict:
         collision.begin_frame(tools)
         collision.step(state, tools)
     p2, _ = pressed_blocks(*two_blocks(), method, 2)
-    return {"p": state.p.to_numpy(), "collided": state.collided.to_numpy(), "p_blocks": p2,
-            "tool": np.float32([-0.03, y, 0.0, 0.03, y, 0.0]),
-            "frame": tools.tool_frame.to_numpy()[0]}
+    return {
+        "p": state.p.to_numpy(),
+        "collided": state.collided.to_numpy(),
+        "p_blocks": p2,
+        "tool": np.float32([-0.03, y, 0.0, 0.03, y, 0.0]),
+        "frame": tools.tool_frame.to_numpy()[0],
+    }
 
 
 def test_a_union_of_implicit_shapes_pushes_particles_and_triangles_out():
     result = compute_collision_case()
     tip, tail = result["tool"][:3].astype(float), result["tool"][3:].astype(float)
-    distance = union_distances(result["p"].astype(float), tip, tail, 0.005,
-                               result["frame"].astype(float))
+    distance = union_distances(
+        result["p"].astype(float), tip, tail, 0.005, result["frame"].astype(float)
+    )
     assert distance.min() > -1e-5  # nothing left inside any shape
     assert np.all(distance.min(axis=1) < 2.5e-3)  # and every shape pushed some of it
     assert result["collided"].sum() > 10
@@ -411,14 +467,19 @@ def rest_excluded(collision, data):
     normal = collision.rest_normal.to_numpy().astype(np.float64)
     body = collision.tri_body.to_numpy()
     d = rest[None, :, :3] - rest[:, None, :3]
-    margin = np.linalg.norm(d, axis=2) \
-        - collision.rest_exclusion * (rest[:, None, 3] + rest[None, :, 3])
-    tests = np.stack([normal @ normal.T, -np.einsum("tud,td->tu", d, normal),
-                      np.einsum("tud,ud->tu", d, normal)])
+    margin = np.linalg.norm(d, axis=2) - collision.rest_exclusion * (
+        rest[:, None, 3] + rest[None, :, 3]
+    )
+    tests = np.stack(
+        [normal @ normal.T, -np.einsum("tud,td->tu", d, normal), np.einsum("tud,ud->tu", d, normal)]
+    )
     facing = (tests < 0.0).all(axis=0)
     tie = (np.abs(margin) < 1e-7) | (np.abs(tests) < 1e-6).any(axis=0)
-    skipped = shares | np.eye(len(tri), dtype=bool) \
+    skipped = (
+        shares
+        | np.eye(len(tri), dtype=bool)
         | ((margin < 0.0) & ((body[:, None] == body[None, :]) | ~facing))
+    )
     return skipped, tie
 
 
@@ -426,7 +487,7 @@ def listed_pairs(collision) -> np.ndarray:
     """(F, F) bool: the pair rows as a matrix."""
     f = collision.triangle_count
     start = collision.rows.start.to_numpy()
-    partner = collision.rows.partner.to_numpy()[:start[f]]
+    partner = collision.rows.partner.to_numpy()[: start[f]]
     out = np.zeros((f, f), dtype=bool)
     out[np.repeat(np.arange(f), np.diff(start)), partner] = True
     return out
@@ -437,13 +498,22 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
     triangles drift past the rescan threshold and others do not, the pair rows hold
     every pair whose broad spheres overlap unless the rest exclusion skips it, and no
     skipped pair. A nodule joined into the lower block is one body with it."""
-    lower = {**BOX, "name": "lower", "geometry": {"generator": "box",
-                                                  "half_extents": [0.012, 0.004, 0.01]}}
-    upper = {**lower, "name": "upper", "geometry": {**lower["geometry"],
-                                                    "translate": [0.0, 0.0095, 0.0]}}
-    nodule = {**BOX, "name": "nodule", "geometry": {"generator": "sphere", "radius": 0.004,
-                                                    "translate": [0.004, 0.004, 0.0]},
-              "attachments": [{"kind": "join", "organ": "lower"}]}
+    lower = {
+        **BOX,
+        "name": "lower",
+        "geometry": {"generator": "box", "half_extents": [0.012, 0.004, 0.01]},
+    }
+    upper = {
+        **lower,
+        "name": "upper",
+        "geometry": {**lower["geometry"], "translate": [0.0, 0.0095, 0.0]},
+    }
+    nodule = {
+        **BOX,
+        "name": "nodule",
+        "geometry": {"generator": "sphere", "radius": 0.004, "translate": [0.004, 0.004, 0.0]},
+        "attachments": [{"kind": "join", "organ": "lower"}],
+    }
     _, data, model, state, control, _ = simulation([lower, upper, nodule], gravity=[0, 0, 0])
     collision = TissueCollision(model, tools=False)
     body = collision.tri_body.to_numpy()
@@ -452,12 +522,16 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
     skipped, tie = rest_excluded(collision, data)
     x0, upper_particles = data.rest_position, data.organ == 1
     rng = np.random.default_rng(5)
+
     def unlisted_meeting_pairs(x, p):
         """(overlapping pairs left unlisted, overlapping pairs) of the broad spheres from
         x to p; no listed pair may be one the rest exclusion skips."""
         sphere = numpy_broad_spheres(data, x, p)
-        gap = np.linalg.norm(sphere[:, None, :3] - sphere[None, :, :3], axis=2) \
-            - sphere[:, None, 3] - sphere[None, :, 3]
+        gap = (
+            np.linalg.norm(sphere[:, None, :3] - sphere[None, :, :3], axis=2)
+            - sphere[:, None, 3]
+            - sphere[None, :, 3]
+        )
         meet = (gap < -1e-6) & ~skipped & ~tie
         listed = listed_pairs(collision)
         assert not (listed & skipped & ~tie).any()
@@ -491,9 +565,12 @@ def folded_sheet(rest_exclusion: float):
     above the lower half's, pressed 1 mm into it within one substep, then 4 collision
     steps. Returns the lowest point of the upper half and the highest of the lower
     half over the columns whose layers were 20-40 mm apart at rest [m]."""
-    sheet = {"name": "sheet", "model": "tet_clusters",
-             "geometry": {"generator": "box", "half_extents": [0.02, 0.001, 0.008]},
-             "material": {"particle_spacing": 0.001, "stiffness": 0.5, "damping": 0.0}}
+    sheet = {
+        "name": "sheet",
+        "model": "tet_clusters",
+        "geometry": {"generator": "box", "half_extents": [0.02, 0.001, 0.008]},
+        "material": {"particle_spacing": 0.001, "stiffness": 0.5, "damping": 0.0},
+    }
     _, data, model, state, control, _ = simulation([sheet], gravity=[0, 0, 0])
     x0 = data.rest_position
     right = x0[:, 0] > 0.0

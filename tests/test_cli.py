@@ -14,8 +14,9 @@ from taichi_lap.cli import main
 from taichi_lap.runtime import available_backends
 
 SMALL = ["--set", "scene.detail=0.03"]
-needs_vulkan = pytest.mark.skipif("vulkan" not in available_backends(),
-                                  reason="GGUI needs a Vulkan driver (mesa-vulkan-drivers)")
+needs_vulkan = pytest.mark.skipif(
+    "vulkan" not in available_backends(), reason="GGUI needs a Vulkan driver (mesa-vulkan-drivers)"
+)
 
 
 def test_list_names_the_three_builtin_scenes(capsys):
@@ -37,8 +38,16 @@ def test_check_json_follows_the_contract(capsys):
     names = [o["name"] for o in stats["organs"]]
     assert names == ["liver", "portal_vein", "hepatic_vein", "hepatic_artery", "bile_duct"]
     for organ in stats["organs"]:
-        for key in ("name", "model", "vertices", "triangles", "particles", "tets", "clusters",
-                    "avg_cluster_radius"):
+        for key in (
+            "name",
+            "model",
+            "vertices",
+            "triangles",
+            "particles",
+            "tets",
+            "clusters",
+            "avg_cluster_radius",
+        ):
             assert key in organ
         assert organ["tets"] > 0 and organ["clusters"] > 0
     assert stats["totals"]["particles"] == sum(o["particles"] for o in stats["organs"])
@@ -64,8 +73,20 @@ def test_run_headless_writes_frames(tmp_path, capsys):
     if "vulkan" not in available_backends():
         pytest.skip("GGUI needs a Vulkan driver (mesa-vulkan-drivers)")
     out = tmp_path / "frames"
-    status = main(["run", "rectum", "--headless", "--frames", "3", "--size", "160x120",
-                   "--out", str(out), *SMALL])
+    status = main(
+        [
+            "run",
+            "rectum",
+            "--headless",
+            "--frames",
+            "3",
+            "--size",
+            "160x120",
+            "--out",
+            str(out),
+            *SMALL,
+        ]
+    )
     assert status == 0, capsys.readouterr().err
     frames = sorted(out.glob("frame_*.png"))
     assert len(frames) == 3
@@ -81,8 +102,9 @@ def test_run_headless_writes_frames(tmp_path, capsys):
 def test_run_headless_writes_an_mp4(tmp_path, capsys):
     pytest.importorskip("imageio_ffmpeg")
     out = tmp_path / "clip.mp4"
-    status = main(["run", "intestine", "--headless", "--frames", "4", "--size", "160x120",
-                   "--out", str(out)])
+    status = main(
+        ["run", "intestine", "--headless", "--frames", "4", "--size", "160x120", "--out", str(out)]
+    )
     assert status == 0, capsys.readouterr().err
     frames = imageio.mimread(out, format="FFMPEG")
     assert len(frames) == 4
@@ -103,8 +125,9 @@ def test_run_without_display_falls_back_to_headless(tmp_path, capsys, monkeypatc
         pytest.skip("GGUI needs a Vulkan driver (mesa-vulkan-drivers)")
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    status = main(["run", "rectum", "--frames", "1", "--size", "64x48",
-                   "--out", str(tmp_path / "f"), *SMALL])
+    status = main(
+        ["run", "rectum", "--frames", "1", "--size", "64x48", "--out", str(tmp_path / "f"), *SMALL]
+    )
     assert status == 0
     assert "running headless" in capsys.readouterr().err
 
@@ -113,19 +136,39 @@ def test_run_without_display_falls_back_to_headless(tmp_path, capsys, monkeypatc
 @needs_vulkan
 def test_interactive_window_runs_on_a_virtual_display():
     """The GGUI window loop (camera, mouse device, panel) on Xvfb."""
-    proc = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1024x768x24", sys.executable, "-m",
-                           "taichi_lap", "run", "rectum", "--frames", "20", "--size", "640x480",
-                           *SMALL], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            "xvfb-run",
+            "-a",
+            "-s",
+            "-screen 0 1024x768x24",
+            sys.executable,
+            "-m",
+            "taichi_lap",
+            "run",
+            "rectum",
+            "--frames",
+            "20",
+            "--size",
+            "640x480",
+            *SMALL,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "running headless" not in proc.stderr
 
 
 def test_simulation_fault_is_reported_not_raised(tmp_path, capsys):
     path = tmp_path / "fast.toml"
-    path.write_text("[scene]\nname = 'fault'\ngravity = [0, -900, 0]\nspeed_limit = 0.5\n"
-                    "[[organs]]\nname = 'ball'\nmodel = 'tet_clusters'\n"
-                    "geometry = { generator = 'sphere', radius = 0.02 }\n"
-                    "material = { particle_spacing = 0.006 }\n")
+    path.write_text(
+        "[scene]\nname = 'fault'\ngravity = [0, -900, 0]\nspeed_limit = 0.5\n"
+        "[[organs]]\nname = 'ball'\nmodel = 'tet_clusters'\n"
+        "geometry = { generator = 'sphere', radius = 0.02 }\n"
+        "material = { particle_spacing = 0.006 }\n"
+    )
     status = main(["render", str(path), "--out", str(tmp_path / "x.png"), "--frames", "5"])
     err = capsys.readouterr().err
     assert status == 1

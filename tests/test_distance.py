@@ -8,10 +8,19 @@ from tests.helpers import simulation
 
 
 def sheet():
-    return {"name": "sheet", "model": "fascia_lra",
-            "geometry": {"generator": "sheet", "width": 0.1, "depth": 0.1, "resolution_x": 20,
-                         "resolution_z": 20, "sag": 0.0},
-            "material": {"edge_stiffness": 1.0, "bending_stiffness": 0.0}}
+    return {
+        "name": "sheet",
+        "model": "fascia_lra",
+        "geometry": {
+            "generator": "sheet",
+            "width": 0.1,
+            "depth": 0.1,
+            "resolution_x": 20,
+            "resolution_z": 20,
+            "sag": 0.0,
+        },
+        "material": {"edge_stiffness": 1.0, "bending_stiffness": 0.0},
+    }
 
 
 def strain(data, p) -> float:
@@ -22,7 +31,8 @@ def strain(data, p) -> float:
 @pytest.mark.parametrize("solver_name", ["jacobi", "gauss_seidel"])
 def test_constraint_sweeps_remove_stretch(solver_name):
     _, data, model, state, control, solver = simulation(
-        [sheet()], gravity=[0, 0, 0], iterations=30, constraint_solver=solver_name)
+        [sheet()], gravity=[0, 0, 0], iterations=30, constraint_solver=solver_name
+    )
     rng = np.random.default_rng(0)
     noisy = data.rest_position + rng.normal(0, 0.0005, data.rest_position.shape)
     state.p.from_numpy(noisy.astype(np.float32))
@@ -45,8 +55,11 @@ def test_gauss_seidel_colours_share_no_particle():
 def compute_sweeps(solver_name: str) -> dict:
     """Constraint sweeps from a fixed noisy sheet (run on any backend)."""
     _, data, _, state, control, solver = simulation(
-        [sheet()], gravity=[0, 0, 0], iterations=30, constraint_solver=solver_name)
-    noisy = data.rest_position + np.random.default_rng(0).normal(0, 0.0005, data.rest_position.shape)
+        [sheet()], gravity=[0, 0, 0], iterations=30, constraint_solver=solver_name
+    )
+    noisy = data.rest_position + np.random.default_rng(0).normal(
+        0, 0.0005, data.rest_position.shape
+    )
     state.p.from_numpy(noisy.astype(np.float32))
     solver._solve_constraints(state, control)
     return {"p": state.p.to_numpy()}

@@ -9,12 +9,18 @@ from taichi_lap.scenes.anatomy import GENERATORS
 
 README = (Path(__file__).resolve().parent.parent / "README.md").read_text()
 
-TABLES = {"scene": scene_mod.SCENE_PARAMS, "camera": scene_mod.CAMERA_PARAMS,
-          "planes": scene_mod.PLANE_PARAMS, "tools": scene_mod.TOOL_PARAMS,
-          "organs": scene_mod.ORGAN_PARAMS, "geometry": scene_mod.GEOMETRY_COMMON,
-          "mesh": scene_mod.MESH_PARAMS, "attachments": scene_mod.ATTACHMENT_PARAMS,
-          **{f"material {m}": p for m, p in scene_mod.MATERIAL_PARAMS.items()},
-          **{f"generator {g.name}": g.params for g in GENERATORS.values()}}
+TABLES = {
+    "scene": scene_mod.SCENE_PARAMS,
+    "camera": scene_mod.CAMERA_PARAMS,
+    "planes": scene_mod.PLANE_PARAMS,
+    "tools": scene_mod.TOOL_PARAMS,
+    "organs": scene_mod.ORGAN_PARAMS,
+    "geometry": scene_mod.GEOMETRY_COMMON,
+    "mesh": scene_mod.MESH_PARAMS,
+    "attachments": scene_mod.ATTACHMENT_PARAMS,
+    **{f"material {m}": p for m, p in scene_mod.MATERIAL_PARAMS.items()},
+    **{f"generator {g.name}": g.params for g in GENERATORS.values()},
+}
 
 
 @pytest.mark.parametrize("table", sorted(TABLES))

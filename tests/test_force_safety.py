@@ -109,9 +109,14 @@ def test_filter_is_deterministic():
     np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("kwargs, name", [({"max_force": 0.0}, "max_force"),
-                                          ({"max_rate": float("inf")}, "max_rate"),
-                                          ({"fade_time": -1.0}, "fade_time")])
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"max_force": 0.0}, "max_force"),
+        ({"max_rate": float("inf")}, "max_rate"),
+        ({"fade_time": -1.0}, "fade_time"),
+    ],
+)
 def test_rejects_non_positive_settings(kwargs, name):
     settings = {"max_force": 1.0, "max_rate": 10.0, **kwargs}
     with pytest.raises(ValueError, match=f"ForceSafety.{name}: a positive finite number"):

@@ -14,18 +14,27 @@ from tests.helpers import BOX
 
 TOP = BOX["geometry"]["half_extents"][1]
 RADIUS = 0.003
-GRASPER = {"name": "forceps", "kind": "grasper", "radius": RADIUS, "length": 0.1,
-           "tip": [0.0, TOP + (JAW_LENGTH - 0.5) * RADIUS, 0.0], "direction": [0.0, 1.0, 0.0]}
+GRASPER = {
+    "name": "forceps",
+    "kind": "grasper",
+    "radius": RADIUS,
+    "length": 0.1,
+    "tip": [0.0, TOP + (JAW_LENGTH - 0.5) * RADIUS, 0.0],
+    "direction": [0.0, 1.0, 0.0],
+}
 """Upright, its jaws pressing half a shaft radius into the block's top."""
-HELD_BLOCK = dict(BOX, attachments=[{"kind": "fixed", "box_min": [-1, -1, -1],
-                                     "box_max": [1, -TOP + 0.001, 1]}])
+HELD_BLOCK = dict(
+    BOX, attachments=[{"kind": "fixed", "box_min": [-1, -1, -1], "box_max": [1, -TOP + 0.001, 1]}]
+)
 LIFT = 0.015
 
 
 def keyframes(*frames):
     """Script keyframes for the grasper: (time, tip offset from its scene tip, extra keys)."""
-    return [dict({"time": t, "tip": list(np.add(GRASPER["tip"], offset))}, **extra)
-            for t, offset, extra in frames]
+    return [
+        dict({"time": t, "tip": list(np.add(GRASPER["tip"], offset))}, **extra)
+        for t, offset, extra in frames
+    ]
 
 
 def run(frames, script, seconds: float):
@@ -33,23 +42,32 @@ def run(frames, script, seconds: float):
     positions, the holding tool per particle and the grasper's tip and frame."""
     scene = from_tables([HELD_BLOCK], tools=[GRASPER], gravity=[0, 0, 0])
     session = Session(scene, use_cache=False, progress=False)
-    device = ScriptedDevice.from_tables("<test>", [dict(k, tool="forceps") for k in script],
-                                        scene.tools)
+    device = ScriptedDevice.from_tables(
+        "<test>", [dict(k, tool="forceps") for k in script], scene.tools
+    )
     history = []
     while session.state.time < seconds - 1e-9:
         time = session.state.time
         session.step(device.poses(time), device.buttons(time))
-        history.append({"x": session.state.x.to_numpy(),
-                        "grasp_tool": session.state.grasp_tool.to_numpy(),
-                        "tip": session.control.tool_a.to_numpy()[0],
-                        "frame": session.control.tool_frame.to_numpy()[0],
-                        "events": session.events})
+        history.append(
+            {
+                "x": session.state.x.to_numpy(),
+                "grasp_tool": session.state.grasp_tool.to_numpy(),
+                "tip": session.control.tool_a.to_numpy()[0],
+                "frame": session.control.tool_frame.to_numpy()[0],
+                "events": session.events,
+            }
+        )
     return session, history
 
 
-LIFT_SCRIPT = keyframes((0.0, [0, 0, 0], {}), (0.1, [0, 0, 0], {"grasp": True}),
-                        (0.6, [0, LIFT, 0], {}), (0.9, [0, LIFT, 0], {"direction": [0.4, 1, 0]}),
-                        (1.0, [0, LIFT, 0], {"grasp": False}))
+LIFT_SCRIPT = keyframes(
+    (0.0, [0, 0, 0], {}),
+    (0.1, [0, 0, 0], {"grasp": True}),
+    (0.6, [0, LIFT, 0], {}),
+    (0.9, [0, LIFT, 0], {"direction": [0.4, 1, 0]}),
+    (1.0, [0, LIFT, 0], {"grasp": False}),
+)
 
 
 def test_grasped_particles_follow_the_jaws_rigidly_and_stretch_the_tissue():
@@ -93,8 +111,9 @@ def test_jaws_closed_in_the_air_take_nothing_even_when_pushed_into_tissue():
 
 def test_buttons_follow_the_script_keyframes():
     scene = from_tables([HELD_BLOCK], tools=[GRASPER])
-    device = ScriptedDevice.from_tables("<test>", [dict(k, tool="forceps") for k in LIFT_SCRIPT],
-                                        scene.tools)
+    device = ScriptedDevice.from_tables(
+        "<test>", [dict(k, tool="forceps") for k in LIFT_SCRIPT], scene.tools
+    )
     assert device.buttons(0.05) == {"forceps": 0}
     assert device.buttons(0.1) == {"forceps": GRASP_BUTTON}
     assert device.buttons(0.95) == {"forceps": GRASP_BUTTON}
@@ -120,8 +139,11 @@ def test_jaws_collide_as_a_second_capsule_ahead_of_the_tip():
     clearance = {}
     for kind in ("grasper", "probe"):
         tool = dict(GRASPER, kind=kind, tip=list(tip))
-        session = Session(from_tables([HELD_BLOCK], tools=[tool], gravity=[0, 0, 0]),
-                          use_cache=False, progress=False)
+        session = Session(
+            from_tables([HELD_BLOCK], tools=[tool], gravity=[0, 0, 0]),
+            use_cache=False,
+            progress=False,
+        )
         for _ in range(10):
             session.step()
         x = session.state.x.to_numpy()

@@ -44,17 +44,46 @@ def test_device_origin_puts_the_tool_at_its_scene_tip(fake_library):
 
 def test_run_with_openhaptics_device_completes(fake_library, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
-    status = main(["run", "rectum", "--headless", "--device", "openhaptics", "--frames", "3",
-                   "--size", "64x48", "--out", str(tmp_path / "frames"),
-                   "--set", "scene.detail=0.03"])
+    status = main(
+        [
+            "run",
+            "rectum",
+            "--headless",
+            "--device",
+            "openhaptics",
+            "--frames",
+            "3",
+            "--size",
+            "64x48",
+            "--out",
+            str(tmp_path / "frames"),
+            "--set",
+            "scene.detail=0.03",
+        ]
+    )
     assert status == 0, capsys.readouterr().err
     assert len(list((tmp_path / "frames").glob("*.png"))) == 3
 
 
 def test_missing_libhd_is_a_clear_error(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("TAICHI_LAP_LIBHD", str(tmp_path / "no-such-libHD.so"))
-    status = main(["run", "rectum", "--headless", "--device", "openhaptics", "--frames", "1",
-                   "--size", "64x48", "--out", str(tmp_path / "f"), "--set", "scene.detail=0.03"])
+    status = main(
+        [
+            "run",
+            "rectum",
+            "--headless",
+            "--device",
+            "openhaptics",
+            "--frames",
+            "1",
+            "--size",
+            "64x48",
+            "--out",
+            str(tmp_path / "f"),
+            "--set",
+            "scene.detail=0.03",
+        ]
+    )
     assert status == 2
     err = capsys.readouterr().err
     assert "error: --device: openhaptics: a working haptic device was expected" in err
@@ -75,8 +104,9 @@ def test_stylus_button_grasps_and_the_servo_feels_the_pull():
     scene = from_tables([HELD_BLOCK], tools=[tool], gravity=[0, 0, 0])
     session = Session(scene, use_cache=False, progress=False)
     tip = np.asarray(GRASPER["tip"])
-    device = scripted_device([(0.0, tip), (0.3, tip), (1.0, tip + [0.0, 0.015, 0.0])],
-                             rotation=up, buttons=1)
+    device = scripted_device(
+        [(0.0, tip), (0.3, tip), (1.0, tip + [0.0, 0.015, 0.0])], rotation=up, buttons=1
+    )
     bridge = HapticBridge(scene.tools[0], device)
     bridge.attach(session)
     events, pulls = [], []
@@ -106,17 +136,41 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
     import taichi_lap.scenes
     from taichi_lap.replay import read_recording
 
-    second = {"name": "probe", "kind": "probe", "tip": [0.03, 0.06, 0.0],
-              "device": "openhaptics:Left Device"}
+    second = {
+        "name": "probe",
+        "kind": "probe",
+        "tip": [0.03, 0.06, 0.0],
+        "device": "openhaptics:Left Device",
+    }
     scene = tmp_path / "two_hands.toml"
-    scene.write_text(Path(taichi_lap.scenes.__file__).with_name("rectum.toml").read_text() + "\n[[tools]]\n" + "".join(
-        f"{key} = {value!r}\n".replace("'", '"') for key, value in second.items()))
+    scene.write_text(
+        Path(taichi_lap.scenes.__file__).with_name("rectum.toml").read_text()
+        + "\n[[tools]]\n"
+        + "".join(f"{key} = {value!r}\n".replace("'", '"') for key, value in second.items())
+    )
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
     record = tmp_path / "s.tlap"
-    status = main(["run", str(scene), "--headless", "--device", "openhaptics:Left Device",
-                   "--device", "openhaptics:Right Device", "--frames", "3", "--size", "64x48",
-                   "--out", str(tmp_path / "frames"), "--record", str(record),
-                   "--set", "scene.detail=0.03"])
+    status = main(
+        [
+            "run",
+            str(scene),
+            "--headless",
+            "--device",
+            "openhaptics:Left Device",
+            "--device",
+            "openhaptics:Right Device",
+            "--frames",
+            "3",
+            "--size",
+            "64x48",
+            "--out",
+            str(tmp_path / "frames"),
+            "--record",
+            str(record),
+            "--set",
+            "scene.detail=0.03",
+        ]
+    )
     assert status == 0, capsys.readouterr().err
     recording = read_recording(str(record))
     device = next(e for e in recording.events if e["kind"] == "device")
@@ -138,11 +192,29 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
 
 def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
-    status = main(["run", "rectum", "--headless", "--device", "openhaptics:Left Device",
-                   "--device", "openhaptics:Right Device", "--frames", "1", "--size", "64x48",
-                   "--out", str(tmp_path / "f"), "--set", "scene.detail=0.03"])
+    status = main(
+        [
+            "run",
+            "rectum",
+            "--headless",
+            "--device",
+            "openhaptics:Left Device",
+            "--device",
+            "openhaptics:Right Device",
+            "--frames",
+            "1",
+            "--size",
+            "64x48",
+            "--out",
+            str(tmp_path / "f"),
+            "--set",
+            "scene.detail=0.03",
+        ]
+    )
     assert status == 2
     err = capsys.readouterr().err
-    assert "tools: a tool for --device openhaptics:Right Device was expected (one whose " \
-           "device is 'openhaptics:Right Device' or one with no device), the scene has 1 and " \
-           "other devices drive 1" in err
+    assert (
+        "tools: a tool for --device openhaptics:Right Device was expected (one whose "
+        "device is 'openhaptics:Right Device' or one with no device), the scene has 1 and "
+        "other devices drive 1" in err
+    )

@@ -9,8 +9,17 @@ import pytest
 import taichi as ti
 
 from taichi_lap.kernels.brdf import fresnel_weight, surface_brdf_cos
-from taichi_lap.kernels.ibl import (FRESNEL_WEIGHT_MEAN, ImageLighting, dfg_lookup, environment_radiance,
-                                    ibl_diffuse, ibl_specular, prefiltered_radiance, sh9_irradiance, tangent_frame)
+from taichi_lap.kernels.ibl import (
+    FRESNEL_WEIGHT_MEAN,
+    ImageLighting,
+    dfg_lookup,
+    environment_radiance,
+    ibl_diffuse,
+    ibl_specular,
+    prefiltered_radiance,
+    sh9_irradiance,
+    tangent_frame,
+)
 from tests.archrun import assert_vulkan_matches_cpu
 
 GREY = (0.6, 0.3, 0.25)
@@ -64,7 +73,9 @@ def brute_force_irradiance_rows(normals: ti.types.ndarray(), out: ti.types.ndarr
         total = ti.Vector([0.0, 0.0, 0.0])
         for j in range(cols):
             phi = 2.0 * math.pi * (j + 0.5) / cols
-            w = (tangent * ti.cos(phi) + bitangent * ti.sin(phi)) * ti.sin(theta) + n * ti.cos(theta)
+            w = (tangent * ti.cos(phi) + bitangent * ti.sin(phi)) * ti.sin(theta) + n * ti.cos(
+                theta
+            )
             total += environment_radiance(w)
         weight = ti.cos(theta) * ti.sin(theta) * (0.5 * math.pi / rows) * (2.0 * math.pi / cols)
         for k in ti.static(range(3)):
@@ -72,7 +83,9 @@ def brute_force_irradiance_rows(normals: ti.types.ndarray(), out: ti.types.ndarr
 
 
 @ti.kernel
-def sample_maps(maps: ti.template(), dirs: ti.types.ndarray(), roughness: ti.f32, out: ti.types.ndarray()):
+def sample_maps(
+    maps: ti.template(), dirs: ti.types.ndarray(), roughness: ti.f32, out: ti.types.ndarray()
+):
     """out[c] = (prefiltered_radiance(dirs[c], roughness), environment_radiance(dirs[c]))."""
     for c in range(dirs.shape[0]):
         d = as_vector(dirs, c)
@@ -89,8 +102,12 @@ def evaluate_dfg(table: ti.template(), points: ti.types.ndarray(), out: ti.types
 
 
 @ti.kernel
-def shade_image_lit(lighting: ti.template(), dirs: ti.types.ndarray(), params: ti.types.ndarray(),
-                    out: ti.types.ndarray()):
+def shade_image_lit(
+    lighting: ti.template(),
+    dirs: ti.types.ndarray(),
+    params: ti.types.ndarray(),
+    out: ti.types.ndarray(),
+):
     """out[c] = (ibl_diffuse, ibl_specular, surface_brdf_cos with l = v) for dirs[c] = (n, v)
     and params[c] = (albedo rgb, roughness, metalness, mucus)."""
     for c in range(dirs.shape[0]):
@@ -132,7 +149,9 @@ def test_sh9_irradiance_of_constant_environment_is_pi_times_radiance():
     normals = fibonacci_directions(200)
     irradiance = np.zeros((len(normals), 3), np.float32)
     evaluate_sh9(lighting.sh_coeffs, normals, irradiance)
-    np.testing.assert_allclose(irradiance, np.broadcast_to(np.pi * np.array(GREY), irradiance.shape), rtol=1e-4)
+    np.testing.assert_allclose(
+        irradiance, np.broadcast_to(np.pi * np.array(GREY), irradiance.shape), rtol=1e-4
+    )
 
 
 def test_sh9_irradiance_matches_brute_force_cosine_integration(cavity):
@@ -202,8 +221,12 @@ def lighting_arrays(count=64):
     dirs, params = surface_cases(count, seed=11)
     shaded = np.zeros((count, 3, 3), np.float32)
     shade_image_lit(lighting, dirs, params, shaded)
-    return dict(sh_coeffs=lighting.sh_coeffs.to_numpy(), dfg=lighting.dfg.to_numpy(),
-                prefiltered=lighting.prefiltered.to_numpy(), shaded=shaded)
+    return dict(
+        sh_coeffs=lighting.sh_coeffs.to_numpy(),
+        dfg=lighting.dfg.to_numpy(),
+        prefiltered=lighting.prefiltered.to_numpy(),
+        shaded=shaded,
+    )
 
 
 @pytest.mark.vulkan

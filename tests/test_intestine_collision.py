@@ -13,12 +13,24 @@ from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation
 
 H = 1.0 / 600.0  # substep [s]
-SEGMENT = 0.04   # [m]
-STRIP = {"name": "intestine", "model": "mass_spring",  # 2 rows of 40: 39 segments of 4 cm
-         "geometry": {"generator": "intestine", "rows": 2, "points_per_row": 40, "folds": 4,
-                      "length": 39 * SEGMENT}}
-INTESTINE = {"name": "intestine", "model": "mass_spring", "geometry": {"generator": "intestine"},
-             "attachments": [{"kind": "fixed", "rows": [-1]}]}
+SEGMENT = 0.04  # [m]
+STRIP = {
+    "name": "intestine",
+    "model": "mass_spring",  # 2 rows of 40: 39 segments of 4 cm
+    "geometry": {
+        "generator": "intestine",
+        "rows": 2,
+        "points_per_row": 40,
+        "folds": 4,
+        "length": 39 * SEGMENT,
+    },
+}
+INTESTINE = {
+    "name": "intestine",
+    "model": "mass_spring",
+    "geometry": {"generator": "intestine"},
+    "attachments": [{"kind": "fixed", "rows": [-1]}],
+}
 
 
 def crossing(distance: float) -> np.ndarray:
@@ -61,8 +73,9 @@ def planted(strip, distance: float, approach: float = 0.0, **settings):
 
 
 @ti.kernel
-def contact_motion(cd: ti.template(), state: ti.template(), h: ti.f32,
-                   out: ti.types.ndarray(dtype=ti.f32, ndim=2)):
+def contact_motion(
+    cd: ti.template(), state: ti.template(), h: ti.f32, out: ti.types.ndarray(dtype=ti.f32, ndim=2)
+):
     """Per contact: gap d - r1 - r2 [m] and separating speed (v_c1 - v_c2)·u [m/s]."""
     for c in range(cd.contact_count[None]):
         a, b = cd.contact_a[c], cd.contact_b[c]
@@ -82,7 +95,7 @@ def contact_motion(cd: ti.template(), state: ti.template(), h: ti.f32,
 def motion(collision, state) -> np.ndarray:
     out = np.zeros((max(collision.contact_total, 1), 2), dtype=np.float32)
     contact_motion(collision, state, H, out)
-    return out[:collision.contact_total]
+    return out[: collision.contact_total]
 
 
 def momentum(model, state) -> tuple[np.ndarray, np.ndarray]:
@@ -114,8 +127,11 @@ def test_segment_triangle_distance_is_the_least_over_dense_samples(strip):
         if len(other) == 2:
             on_other = other[0] + t[:, None] * (other[1] - other[0])
         else:
-            on_other = other[0] + u[inside][:, None] * (other[1] - other[0]) \
+            on_other = (
+                other[0]
+                + u[inside][:, None] * (other[1] - other[0])
                 + v[inside][:, None] * (other[2] - other[0])
+            )
         sampled = np.linalg.norm(on_seg[:, None] - on_other[None], axis=2).min()
         assert sampled - 3e-3 <= d <= sampled + 1e-6  # samples 1/40 of the elements apart
 
@@ -189,7 +205,7 @@ def test_response_separates_pairs_and_stops_approach_without_bounce(strip):
     assert before[:, 0].min() < -0.015 and before[:, 1].min() < -0.9
     collision.respond(state, H)
     after = motion(collision, state)
-    impulse = collision.contact_impulse.to_numpy()[:len(after)]
+    impulse = collision.contact_impulse.to_numpy()[: len(after)]
     assert after[:, 0].min() >= -1e-4
     assert after[:, 1].min() >= -2e-3
     assert (after[:, 1] >= np.minimum(before[:, 1], 0.0)).all()
@@ -294,8 +310,13 @@ def compute_planted_case() -> dict:
     collision.respond(state, H)
     exact = ExactDetector(collision).detect(state.p)
     padded = lambda pairs: np.pad(pairs, ((0, 256 - len(pairs)), (0, 0)), constant_values=-1)
-    return {"active": padded(active), "contacts": padded(contacts), "exact": padded(exact),
-            "x": state.x.to_numpy(), "p": state.p.to_numpy()}
+    return {
+        "active": padded(active),
+        "contacts": padded(contacts),
+        "exact": padded(exact),
+        "x": state.x.to_numpy(),
+        "p": state.p.to_numpy(),
+    }
 
 
 @pytest.mark.vulkan

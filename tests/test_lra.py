@@ -11,13 +11,27 @@ DT = 1.0 / 60.0
 
 
 def fascia(beta: float, anchors: int, **material) -> dict:
-    return {"name": "fascia", "model": "fascia_lra",
-            "geometry": {"generator": "sheet", "width": 0.1, "depth": 0.06, "resolution_x": 16,
-                         "resolution_z": 10, "sag": 0.0},
-            "material": {"lra_relaxation": beta, "lra_anchors": anchors, "edge_stiffness": 0.0,
-                         "bending_stiffness": 0.0, "damping": 0.0, **material},
-            "attachments": [{"kind": "lra_anchor", "box_min": [-1, -1, -1],
-                             "box_max": [-0.049, 1, 1]}]}
+    return {
+        "name": "fascia",
+        "model": "fascia_lra",
+        "geometry": {
+            "generator": "sheet",
+            "width": 0.1,
+            "depth": 0.06,
+            "resolution_x": 16,
+            "resolution_z": 10,
+            "sag": 0.0,
+        },
+        "material": {
+            "lra_relaxation": beta,
+            "lra_anchors": anchors,
+            "edge_stiffness": 0.0,
+            "bending_stiffness": 0.0,
+            "damping": 0.0,
+            **material,
+        },
+        "attachments": [{"kind": "lra_anchor", "box_min": [-1, -1, -1], "box_max": [-0.049, 1, 1]}],
+    }
 
 
 def lra_distances(data, x):
@@ -28,11 +42,14 @@ def lra_distances(data, x):
 def test_one_projection_lands_on_the_relaxed_bound(beta):
     """Eq. 3 with one anchor per vertex: a stretched vertex ends exactly at
     d_LRA = d' + β (|x^a - x| - d')."""
-    _, data, model, state, control, _ = simulation([fascia(beta, 1)], gravity=[0, 0, 0],
-                                                   iterations=1)
+    _, data, model, state, control, _ = simulation(
+        [fascia(beta, 1)], gravity=[0, 0, 0], iterations=1
+    )
     rest = data.rest_position
     stretched = rest.copy()
-    stretched[:, 0] = rest[:, 0] + 0.5 * (rest[:, 0] - rest[:, 0].min())  # pull away from the anchors
+    stretched[:, 0] = rest[:, 0] + 0.5 * (
+        rest[:, 0] - rest[:, 0].min()
+    )  # pull away from the anchors
     state.p.from_numpy(stretched.astype(np.float32))
     before = lra_distances(data, stretched)
     distance.jacobi_sweep(model, state, control, state.p, state.p_next, 1.0)

@@ -6,9 +6,12 @@ import pytest
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation, state_after
 
-INTESTINE = {"name": "intestine", "model": "mass_spring",
-             "geometry": {"generator": "intestine"},
-             "attachments": [{"kind": "fixed", "rows": [-1]}]}
+INTESTINE = {
+    "name": "intestine",
+    "model": "mass_spring",
+    "geometry": {"generator": "intestine"},
+    "attachments": [{"kind": "fixed", "rows": [-1]}],
+}
 
 
 def energy(data, x, v) -> float:

@@ -21,14 +21,16 @@ def edge_use_counts(triangles):
 
 
 def write_obj(path, vertices, faces):
-    lines = [f"v {x} {y} {z}" for x, y, z in vertices] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    lines = [f"v {x} {y} {z}" for x, y, z in vertices] + [
+        f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces
+    ]
     path.write_text("\n".join(lines) + "\n")
     return path
 
 
 @pytest.fixture
 def box():
-    return trimesh.creation.box(extents=(30.0, 20.0, 10.0))       # millimetres
+    return trimesh.creation.box(extents=(30.0, 20.0, 10.0))  # millimetres
 
 
 def test_closed_stl_merges_to_a_watertight_outward_mesh(tmp_path, box):
@@ -53,7 +55,9 @@ def test_scale_converts_millimetres(tmp_path, box):
     path = tmp_path / "liver.stl"
     box.export(path)
     mesh = load(path, scale=0.001)
-    np.testing.assert_allclose(mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0), [0.03, 0.02, 0.01])
+    np.testing.assert_allclose(
+        mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0), [0.03, 0.02, 0.01]
+    )
     assert signed_volume(mesh) == pytest.approx(6e-6, rel=1e-6)
 
 
@@ -106,19 +110,26 @@ def test_nan_coordinates(tmp_path):
 
 def test_face_index_out_of_range(tmp_path):
     path = tmp_path / "range.ply"
-    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                    "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
-                    "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    path.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+        "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n"
+    )
     expect_error(path, "found 1 out of range")
 
 
 def test_degenerate_faces(tmp_path, box):
     faces = np.concatenate([box.faces, [[0, 0, 1], [0, 1, 1]]])
-    expect_error(write_obj(tmp_path / "repeated.obj", box.vertices, faces), "found 2 degenerate faces")
+    expect_error(
+        write_obj(tmp_path / "repeated.obj", box.vertices, faces), "found 2 degenerate faces"
+    )
     vertices = np.concatenate([box.vertices, [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]]])
-    faces = np.concatenate([box.faces, [[8, 9, 10]]])                 # collinear: zero area
-    expect_error(write_obj(tmp_path / "flat.obj", vertices, faces), "found 1 degenerate faces",
-                 watertight=False)
+    faces = np.concatenate([box.faces, [[8, 9, 10]]])  # collinear: zero area
+    expect_error(
+        write_obj(tmp_path / "flat.obj", vertices, faces),
+        "found 1 degenerate faces",
+        watertight=False,
+    )
 
 
 def test_open_mesh(tmp_path, box):
@@ -129,9 +140,11 @@ def test_open_mesh(tmp_path, box):
 
 
 def test_non_manifold_mesh(tmp_path, box):
-    fin = np.array([[0, 1, 6]])                   # a third face on box edge 0-1, two new open edges
-    expect_error(write_obj(tmp_path / "fin.obj", box.vertices, np.concatenate([box.faces, fin])),
-                 "found 2 open edges and 1 non-manifold edges")
+    fin = np.array([[0, 1, 6]])  # a third face on box edge 0-1, two new open edges
+    expect_error(
+        write_obj(tmp_path / "fin.obj", box.vertices, np.concatenate([box.faces, fin])),
+        "found 2 open edges and 1 non-manifold edges",
+    )
 
 
 def test_inconsistent_orientation(tmp_path, box):

@@ -60,7 +60,7 @@ def column_major(rot: np.ndarray, translation_mm) -> np.ndarray:
     """The 16 doubles of HD_CURRENT_TRANSFORM: column-major, translation at 12-14."""
     values = np.zeros(16)
     for col in range(3):
-        values[4 * col:4 * col + 3] = rot[:, col]
+        values[4 * col : 4 * col + 3] = rot[:, col]
     values[12:15] = translation_mm
     values[15] = 1.0
     return values
@@ -74,16 +74,20 @@ def test_default_device_opens_reads_model_and_max_force(fake):
         assert fake.scheduler_running() and fake.scheduled_count() == 1
         assert wait_for(lambda: fake.frame_count(dev.handle) > 5)
     assert fake.calls()[:5] == [
-        "hdInitDevice Default Device -> 1", "hdEnable 0x4000 device 1",
-        "hdScheduleAsynchronous 1 priority 65535", "hdSetSchedulerRate 1000",
-        "hdStartScheduler"]
+        "hdInitDevice Default Device -> 1",
+        "hdEnable 0x4000 device 1",
+        "hdScheduleAsynchronous 1 priority 65535",
+        "hdSetSchedulerRate 1000",
+        "hdStartScheduler",
+    ]
 
 
 def test_named_device_opens_and_unknown_name_is_reported(fake):
     with OpenHapticsDevice("Right Device", library=fake.path) as dev:
         assert dev.handle == 3 and dev.model == "Fake Touch"
-    with pytest.raises(OpenHapticsError, match="hdInitDevice.*'Middle Device'.*"
-                                               "HD_COMM_CONFIG_ERROR"):
+    with pytest.raises(
+        OpenHapticsError, match="hdInitDevice.*'Middle Device'.*HD_COMM_CONFIG_ERROR"
+    ):
         OpenHapticsDevice("Middle Device", library=fake.path)
     assert fake.error_count() == 0 and not fake.scheduler_running()
 
@@ -123,8 +127,10 @@ def test_workspace_mapping_scales_and_offsets_translation(fake):
     np.testing.assert_allclose(pose[:3, :3], np.eye(3))
 
 
-@pytest.mark.parametrize("scale, offset", [(0.0, (0, 0, 0)), (float("nan"), (0, 0, 0)),
-                                           (0.001, (0, 0)), (0.001, (0, float("inf"), 0))])
+@pytest.mark.parametrize(
+    "scale, offset",
+    [(0.0, (0, 0, 0)), (float("nan"), (0, 0, 0)), (0.001, (0, 0)), (0.001, (0, float("inf"), 0))],
+)
 def test_workspace_mapping_rejects_bad_values(scale, offset):
     with pytest.raises(ValueError, match="WorkspaceMapping"):
         WorkspaceMapping(scale=scale, offset=offset)
@@ -145,8 +151,7 @@ def test_injected_error_is_drained_named_and_stops_force_output(fake, caplog):
         dev.set_force([0.0, 0.5, 0.0])
         assert wait_for(lambda: last_force(fake, dev.handle)[1] > 0.49)
         with caplog.at_level(logging.ERROR, logger="taichi_lap.haptics"):
-            fake.push_errors(dev.handle, HD_WARM_MOTORS, HD_EXCEEDED_MAX_VELOCITY,
-                             HD_DEVICE_FAULT)
+            fake.push_errors(dev.handle, HD_WARM_MOTORS, HD_EXCEEDED_MAX_VELOCITY, HD_DEVICE_FAULT)
             assert wait_for(lambda: dev.fault is not None)
         assert "HD_DEVICE_FAULT (0x300" in dev.fault and "Device fault" in dev.fault
         assert "HD_WARM_MOTORS (0x200" in dev.fault
@@ -197,8 +202,12 @@ def test_close_zeroes_force_then_stops_unschedules_and_disables(fake):
     assert wait_for(lambda: last_force(fake, dev.handle)[0] > 0.39)
     dev.close()
     dev.close()
-    assert fake.calls()[-4:] == ["hdStopScheduler", "hdUnschedule 1",
-                                 "hdDisable 0x4000 device 1", "hdDisableDevice 1"]
+    assert fake.calls()[-4:] == [
+        "hdStopScheduler",
+        "hdUnschedule 1",
+        "hdDisable 0x4000 device 1",
+        "hdDisableDevice 1",
+    ]
     np.testing.assert_array_equal(fake.forces(dev.handle, 1), np.zeros((1, 3)))
     assert not fake.scheduler_running() and fake.scheduled_count() == 0
     assert not fake.is_enabled(dev.handle)
@@ -207,15 +216,21 @@ def test_close_zeroes_force_then_stops_unschedules_and_disables(fake):
 
 
 def test_two_devices_have_independent_poses_and_forces(fake):
-    with OpenHapticsDevice("Left Device", library=fake.path, max_rate=1000.0) as left, \
-            OpenHapticsDevice("Right Device", library=fake.path, max_rate=1000.0) as right:
+    with (
+        OpenHapticsDevice("Left Device", library=fake.path, max_rate=1000.0) as left,
+        OpenHapticsDevice("Right Device", library=fake.path, max_rate=1000.0) as right,
+    ):
         assert {left.handle, right.handle} == {2, 3} and fake.scheduled_count() == 2
         fake.set_pose(left.handle, column_major(np.eye(3), [-100.0, 0.0, 0.0]))
         fake.set_pose(right.handle, column_major(rotation(1, 0.5), [100.0, 5.0, 0.0]))
         left.set_force([0.3, 0.0, 0.0])
         right.set_force([0.0, -0.4, 0.0])
-        assert wait_for(lambda: last_force(fake, left.handle)[0] > 0.29
-                        and last_force(fake, right.handle)[1] < -0.39)
+        assert wait_for(
+            lambda: (
+                last_force(fake, left.handle)[0] > 0.29
+                and last_force(fake, right.handle)[1] < -0.39
+            )
+        )
         assert wait_for(lambda: left.pose()[0, 3] < 0 and right.pose()[0, 3] > 0)
         np.testing.assert_allclose(left.pose()[:3, 3], [-0.1, 0.0, 0.0], atol=1e-12)
         np.testing.assert_allclose(right.pose()[:3, 3], [0.1, 0.005, 0.0], atol=1e-12)

@@ -8,9 +8,17 @@ import numpy as np
 import pytest
 
 from taichi_lap.builder import build_model
-from taichi_lap.haptics import (HapticProxy, HapticScene, ProxySettings, ProxyStatus,
-                                SceneSnapshot, SurfaceClusters, ToolCapsule, grasp_edges,
-                                pull_force)
+from taichi_lap.haptics import (
+    HapticProxy,
+    HapticScene,
+    ProxySettings,
+    ProxyStatus,
+    SceneSnapshot,
+    SurfaceClusters,
+    ToolCapsule,
+    grasp_edges,
+    pull_force,
+)
 from taichi_lap.haptics.proxy import capsule_distance_sq
 from taichi_lap.scene import from_tables
 from tests.helpers import BOX
@@ -34,9 +42,18 @@ def scene_of(positions: np.ndarray, block: float = 0.008) -> HapticScene:
     reach = np.linalg.norm(positions - np.repeat(center, counts, axis=0), axis=1)
     radius = np.maximum.reduceat(reach, start[:-1]) + PARTICLE_RADIUS
     empty = np.zeros((0, 3))
-    return HapticScene(1, 0.0, center, radius, start, positions.astype(np.float32),
-                       np.full(len(positions), PARTICLE_RADIUS, np.float32), empty, empty,
-                       np.zeros(0))
+    return HapticScene(
+        1,
+        0.0,
+        center,
+        radius,
+        start,
+        positions.astype(np.float32),
+        np.full(len(positions), PARTICLE_RADIUS, np.float32),
+        empty,
+        empty,
+        np.zeros(0),
+    )
 
 
 def plane(y: float = 0.0, spacing: float = 0.002, half: int = 20) -> np.ndarray:
@@ -65,8 +82,9 @@ def descend(proxy, scene, x, z, y_from, y_to, axis=UP, steps=200):
 
 
 def min_distance(points, q, axis) -> float:
-    d2, _ = capsule_distance_sq(np.asarray(points, np.float64), q, np.asarray(axis, float),
-                                TOOL.length)
+    d2, _ = capsule_distance_sq(
+        np.asarray(points, np.float64), q, np.asarray(axis, float), TOOL.length
+    )
     return float(np.sqrt(d2.min()))
 
 
@@ -109,17 +127,27 @@ def test_qp_recovers_when_particles_move_into_the_previous_proxy_from_one_side()
 def test_qp_stays_feasible_when_squeezed_particles_penetrate_the_previous_proxy():
     proxy = HapticProxy(ProxySettings(TOOL, gain=GAIN))
     lower, upper = plane(y=0.0), plane(y=2 * R + 0.002)
-    result = descend(proxy, scene_of(np.concatenate([lower, upper])), 0.0, 0.0, R + 0.001, R,
-                     axis=ALONG_X, steps=20)
+    result = descend(
+        proxy,
+        scene_of(np.concatenate([lower, upper])),
+        0.0,
+        0.0,
+        R + 0.001,
+        R,
+        axis=ALONG_X,
+        steps=20,
+    )
     assert result.status in (ProxyStatus.FREE, ProxyStatus.CONTACT)
     previous = result.graphic_position
     squeezed = np.concatenate([plane(y=0.0015), plane(y=2 * R - 0.0015)])  # gap < 2 R
-    before = [min_distance(squeezed[i:i + 1], previous, ALONG_X) for i in range(len(squeezed))]
+    before = [min_distance(squeezed[i : i + 1], previous, ALONG_X) for i in range(len(squeezed))]
     result = proxy.step(pose([0.0, R - 0.003, 0.0], ALONG_X), scene_of(squeezed))
     assert result.status == ProxyStatus.RELAXED and result.contacts > 0
     assert np.all(np.isfinite(result.graphic_position))
-    after = [min_distance(squeezed[i:i + 1], result.graphic_position, ALONG_X)
-             for i in range(len(squeezed))]
+    after = [
+        min_distance(squeezed[i : i + 1], result.graphic_position, ALONG_X)
+        for i in range(len(squeezed))
+    ]
     hit = np.array(before) < R  # no particle it touched is penetrated deeper than before
     assert np.all(np.array(after)[hit] >= np.array(before)[hit] - 1e-6)
 
@@ -131,8 +159,9 @@ def test_physical_tool_blends_previous_graphic_and_haptic_by_omega():
         previous = descend(proxy, scene, 0.0, 0.0, 0.01, R - 0.002).graphic_position
         q_h = np.array([0.001, -0.01, 0.002])
         result = proxy.step(pose(q_h), scene)
-        np.testing.assert_allclose(result.physical_position,
-                                   omega * previous + (1.0 - omega) * q_h, atol=1e-12)
+        np.testing.assert_allclose(
+            result.physical_position, omega * previous + (1.0 - omega) * q_h, atol=1e-12
+        )
     free = HapticProxy(ProxySettings(TOOL, gain=GAIN)).step(pose([0.0, 0.02, 0.0]), scene)
     assert free.status == ProxyStatus.FREE and np.all(free.contact_force == 0.0)
     np.testing.assert_allclose(free.physical_position, [0.0, 0.02, 0.0])
@@ -142,8 +171,11 @@ def test_proxy_pulls_towards_grasped_edges_carried_in_the_tool_frame():
     proxy = HapticProxy(ProxySettings(TOOL, gain=GAIN, grasp_stiffness=2.0))
     tool_pose = pose([0.0, 0.05, 0.0], ALONG_X)  # tool +z along scene +x, far from the plane
     scene = dataclasses.replace(
-        scene_of(plane()), grasp_local=np.array([[0.0, 0.0, 0.002]]),  # 2 mm up the shaft
-        grasp_neighbor=np.array([[0.002, 0.04, 0.0]]), grasp_rest=np.array([0.006]))
+        scene_of(plane()),
+        grasp_local=np.array([[0.0, 0.0, 0.002]]),  # 2 mm up the shaft
+        grasp_neighbor=np.array([[0.002, 0.04, 0.0]]),
+        grasp_rest=np.array([0.006]),
+    )
     result = proxy.step(tool_pose, scene)  # grasped end at (0.002, 0.05, 0): edge 10 mm long
     assert result.status == ProxyStatus.FREE
     np.testing.assert_allclose(result.pull_force, [0.0, -2.0 * 0.004, 0.0], atol=1e-12)
@@ -157,8 +189,9 @@ def box_data():
 def test_grasp_pull_force_grows_with_stretch_and_is_zero_at_rest(box_data):
     rest = box_data.rest_position
     top = rest[:, 1].max()
-    grasped = np.flatnonzero((rest[:, 1] > top - 1e-6) &
-                             (np.linalg.norm(rest[:, [0, 2]], axis=1) < 0.006))
+    grasped = np.flatnonzero(
+        (rest[:, 1] > top - 1e-6) & (np.linalg.norm(rest[:, [0, 2]], axis=1) < 0.006)
+    )
     edges = grasp_edges(box_data.tets, grasped)
     assert len(edges) and np.all(np.isin(edges[:, 0], grasped))
     assert not np.any(np.isin(edges[:, 1], grasped))
@@ -172,8 +205,10 @@ def test_grasp_pull_force_grows_with_stretch_and_is_zero_at_rest(box_data):
         magnitudes.append(np.linalg.norm(force))
     assert magnitudes[0] < magnitudes[1] < magnitudes[2]
     lifted = rest[edges[:, 0]] + [0.0, 0.002, 0.0]
-    np.testing.assert_allclose(pull_force(lifted, neighbor, rest_length, stiffness=0.004),
-                               4.0 * pull_force(lifted, neighbor, rest_length, stiffness=0.001))
+    np.testing.assert_allclose(
+        pull_force(lifted, neighbor, rest_length, stiffness=0.004),
+        4.0 * pull_force(lifted, neighbor, rest_length, stiffness=0.001),
+    )
 
 
 def test_surface_clusters_bound_their_particles_and_the_proxy_touches_them(box_data):
@@ -187,8 +222,9 @@ def test_surface_clusters_bound_their_particles_and_the_proxy_touches_them(box_d
     reach = np.linalg.norm(positions - np.repeat(center, counts, axis=0), axis=1) + surface.radius
     assert np.all(reach <= np.repeat(radius, counts) + 1e-6)
 
-    snapshot = SceneSnapshot.create(clusters=surface.cluster_count,
-                                    particles=surface.particle_count)
+    snapshot = SceneSnapshot.create(
+        clusters=surface.cluster_count, particles=surface.particle_count
+    )
     try:
         surface.publish(snapshot, box_data.rest_position)
         reader = snapshot.reader()
@@ -198,8 +234,9 @@ def test_surface_clusters_bound_their_particles_and_the_proxy_touches_them(box_d
         result = descend(proxy, reader.scene, 0.001, 0.001, top + 0.01, top, steps=100)
         assert result.status == ProxyStatus.CONTACT and result.contact_force[1] > 0.0
         r = 0.003 + box_data.radius[surface.particles]
-        d2, _ = capsule_distance_sq(box_data.rest_position[surface.particles],
-                                    result.graphic_position, UP, 0.05)
+        d2, _ = capsule_distance_sq(
+            box_data.rest_position[surface.particles], result.graphic_position, UP, 0.05
+        )
         assert np.all(np.sqrt(d2) >= r - 1e-6)
     finally:
         snapshot.close()
@@ -211,7 +248,7 @@ def test_jaws_keep_the_graphical_tool_off_particles_ahead_of_the_tip():
     jaws = ToolCapsule(length=0.05, radius=0.003, jaw_length=0.012, jaw_radius=0.002)
     proxy = HapticProxy(ProxySettings(jaws, gain=GAIN))
     result = descend(proxy, scene_of(plane()), 0.0, 0.0, 0.03, 0.005)  # the shaft's tip
-    jaw_end = result.graphic_position[1] - jaws.jaw_length            # stays 5 mm up
+    jaw_end = result.graphic_position[1] - jaws.jaw_length  # stays 5 mm up
     assert jaw_end - jaws.jaw_radius > PARTICLE_RADIUS - 1e-5
     assert result.graphic_position[1] > 0.005 + 0.008
     assert result.status == ProxyStatus.CONTACT

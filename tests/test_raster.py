@@ -29,13 +29,18 @@ class Mesh:
         self.tree = builder.finalize()
 
     def load(self, vertices, faces, normals=None):
-        vertices, faces = np.asarray(vertices, np.float32), np.asarray(faces, np.int32).reshape(-1, 3)
+        vertices, faces = (
+            np.asarray(vertices, np.float32),
+            np.asarray(faces, np.int32).reshape(-1, 3),
+        )
         normals = np.tile([0.0, 0.0, 1.0], (len(vertices), 1)) if normals is None else normals
-        for field, values, rows in ((self.positions, vertices, VERTEX_CAPACITY),
-                                    (self.normals, np.asarray(normals, np.float32), VERTEX_CAPACITY),
-                                    (self.triangles, faces.reshape(-1), 3 * TRIANGLE_CAPACITY)):
+        for field, values, rows in (
+            (self.positions, vertices, VERTEX_CAPACITY),
+            (self.normals, np.asarray(normals, np.float32), VERTEX_CAPACITY),
+            (self.triangles, faces.reshape(-1), 3 * TRIANGLE_CAPACITY),
+        ):
             padded = np.zeros((rows,) + values.shape[1:], values.dtype)
-            padded[:len(values)] = values
+            padded[: len(values)] = values
             field.from_numpy(padded)
         return len(faces)
 
@@ -52,8 +57,9 @@ def gbuffer(by_pixel: bool) -> GBuffer:
 
 def camera(near: float):
     """View-projection of the default camera: at the origin looking down -z, fov 90 deg."""
-    view, projection = camera_matrices(EYE, (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 90.0, WIDTH / HEIGHT,
-                                       near, 100.0)
+    view, projection = camera_matrices(
+        EYE, (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 90.0, WIDTH / HEIGHT, near, 100.0
+    )
     return projection @ view
 
 
@@ -61,9 +67,15 @@ def render(vertices, faces, *, normals=None, near=0.01, by_pixel=False) -> dict:
     """G-buffer arrays of a mesh seen by the default camera."""
     count = mesh().load(vertices, faces, normals)
     target = gbuffer(by_pixel)
-    target.render(mesh().positions, mesh().normals, mesh().triangles, count, EYE, camera(near), near)
-    return {"triangle": target.triangle.to_numpy(), "depth": target.depth.to_numpy(),
-            "position": target.position.to_numpy(), "normal": target.normal.to_numpy()}
+    target.render(
+        mesh().positions, mesh().normals, mesh().triangles, count, EYE, camera(near), near
+    )
+    return {
+        "triangle": target.triangle.to_numpy(),
+        "depth": target.depth.to_numpy(),
+        "position": target.position.to_numpy(),
+        "normal": target.normal.to_numpy(),
+    }
 
 
 def from_screen(points_px, depth=1.0):
@@ -122,7 +134,9 @@ def fan_around(centre, outer):
 def coverage_counts(vertices_px, faces, by_pixel):
     """How many triangles cover each pixel centre, drawing them one at a time."""
     world = from_screen(vertices_px)
-    return sum((render(world, face, by_pixel=by_pixel)["triangle"] == 0).astype(int) for face in faces)
+    return sum(
+        (render(world, face, by_pixel=by_pixel)["triangle"] == 0).astype(int) for face in faces
+    )
 
 
 @pytest.mark.parametrize("by_pixel", [False, True])
@@ -148,15 +162,24 @@ def test_jittered_grid_covers_its_rectangle_once():
     grid[1:-1, 1:-1] += rng.uniform(-3.0, 3.0, grid[1:-1, 1:-1].shape)
     grid = np.round(grid * 256) / 256
     index = np.arange(grid.shape[0] * grid.shape[1]).reshape(grid.shape[:2])
-    faces = [[index[i, j], index[i + 1, j], index[i + 1, j + 1]] for i in range(6) for j in range(4)]
-    faces += [[index[i, j], index[i + 1, j + 1], index[i, j + 1]] for i in range(6) for j in range(4)]
+    faces = [
+        [index[i, j], index[i + 1, j], index[i + 1, j + 1]] for i in range(6) for j in range(4)
+    ]
+    faces += [
+        [index[i, j], index[i + 1, j + 1], index[i, j + 1]] for i in range(6) for j in range(4)
+    ]
     counts = coverage_counts(grid.reshape(-1, 2), faces, False)
     rectangle = reference_coverage([(4.5, 4.5), (58.5, 4.5), (58.5, 42.5), (4.5, 42.5)])
     assert counts.max() == 1 and np.array_equal(counts == 1, rectangle)
 
 
 def test_far_off_screen_vertex_is_pulled_in_without_gaps():
-    a, b, c, far = (10.5, 10.5), (50.5, 15.5), (40.5, 40.5), (3.0e6, 1.0e6)  # far: past the guard band
+    a, b, c, far = (
+        (10.5, 10.5),
+        (50.5, 15.5),
+        (40.5, 40.5),
+        (3.0e6, 1.0e6),
+    )  # far: past the guard band
     counts = coverage_counts([a, b, c, far], [[0, 3, 2], [0, 1, 3]], False)
     expected = reference_coverage([a, b, far, c])
     assert counts.max() == 1 and (counts.sum() > 500)
@@ -179,12 +202,43 @@ def test_nearer_of_two_overlapping_triangles_wins_in_both_orders():
 
 def icosphere(subdivisions=2, seed=0, jitter=0.15):
     """Vertices and faces of a bumpy icosphere of radius ~1."""
-    t = (1.0 + 5 ** 0.5) / 2.0
-    vertices = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t),
-                (0, -1, -t), (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
-             (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9),
-             (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    t = (1.0 + 5**0.5) / 2.0
+    vertices = [
+        (-1, t, 0),
+        (1, t, 0),
+        (-1, -t, 0),
+        (1, -t, 0),
+        (0, -1, t),
+        (0, 1, t),
+        (0, -1, -t),
+        (0, 1, -t),
+        (t, 0, -1),
+        (t, 0, 1),
+        (-t, 0, -1),
+        (-t, 0, 1),
+    ]
+    faces = [
+        (0, 11, 5),
+        (0, 5, 1),
+        (0, 1, 7),
+        (0, 7, 10),
+        (0, 10, 11),
+        (1, 5, 9),
+        (5, 11, 4),
+        (11, 10, 2),
+        (10, 7, 6),
+        (7, 1, 8),
+        (3, 9, 4),
+        (3, 4, 2),
+        (3, 2, 6),
+        (3, 6, 8),
+        (3, 8, 9),
+        (4, 9, 5),
+        (2, 4, 11),
+        (6, 2, 10),
+        (8, 6, 7),
+        (9, 8, 1),
+    ]
     vertices = [np.array(v, float) / np.linalg.norm(v) for v in vertices]
     for _ in range(subdivisions):
         midpoint, refined = {}, []
@@ -205,8 +259,11 @@ def icosphere(subdivisions=2, seed=0, jitter=0.15):
 
 def pixel_rays():
     """Unit directions through the pixel centres of the default camera, (W, H, 3)."""
-    x, y = np.meshgrid((np.arange(WIDTH) + 0.5) * 2 / WIDTH - 1,
-                       (np.arange(HEIGHT) + 0.5) * 2 / HEIGHT - 1, indexing="ij")
+    x, y = np.meshgrid(
+        (np.arange(WIDTH) + 0.5) * 2 / WIDTH - 1,
+        (np.arange(HEIGHT) + 0.5) * 2 / HEIGHT - 1,
+        indexing="ij",
+    )
     d = np.stack([x * WIDTH / HEIGHT, y, -np.ones_like(x)], -1)  # fov 90 deg: tan(45 deg) = 1
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
@@ -306,19 +363,24 @@ def test_results_are_identical_across_runs_and_traversals():
     vertices = vertices * 0.3 + [0.05, 0.0, -0.9]
     runs = [render(vertices, faces, by_pixel=by_pixel) for by_pixel in (False, True, False, True)]
     for key in runs[0]:
-        assert np.array_equal(runs[0][key], runs[2][key]) and np.array_equal(runs[1][key], runs[3][key])
+        assert np.array_equal(runs[0][key], runs[2][key]) and np.array_equal(
+            runs[1][key], runs[3][key]
+        )
     assert np.array_equal(runs[0]["triangle"], runs[1]["triangle"])
     assert np.allclose(runs[0]["depth"], runs[1]["depth"], rtol=1e-6)
 
 
 def test_camera_matrices_follow_opengl_conventions():
-    view, projection = camera_matrices([1.0, 2.0, 3.0], [1.0, 2.0, 0.0], [0.0, 1.0, 0.0], 60.0, 1.5,
-                                       0.1, 10.0)
+    view, projection = camera_matrices(
+        [1.0, 2.0, 3.0], [1.0, 2.0, 0.0], [0.0, 1.0, 0.0], 60.0, 1.5, 0.1, 10.0
+    )
     for depth, ndc_z in ((0.1, -1.0), (10.0, 1.0)):
         clip = projection @ view @ [1.0, 2.0, 3.0 - depth, 1.0]
         assert np.allclose(clip[:3] / clip[3], [0.0, 0.0, ndc_z], atol=1e-5)
         assert np.isclose(clip[3], depth)
-    clip = projection @ view @ [1.0, 2.0 + np.tan(np.radians(30.0)), 2.0, 1.0]  # top edge of the view
+    clip = (
+        projection @ view @ [1.0, 2.0 + np.tan(np.radians(30.0)), 2.0, 1.0]
+    )  # top edge of the view
     assert np.isclose(clip[1] / clip[3], 1.0)
     with pytest.raises(ValueError):
         camera_matrices([0, 0, 0], [0, 1, 0], [0, 1, 0], 60.0, 1.0, 0.1, 10.0)
@@ -331,9 +393,14 @@ def compute_gbuffer() -> dict:
     vertices = np.concatenate([sphere * 0.3 + [0.0, 0.1, -1.0], floor])
     faces = np.concatenate([sphere_faces, [[len(sphere), len(sphere) + 1, len(sphere) + 2]]])
     target, count = GBuffer(WIDTH, HEIGHT), mesh().load(vertices, faces)
-    target.render(mesh().positions, mesh().normals, mesh().triangles, count, EYE, camera(0.02), 0.02)
-    return {"triangle": target.triangle.to_numpy(), "depth": target.depth.to_numpy(),
-            "position": target.position.to_numpy()}
+    target.render(
+        mesh().positions, mesh().normals, mesh().triangles, count, EYE, camera(0.02), 0.02
+    )
+    return {
+        "triangle": target.triangle.to_numpy(),
+        "depth": target.depth.to_numpy(),
+        "position": target.position.to_numpy(),
+    }
 
 
 @pytest.mark.vulkan

@@ -16,8 +16,15 @@ from taichi_lap import scene as scene_mod
 from taichi_lap.cli import main
 from taichi_lap.devices import Pose
 from taichi_lap.errors import InputError
-from taichi_lap.recording import (CRC, HEADER, RECORD_HEAD, SessionRecorder,
-                                  encode_event, encode_record, state_checksum)
+from taichi_lap.recording import (
+    CRC,
+    HEADER,
+    RECORD_HEAD,
+    SessionRecorder,
+    encode_event,
+    encode_record,
+    state_checksum,
+)
 from taichi_lap.replay import ReplayDevice, read_recording
 from taichi_lap.session import Session, scene_script
 
@@ -36,8 +43,9 @@ def recorded(tmp_path_factory):
     """A recording of the intestine scene's own tool script, made through the CLI."""
     folder = tmp_path_factory.mktemp("recorded")
     path = folder / "session.tlap"
-    status = main([*RUN, "--frames", str(FRAMES), "--out", str(folder / "frames"),
-                   "--record", str(path)])
+    status = main(
+        [*RUN, "--frames", str(FRAMES), "--out", str(folder / "frames"), "--record", str(path)]
+    )
     assert status == 0
     return path
 
@@ -60,8 +68,9 @@ def run_cli(capsys, *argv) -> tuple[int, str, str]:
 
 
 def test_replay_reproduces_the_recorded_final_state(recorded, tmp_path, capsys):
-    status, out, err = run_cli(capsys, *RUN, "--out", str(tmp_path / "r"),
-                               "--device", f"replay:{recorded}")
+    status, out, err = run_cli(
+        capsys, *RUN, "--out", str(tmp_path / "r"), "--device", f"replay:{recorded}"
+    )
     assert status == 0, err
     assert f"replay matches {recorded}" in out and f"after {FRAMES} frames" in out
 
@@ -88,11 +97,20 @@ def test_a_diverging_replay_is_reported_with_status_1(recorded, tmp_path, capsys
     frames = 5
     cut = record_bounds(data)[2 + frames - 1][1]  # session_start, device, five frames
     forged = tmp_path / "forged.tlap"
-    forged.write_bytes(data[:cut] + encode_event(
-        "session_end", time=0.0, frame=frames, status="complete", frames=frames,
-        checksum="0" * 64))
-    status, _, err = run_cli(capsys, *RUN, "--out", str(tmp_path / "r"), "--device",
-                             f"replay:{forged}")
+    forged.write_bytes(
+        data[:cut]
+        + encode_event(
+            "session_end",
+            time=0.0,
+            frame=frames,
+            status="complete",
+            frames=frames,
+            checksum="0" * 64,
+        )
+    )
+    status, _, err = run_cli(
+        capsys, *RUN, "--out", str(tmp_path / "r"), "--device", f"replay:{forged}"
+    )
     assert status == 1
     assert f"error: {forged}: session_end.checksum: the recorded final state 0000" in err
     assert "same backend, threads and versions" in err
@@ -111,9 +129,9 @@ def test_a_cut_file_reads_up_to_its_last_complete_record_and_warns(recorded, tmp
         assert len(recording.events) + len(recording.frames) == len(complete)
         assert recording.truncated_at == complete[-1][1]
         assert f"truncated at byte {recording.truncated_at}" in caplog.text
-    cut_file.write_bytes(data[:bounds[20][1]] + bytes(500))  # power cut: a zero-filled tail
+    cut_file.write_bytes(data[: bounds[20][1]] + bytes(500))  # power cut: a zero-filled tail
     assert read_recording(cut_file).truncated_at == bounds[20][1]
-    cut_file.write_bytes(data[:bounds[20][1]])  # a cut between records is a shorter recording
+    cut_file.write_bytes(data[: bounds[20][1]])  # a cut between records is a shorter recording
     assert read_recording(cut_file).truncated_at is None
     for cut, key in ((5, "header"), (bounds[0][1] - 1, "record 0")):
         cut_file.write_bytes(data[:cut])
@@ -123,9 +141,22 @@ def test_a_cut_file_reads_up_to_its_last_complete_record_and_warns(recorded, tmp
 
 def test_a_killed_recording_leaves_a_readable_file(tmp_path, capsys):
     path = tmp_path / "killed.tlap"
-    child = subprocess.Popen([sys.executable, "-m", "taichi_lap", *RUN, "--frames", "100000",
-                              "--out", str(tmp_path / "f"), "--record", str(path)],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "taichi_lap",
+            *RUN,
+            "--frames",
+            "100000",
+            "--out",
+            str(tmp_path / "f"),
+            "--record",
+            str(path),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.monotonic() + 120
         while not (path.exists() and len(read_recording(path).frames) >= 10):
@@ -137,8 +168,9 @@ def test_a_killed_recording_leaves_a_readable_file(tmp_path, capsys):
     recording = read_recording(path)
     assert recording.end is None and len(recording.frames) >= 10
     assert [f.frame for f in recording.frames] == list(range(len(recording.frames)))
-    status, out, err = run_cli(capsys, *RUN, "--frames", "10", "--out", str(tmp_path / "r"),
-                               "--device", f"replay:{path}")
+    status, out, err = run_cli(
+        capsys, *RUN, "--frames", "10", "--out", str(tmp_path / "r"), "--device", f"replay:{path}"
+    )
     assert status == 0, err
     assert "no session_end record: final state not compared" in out
 
@@ -153,20 +185,27 @@ def _version_7(data: bytes) -> bytes:
 
 def _damaged_middle(data: bytes) -> bytes:
     start, end = record_bounds(data)[10]
-    return data[:start + 20] + bytes([data[start + 20] ^ 0xFF]) + data[start + 21:]
+    return data[: start + 20] + bytes([data[start + 20] ^ 0xFF]) + data[start + 21 :]
 
 
-@pytest.mark.parametrize("damage, message", [
-    (_foreign, "header: a taichi-lap recording (magic 89 54 4c 41 50 0d 0a 1a) was expected, "
-               "found 50 4b 03 04"),
-    (_version_7, "header.version: version 1 was expected, found 7"),
-    (_damaged_middle, "record 10 (byte "),
-])
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (
+            _foreign,
+            "header: a taichi-lap recording (magic 89 54 4c 41 50 0d 0a 1a) was expected, "
+            "found 50 4b 03 04",
+        ),
+        (_version_7, "header.version: version 1 was expected, found 7"),
+        (_damaged_middle, "record 10 (byte "),
+    ],
+)
 def test_bad_recordings_are_named_with_status_2(recorded, tmp_path, capsys, damage, message):
     bad = tmp_path / "bad.tlap"
     bad.write_bytes(damage(recorded.read_bytes()))
-    status, _, err = run_cli(capsys, *RUN, "--out", str(tmp_path / "r"), "--device",
-                             f"replay:{bad}")
+    status, _, err = run_cli(
+        capsys, *RUN, "--out", str(tmp_path / "r"), "--device", f"replay:{bad}"
+    )
     assert status == 2
     assert err.strip().splitlines() == [err.strip()]  # one line, no traceback
     assert err.startswith(f"error: {bad}: {message}")
@@ -174,20 +213,42 @@ def test_bad_recordings_are_named_with_status_2(recorded, tmp_path, capsys, dama
 
 
 def test_replay_of_another_scene_names_what_differs(recorded, tmp_path, capsys):
-    status, _, err = run_cli(capsys, "run", "intestine", "--headless", "--set", "scene.detail=0.04",
-                             "--out", str(tmp_path / "r"), "--device", f"replay:{recorded}")
+    status, _, err = run_cli(
+        capsys,
+        "run",
+        "intestine",
+        "--headless",
+        "--set",
+        "scene.detail=0.04",
+        "--out",
+        str(tmp_path / "r"),
+        "--device",
+        f"replay:{recorded}",
+    )
     assert status == 2
-    assert f"error: {recorded}: session_start.digest: the recorded scene 'intestine' was expected" \
-           in err and "scene.detail = 0.04 (recorded: 0.03)" in err
-    status, _, err = run_cli(capsys, *RUN, "--frames", str(FRAMES + 1), "--out",
-                             str(tmp_path / "r"), "--device", f"replay:{recorded}")
+    assert (
+        f"error: {recorded}: session_start.digest: the recorded scene 'intestine' was expected"
+        in err
+        and "scene.detail = 0.04 (recorded: 0.03)" in err
+    )
+    status, _, err = run_cli(
+        capsys,
+        *RUN,
+        "--frames",
+        str(FRAMES + 1),
+        "--out",
+        str(tmp_path / "r"),
+        "--device",
+        f"replay:{recorded}",
+    )
     assert status == 2 and f"at most {FRAMES}" in err
 
 
 def test_a_recording_is_never_overwritten(recorded, tmp_path, capsys):
     before = recorded.read_bytes()
-    status, _, err = run_cli(capsys, *RUN, "--frames", "1", "--out", str(tmp_path / "r"),
-                             "--record", str(recorded))
+    status, _, err = run_cli(
+        capsys, *RUN, "--frames", "1", "--out", str(tmp_path / "r"), "--record", str(recorded)
+    )
     assert status == 2 and "--record" in err and "never overwritten" in err
     assert recorded.read_bytes() == before
 
@@ -199,9 +260,21 @@ def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scen
     force = np.array([0.5, -1.0, 2.0])
     with SessionRecorder(path, session, scene_script(scene)) as recorder:
         recorder.record_event("grasp", **grasp)
-        recorder.record_ticks([(100.0 + k * 1e-3, {"probe": (
-            Pose(np.array([0.0, 0.01 * k, 0.0]), np.array([0.0, 1.0, 0.0])), 1, force)})
-            for k in range(3)])
+        recorder.record_ticks(
+            [
+                (
+                    100.0 + k * 1e-3,
+                    {
+                        "probe": (
+                            Pose(np.array([0.0, 0.01 * k, 0.0]), np.array([0.0, 1.0, 0.0])),
+                            1,
+                            force,
+                        )
+                    },
+                )
+                for k in range(3)
+            ]
+        )
         recorder.stream.append(encode_record(ord("Z"), b"a record type of a later writer"))
         recorder.record_event("release", tool="probe")
         with pytest.raises(ValueError, match="event kind"):
@@ -209,8 +282,14 @@ def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scen
     recording = read_recording(path)
     kinds = [e["kind"] for e in recording.events]
     assert kinds == ["session_start", "device", "grasp", "release", "session_end"]
-    assert recording.events[2] == {"kind": "grasp", "time": 0.0, "frame": 0, "tool": "probe",
-                                   "particles": [3, 5, 8], "force": 0.25}
+    assert recording.events[2] == {
+        "kind": "grasp",
+        "time": 0.0,
+        "frame": 0,
+        "tool": "probe",
+        "particles": [3, 5, 8],
+        "force": 0.25,
+    }
     assert recording.events[1]["device"] == "ScriptedDevice"
     assert recording.start["digest"] and recording.start["raw_scene"]["scene"]["detail"] == 0.03
     assert [t.clock for t in recording.ticks] == [100.0 + k * 1e-3 for k in range(3)]
@@ -224,14 +303,15 @@ def test_a_grasping_session_replays_to_the_same_state(tmp_path, capsys):
     """The rectum scene's script closes the grasper on the wall at 0.9 s: the grasp is
     an event of the record, and the replay (poses and buttons) ends in the same state."""
     path, frames = tmp_path / "grasp.tlap", 58
-    run = ["run", "rectum", "--headless", "--size", "64x48", *SMALL, "--set",
-           "scene.collision=off"]
-    status, _, err = run_cli(capsys, *run, "--frames", str(frames), "--out",
-                             str(tmp_path / "a"), "--record", str(path))
+    run = ["run", "rectum", "--headless", "--size", "64x48", *SMALL, "--set", "scene.collision=off"]
+    status, _, err = run_cli(
+        capsys, *run, "--frames", str(frames), "--out", str(tmp_path / "a"), "--record", str(path)
+    )
     assert status == 0, err
     grasps = [e for e in read_recording(path).events if e["kind"] == "grasp"]
     assert len(grasps) == 1 and grasps[0]["tool"] == "grasper" and grasps[0]["particles"] > 0
-    status, out, err = run_cli(capsys, *run, "--out", str(tmp_path / "b"), "--device",
-                               f"replay:{path}")
+    status, out, err = run_cli(
+        capsys, *run, "--out", str(tmp_path / "b"), "--device", f"replay:{path}"
+    )
     assert status == 0, err
     assert f"after {frames} frames" in out

@@ -29,7 +29,7 @@ SIZE = (192, 144)
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     """Peak signal-to-noise ratio of two uint8 images [dB]."""
     mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
-    return float("inf") if mse == 0 else 10.0 * np.log10(255.0 ** 2 / mse)
+    return float("inf") if mse == 0 else 10.0 * np.log10(255.0**2 / mse)
 
 
 def material_spheres() -> dict[str, np.ndarray]:
@@ -44,10 +44,22 @@ def material_spheres() -> dict[str, np.ndarray]:
         positions.append(sphere.vertices + offset)
         material.append(np.full(len(sphere.faces), index))
     positions = np.concatenate(positions).astype(np.float32)
-    mesh = ArrayMesh(np.concatenate(triangles), np.concatenate(material), list(PRESETS.values()),
-                     vertex_count=len(positions), smooth_count=len(positions), positions=positions)
-    camera = EndoscopeCamera(eye=np.array([0.0, 0.0, 0.2]), target=np.zeros(3),
-                             up=np.array([0.0, 1.0, 0.0]), fov=45.0, near=0.01, far=1.0)
+    mesh = ArrayMesh(
+        np.concatenate(triangles),
+        np.concatenate(material),
+        list(PRESETS.values()),
+        vertex_count=len(positions),
+        smooth_count=len(positions),
+        positions=positions,
+    )
+    camera = EndoscopeCamera(
+        eye=np.array([0.0, 0.0, 0.2]),
+        target=np.zeros(3),
+        up=np.array([0.0, 1.0, 0.0]),
+        fov=45.0,
+        near=0.01,
+        far=1.0,
+    )
     renderer = Renderer(mesh, camera, size=SIZE)
     renderer.render(None, None)
     return {"image": renderer.image()}
@@ -160,8 +172,9 @@ def window_screenshot() -> dict[str, np.ndarray]:
     from taichi_lap.viewer import Viewer
 
     session = small_session("rectum")
-    viewer = Viewer(session, Renderer.for_scene(session.scene, session.data, size=(160, 120)),
-                    show_window=False)
+    viewer = Viewer(
+        session, Renderer.for_scene(session.scene, session.data, size=(160, 120)), show_window=False
+    )
     viewer.draw()
     return {"screenshot": viewer.screenshot(), "image": viewer.renderer.image()}
 

@@ -15,8 +15,15 @@ from multiprocessing import shared_memory
 import numpy as np
 import pytest
 
-from taichi_lap.haptics import (OpenHapticsDevice, ProxySettings, SceneSnapshot, ServoProcess,
-                                ServoSettings, ServoState, WorkspaceMapping)
+from taichi_lap.haptics import (
+    OpenHapticsDevice,
+    ProxySettings,
+    SceneSnapshot,
+    ServoProcess,
+    ServoSettings,
+    ServoState,
+    WorkspaceMapping,
+)
 from taichi_lap.haptics import servo as servo_module
 from taichi_lap.haptics.servo import scripted_device
 from tests import fake_hd, helpers
@@ -32,8 +39,13 @@ class Publisher:
 
     def __init__(self, snapshot: SceneSnapshot):
         scene = scene_of(plane())
-        self.fields = (scene.cluster_center, scene.cluster_radius, scene.cluster_start,
-                       scene.particle_position, scene.particle_radius)
+        self.fields = (
+            scene.cluster_center,
+            scene.cluster_radius,
+            scene.cluster_start,
+            scene.particle_position,
+            scene.particle_radius,
+        )
         self.snapshot, self.running = snapshot, threading.Event()
         self.running.set()
         self._done = threading.Event()
@@ -57,8 +69,9 @@ class Publisher:
 @pytest.fixture
 def snapshot():
     scene = scene_of(plane())
-    snapshot = SceneSnapshot.create(clusters=len(scene.cluster_radius),
-                                    particles=len(scene.particle_position))
+    snapshot = SceneSnapshot.create(
+        clusters=len(scene.cluster_radius), particles=len(scene.particle_position)
+    )
     publisher = Publisher(snapshot)
     yield publisher
     publisher.close()
@@ -67,8 +80,12 @@ def snapshot():
 
 def servo_for(publisher: Publisher, keyframes, **device) -> ServoProcess:
     device = scripted_device(keyframes, rotation=UPRIGHT, max_force=MAX_FORCE, **device)
-    return ServoProcess(publisher.snapshot.name, device, ProxySettings(TOOL, gain=300.0),
-                        ServoSettings(max_rate=1000.0))
+    return ServoProcess(
+        publisher.snapshot.name,
+        device,
+        ProxySettings(TOOL, gain=300.0),
+        ServoSettings(max_rate=1000.0),
+    )
 
 
 wait_for = functools.partial(helpers.wait_for, timeout=5.0)
@@ -81,11 +98,12 @@ def test_servo_ticks_at_about_1khz_in_a_child_process(snapshot):
         history = servo.feedback.tick_history()
         tool = servo.feedback.read()
         granted = "granted" if servo.feedback.fifo_granted else "refused"
-    periods = history["period"][start - history["count"]:]
+    periods = history["period"][start - history["count"] :]
     assert len(periods) > 500
     median = float(np.median(periods))
-    assert median == pytest.approx(0.001, rel=0.05), \
+    assert median == pytest.approx(0.001, rel=0.05), (
         f"median period {median * 1e3:.3f} ms (SCHED_FIFO {granted})"
+    )
     assert tool.contacts > 0 and tool.snapshot_sequence > 0
     np.testing.assert_allclose(tool.graphic_pose[:3, 3], [0.0, 0.004, 0.0], atol=1e-6)
 
@@ -144,8 +162,9 @@ def test_device_that_fails_to_open_is_reported_by_start(snapshot):
     bad = scripted_device([(1.0, ABOVE), (0.0, PRESSED)])  # times run backwards
     servo = ServoProcess(snapshot.snapshot.name, bad, ProxySettings(TOOL))
     try:
-        with pytest.raises(RuntimeError, match="did not start: ValueError: ScriptedHapticDevice: "
-                                               "keyframes"):
+        with pytest.raises(
+            RuntimeError, match="did not start: ValueError: ScriptedHapticDevice: keyframes"
+        ):
             servo.start()
         assert servo.feedback.state == ServoState.FAULTED
     finally:
@@ -157,8 +176,12 @@ def test_servo_drives_the_openhaptics_binding_against_the_fake_libhd(snapshot, t
         pytest.skip("no C compiler (cc or gcc) on PATH to build the fake libHD")
     library = str(fake_hd.build(tmp_path))
     # the fake's stylus rests at its origin, axis +z: lying 1 mm into the plane's particles
-    device = functools.partial(OpenHapticsDevice, library=library, max_rate=1000.0,
-                               mapping=WorkspaceMapping(offset=(0.0, 0.003, 0.0)))
+    device = functools.partial(
+        OpenHapticsDevice,
+        library=library,
+        max_rate=1000.0,
+        mapping=WorkspaceMapping(offset=(0.0, 0.003, 0.0)),
+    )
     with ServoProcess(snapshot.snapshot.name, device, ProxySettings(TOOL, gain=300.0)) as servo:
         expected = [0.0, 300.0 * 0.001, 0.0]  # [N]: gain x 1 mm, once ramped in
         assert wait_for(lambda: np.allclose(servo.feedback.read().force, expected, atol=1e-6))

@@ -6,15 +6,24 @@ import numpy as np
 from taichi_lap import scene as scene_mod
 from taichi_lap.session import Session
 
-BALL = {"name": "ball", "model": "tet_clusters",
-        "geometry": {"generator": "sphere", "radius": 0.02},
-        "material": {"particle_spacing": 0.004, "stiffness": 0.3, "damping": 6.0}}
+BALL = {
+    "name": "ball",
+    "model": "tet_clusters",
+    "geometry": {"generator": "sphere", "radius": 0.02},
+    "material": {"particle_spacing": 0.004, "stiffness": 0.3, "damping": 6.0},
+}
 FLOOR = {"point": [0.0, -0.02, 0.0], "normal": [0.0, 1.0, 0.0], "friction": 0.8}
 
 
 def ball_session(settle_time: float) -> Session:
-    scene = scene_mod.from_tables([BALL], planes=[FLOOR], substeps=2, shape_iterations=2,
-                                  settle_time=settle_time, collision="circumsphere")
+    scene = scene_mod.from_tables(
+        [BALL],
+        planes=[FLOOR],
+        substeps=2,
+        shape_iterations=2,
+        settle_time=settle_time,
+        collision="circumsphere",
+    )
     return Session(scene, use_cache=False, progress=False)
 
 
@@ -50,8 +59,9 @@ def test_solver_settings_take_every_default_from_the_scene_schema():
     defaults = SolverSettings()
     for field in fields(SolverSettings):
         expected = SCENE_PARAMS[field.name].default
-        assert getattr(defaults, field.name) == (tuple(expected) if isinstance(expected, list)
-                                                 else expected), field.name
+        assert getattr(defaults, field.name) == (
+            tuple(expected) if isinstance(expected, list) else expected
+        ), field.name
     scene = scene_mod.from_tables([BALL], substeps=3, gravity=[0.0, 0.0, -1.0])
     settings = SolverSettings.from_scene(scene.settings)
     assert settings.substeps == 3 and settings.gravity == (0.0, 0.0, -1.0)

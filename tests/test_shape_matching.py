@@ -67,8 +67,13 @@ def test_deformed_body_returns_towards_rest():
 
 
 def test_collided_vertex_holds_then_recovers_at_rate():
-    tool = {"name": "probe", "radius": 0.004, "length": 0.1, "tip": [0.0, 0.0195, 0.0],
-            "direction": [0, 1, 0]}
+    tool = {
+        "name": "probe",
+        "radius": 0.004,
+        "length": 0.1,
+        "tip": [0.0, 0.0195, 0.0],
+        "direction": [0, 1, 0],
+    }
     _, data, model, state, control, solver = simulation([BOX], gravity=[0, 0, 0], tools=[tool])
     control.set_tool(0, [0.0, 0.0125, 0.0], [0.0, 0.1125, 0.0], 0.004)  # dents the top face
     solver.step(state, control, DT)
@@ -98,18 +103,28 @@ def test_inverted_cluster_gives_proper_rotation():
     mirrored = (data.rest_position * [-1.0, 1.0, 1.0]).astype(np.float32)  # a reflection
     state.p.from_numpy(mirrored)
     shape_matching.match_clusters(model, state)
-    rotations = state.cluster_rotation.to_numpy()[:model.cluster_total]
+    rotations = state.cluster_rotation.to_numpy()[: model.cluster_total]
     assert np.allclose(np.linalg.det(rotations), 1.0, atol=1e-4)
     assert np.allclose(rotations @ rotations.transpose(0, 2, 1), np.eye(3), atol=1e-4)
 
 
-REFERENCE_ORGANS = [dict(BOX, material=dict(BOX["material"], damping=2.0, eta_on_contact=0.7,
-                                            recover_rate=0.02))]
+REFERENCE_ORGANS = [
+    dict(BOX, material=dict(BOX["material"], damping=2.0, eta_on_contact=0.7, recover_rate=0.02))
+]
 REFERENCE_SETTINGS = dict(
-    tools=[{"name": "probe", "radius": 0.005, "length": 0.1, "tip": [0.004, 0.016, 0.0],
-            "direction": [0.2, 1, 0]}],
+    tools=[
+        {
+            "name": "probe",
+            "radius": 0.005,
+            "length": 0.1,
+            "tip": [0.004, 0.016, 0.0],
+            "direction": [0.2, 1, 0],
+        }
+    ],
     planes=[{"point": [0, -0.013, 0], "normal": [0, 1, 0], "friction": 0.4}],
-    substeps=2, shape_iterations=3)
+    substeps=2,
+    shape_iterations=3,
+)
 
 
 def reference_case():
@@ -122,9 +137,13 @@ def test_kernel_agrees_with_numpy_reference():
     tool = scene.tools[0]
     direction = np.asarray(tool["direction"]) / np.linalg.norm(tool["direction"])
     ref = ReferenceShapeMatching(
-        data, substeps=2, shape_iterations=3, gravity=scene.settings["gravity"],
+        data,
+        substeps=2,
+        shape_iterations=3,
+        gravity=scene.settings["gravity"],
         planes=[(p["point"], p["normal"], p["friction"]) for p in scene.planes],
-        tools=[(tool["tip"], np.asarray(tool["tip"]) + tool["length"] * direction, tool["radius"])])
+        tools=[(tool["tip"], np.asarray(tool["tip"]) + tool["length"] * direction, tool["radius"])],
+    )
     for _ in range(15):
         solver.step(state, control, DT)
         ref.step(DT)

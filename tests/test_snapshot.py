@@ -9,8 +9,13 @@ from multiprocessing import shared_memory
 import numpy as np
 import pytest
 
-from taichi_lap.haptics import (SceneSnapshot, ServoFeedback, ServoState, SnapshotCapacityError,
-                                ToolFeedback)
+from taichi_lap.haptics import (
+    SceneSnapshot,
+    ServoFeedback,
+    ServoState,
+    SnapshotCapacityError,
+    ToolFeedback,
+)
 
 CLUSTERS, PARTICLES, GRASP = 600, 120_000, 32
 
@@ -23,11 +28,17 @@ def pattern(sequence: int) -> dict:
     start = np.full(c + 1, p)
     start[0] = 0
     value = float(sequence)
-    return {"cluster_center": np.full((c, 3), value), "cluster_radius": np.full(c, value),
-            "cluster_start": start, "particle_position": np.full((p, 3), value),
-            "particle_radius": value, "grasp_local": np.full((g, 3), value),
-            "grasp_neighbor": np.full((g, 3), value), "grasp_rest": np.full(g, value),
-            "timestamp": value}
+    return {
+        "cluster_center": np.full((c, 3), value),
+        "cluster_radius": np.full(c, value),
+        "cluster_start": start,
+        "particle_position": np.full((p, 3), value),
+        "particle_radius": value,
+        "grasp_local": np.full((g, 3), value),
+        "grasp_neighbor": np.full((g, 3), value),
+        "grasp_rest": np.full(g, value),
+        "timestamp": value,
+    }
 
 
 def assert_uniform(scene):
@@ -35,10 +46,19 @@ def assert_uniform(scene):
     expected = pattern(scene.sequence)
     expected["particle_radius"] = np.full(len(expected["particle_position"]), scene.sequence)
     assert scene.timestamp == scene.sequence
-    for name in ("cluster_center", "cluster_radius", "cluster_start", "particle_position",
-                 "particle_radius", "grasp_local", "grasp_neighbor", "grasp_rest"):
-        np.testing.assert_array_equal(getattr(scene, name), expected[name], 
-                                      err_msg=f"{name} of snapshot {scene.sequence}")
+    for name in (
+        "cluster_center",
+        "cluster_radius",
+        "cluster_start",
+        "particle_position",
+        "particle_radius",
+        "grasp_local",
+        "grasp_neighbor",
+        "grasp_rest",
+    ):
+        np.testing.assert_array_equal(
+            getattr(scene, name), expected[name], err_msg=f"{name} of snapshot {scene.sequence}"
+        )
         assert getattr(scene, name).shape == np.shape(expected[name]), name
 
 
@@ -105,28 +125,50 @@ def test_reader_takes_the_newest_complete_slot_while_the_writer_is_mid_copy():
 
 def test_publish_beyond_capacity_raises_naming_the_capacity():
     snapshot = SceneSnapshot.create(clusters=4, particles=10, grasp_edges=2)
-    ok = {"cluster_center": np.zeros((2, 3)), "cluster_radius": np.ones(2),
-          "cluster_start": [0, 5, 10], "particle_position": np.zeros((10, 3)),
-          "particle_radius": 0.001}
+    ok = {
+        "cluster_center": np.zeros((2, 3)),
+        "cluster_radius": np.ones(2),
+        "cluster_start": [0, 5, 10],
+        "particle_position": np.zeros((10, 3)),
+        "particle_radius": 0.001,
+    }
     try:
         assert snapshot.publish(**ok) == 1
-        with pytest.raises(SnapshotCapacityError, match="cluster_center: 5 rows exceed the "
-                                                        "capacity of 4"):
-            snapshot.publish(**dict(ok, cluster_center=np.zeros((5, 3)), cluster_radius=np.ones(5),
-                                    cluster_start=[0, 2, 4, 6, 8, 10]))
-        with pytest.raises(SnapshotCapacityError, match="particle_position: 11 rows exceed the "
-                                                        "capacity of 10"):
-            snapshot.publish(**dict(ok, particle_position=np.zeros((11, 3)),
-                                    cluster_start=[0, 5, 11]))
-        with pytest.raises(SnapshotCapacityError, match="grasp_local: 3 rows exceed the "
-                                                        "capacity of 2"):
-            snapshot.publish(**ok, grasp_local=np.zeros((3, 3)), grasp_neighbor=np.zeros((3, 3)),
-                             grasp_rest=np.ones(3))
-        with pytest.raises(ValueError, match=r"cluster_radius: an array of shape \(2,\) was "
-                                             r"expected, found \(3,\)"):
+        with pytest.raises(
+            SnapshotCapacityError, match="cluster_center: 5 rows exceed the capacity of 4"
+        ):
+            snapshot.publish(
+                **dict(
+                    ok,
+                    cluster_center=np.zeros((5, 3)),
+                    cluster_radius=np.ones(5),
+                    cluster_start=[0, 2, 4, 6, 8, 10],
+                )
+            )
+        with pytest.raises(
+            SnapshotCapacityError, match="particle_position: 11 rows exceed the capacity of 10"
+        ):
+            snapshot.publish(
+                **dict(ok, particle_position=np.zeros((11, 3)), cluster_start=[0, 5, 11])
+            )
+        with pytest.raises(
+            SnapshotCapacityError, match="grasp_local: 3 rows exceed the capacity of 2"
+        ):
+            snapshot.publish(
+                **ok,
+                grasp_local=np.zeros((3, 3)),
+                grasp_neighbor=np.zeros((3, 3)),
+                grasp_rest=np.ones(3),
+            )
+        with pytest.raises(
+            ValueError,
+            match=r"cluster_radius: an array of shape \(2,\) was "
+            r"expected, found \(3,\)",
+        ):
             snapshot.publish(**dict(ok, cluster_radius=np.ones(3)))
-        with pytest.raises(ValueError, match="cluster_start: non-decreasing offsets from 0 to "
-                                             "the 10 particles"):
+        with pytest.raises(
+            ValueError, match="cluster_start: non-decreasing offsets from 0 to the 10 particles"
+        ):
             snapshot.publish(**dict(ok, cluster_start=[0, 5, 9]))
         with pytest.raises(ValueError, match="clusters: a capacity of at least 1"):
             SceneSnapshot.create(clusters=0, particles=10)
@@ -157,19 +199,41 @@ def test_feedback_round_trips_tool_state_and_the_tick_ring_keeps_the_latest():
         assert feedback.fifo_granted is None
         pose = np.eye(4)
         pose[:3, 3] = [0.01, 0.02, 0.03]
-        servo_side.write(ToolFeedback(
-            tick=7, time=1.5, haptic_pose=pose, graphic_pose=np.eye(4), buttons=3,
-            force=[0.1, 0.2, 0.3], contact_force=[1.0, 2.0, 3.0], pull_force=[0.0, 0.0, -0.5],
-            contacts=4, proxy_status=1, snapshot_sequence=11, missed_2ms=2, qp_fallbacks=1,
-            qp_failures=0, max_force_sent=0.4))
+        servo_side.write(
+            ToolFeedback(
+                tick=7,
+                time=1.5,
+                haptic_pose=pose,
+                graphic_pose=np.eye(4),
+                buttons=3,
+                force=[0.1, 0.2, 0.3],
+                contact_force=[1.0, 2.0, 3.0],
+                pull_force=[0.0, 0.0, -0.5],
+                contacts=4,
+                proxy_status=1,
+                snapshot_sequence=11,
+                missed_2ms=2,
+                qp_fallbacks=1,
+                qp_failures=0,
+                max_force_sent=0.4,
+            )
+        )
         tool = feedback.read()
         assert (tool.tick, tool.buttons, tool.contacts, tool.snapshot_sequence) == (7, 3, 4, 11)
         np.testing.assert_array_equal(tool.haptic_pose, pose)
         np.testing.assert_array_equal(tool.force, [0.1, 0.2, 0.3])
         assert tool.time == 1.5 and tool.max_force_sent == 0.4 and tool.missed_2ms == 2
         for i in range(20):
-            servo_side.record_tick(0.001 * i, 1e-4, 1e-5, clock=100.0 + i, tip=[0.0, i, 0.0],
-                                   direction=[0.0, 0.0, 1.0], buttons=i % 2, force=[i, 0.0, 0.0])
+            servo_side.record_tick(
+                0.001 * i,
+                1e-4,
+                1e-5,
+                clock=100.0 + i,
+                tip=[0.0, i, 0.0],
+                direction=[0.0, 0.0, 1.0],
+                buttons=i % 2,
+                force=[i, 0.0, 0.0],
+            )
         history = feedback.tick_history()
         assert history["count"] == 20
         np.testing.assert_allclose(history["period"], 0.001 * np.arange(12, 20))

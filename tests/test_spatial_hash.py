@@ -43,7 +43,11 @@ def assert_pairs(found, x, radius):
 
 def teschner_bucket(x, cell, table_size):
     c = np.floor(x * np.float32(1.0 / cell)).astype(np.int32).astype(np.uint32)
-    h = (c[:, 0] * np.uint32(73856093)) ^ (c[:, 1] * np.uint32(19349663)) ^ (c[:, 2] * np.uint32(83492791))
+    h = (
+        (c[:, 0] * np.uint32(73856093))
+        ^ (c[:, 1] * np.uint32(19349663))
+        ^ (c[:, 2] * np.uint32(83492791))
+    )
     return (h % np.uint32(table_size)).astype(np.int32)
 
 
@@ -55,9 +59,14 @@ def compute_pairs(n=2000, seed=0, table_size=1021, cell=CELL, radius=0.008, lo=-
     grid.build(points, n)
     total = grid.find_pairs(points, radius)
     grid.count_neighbours(points, radius)
-    return dict(points=x, pairs=grid.pairs_numpy(), total=np.int32(total),
-                sorted_index=grid.sorted_index.to_numpy(), bucket_start=grid.bucket_start.to_numpy(),
-                neighbour_count=grid.neighbour_count.to_numpy())
+    return dict(
+        points=x,
+        pairs=grid.pairs_numpy(),
+        total=np.int32(total),
+        sorted_index=grid.sorted_index.to_numpy(),
+        bucket_start=grid.bucket_start.to_numpy(),
+        neighbour_count=grid.neighbour_count.to_numpy(),
+    )
 
 
 @pytest.mark.parametrize("table_size", [1, 7, 1021, 1 << 16])
@@ -82,7 +91,9 @@ def test_layout_is_teschner_counting_sort():
     bucket = teschner_bucket(x, CELL, table_size)
     assert np.array_equal(grid.point_bucket.to_numpy(), bucket)
     start = grid.bucket_start.to_numpy()
-    assert np.array_equal(start, np.concatenate([[0], np.cumsum(np.bincount(bucket, minlength=table_size))]))
+    assert np.array_equal(
+        start, np.concatenate([[0], np.cumsum(np.bincount(bucket, minlength=table_size))])
+    )
     order = grid.sorted_index.to_numpy()
     assert np.array_equal(order, np.argsort(bucket, kind="stable"))  # ascending inside buckets
 
@@ -170,7 +181,10 @@ def test_bad_arguments_are_refused():
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
     kwargs = dict(n=3001, seed=8, table_size=2039, radius=0.9 * CELL)
-    gpu, cpu = run_on_arch("vulkan", "tests.test_spatial_hash:compute_pairs", **kwargs), compute_pairs(**kwargs)
+    gpu, cpu = (
+        run_on_arch("vulkan", "tests.test_spatial_hash:compute_pairs", **kwargs),
+        compute_pairs(**kwargs),
+    )
     for key in ("points", "sorted_index", "bucket_start", "neighbour_count", "pairs", "total"):
         assert np.array_equal(gpu[key], cpu[key]), key
     assert int(cpu["total"]) > 1000
@@ -183,7 +197,9 @@ if __name__ == "__main__":  # build time for 200k points on the CPU backend
 
     runtime.init("cpu")
     n = 200_000
-    x = np.random.default_rng(0).uniform(0.0, 0.2, (n, 3)).astype(np.float32)  # ~1.6 points per 4 mm cell
+    x = (
+        np.random.default_rng(0).uniform(0.0, 0.2, (n, 3)).astype(np.float32)
+    )  # ~1.6 points per 4 mm cell
     grid, points = SpatialHash(n, 1 << 19, 0.004), make_points(x)
     times = []
     for k in range(25):
@@ -191,10 +207,14 @@ if __name__ == "__main__":  # build time for 200k points on the CPU backend
         grid.build(points, n)
         ti.sync()
         times.append(time.perf_counter() - t0)
-    print(f"build, {n} points, table {1 << 19}: median {1e3 * np.median(times[5:]):.2f} ms over 20 builds")
+    print(
+        f"build, {n} points, table {1 << 19}: median {1e3 * np.median(times[5:]):.2f} ms over 20 builds"
+    )
     t0 = time.perf_counter()
     total = grid.find_pairs(points, 0.004)
-    print(f"find_pairs (r = 4 mm, {total} pairs, first call incl. compile): {1e3 * (time.perf_counter() - t0):.1f} ms")
+    print(
+        f"find_pairs (r = 4 mm, {total} pairs, first call incl. compile): {1e3 * (time.perf_counter() - t0):.1f} ms"
+    )
     times = []
     for k in range(10):
         t0 = time.perf_counter()

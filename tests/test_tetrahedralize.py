@@ -8,16 +8,23 @@ import trimesh
 
 from taichi_lap.build.geometry import Solid, TriangleMesh
 from taichi_lap.build.tetrahedralize import (
-    TetMesh, min_dihedral_angle, points_inside, tet_edges, tet_volumes, tetrahedralize)
+    TetMesh,
+    min_dihedral_angle,
+    points_inside,
+    tet_edges,
+    tet_volumes,
+    tetrahedralize,
+)
 
-RADIUS = 0.05                  # m
-SPACING = RADIUS / 10          # m, cube edge of the lattice
-SNAPPED_MIN_DIHEDRAL = 10.0    # degrees, bound stated for a sphere of 10 cells radius
+RADIUS = 0.05  # m
+SPACING = RADIUS / 10  # m, cube edge of the lattice
+SNAPPED_MIN_DIHEDRAL = 10.0  # degrees, bound stated for a sphere of 10 cells radius
 
 
 def sphere_solid(radius: float = RADIUS) -> Solid:
-    return Solid((np.full(3, -radius), np.full(3, radius)),
-                 sdf=lambda p: np.linalg.norm(p, axis=1) - radius)
+    return Solid(
+        (np.full(3, -radius), np.full(3, radius)), sdf=lambda p: np.linalg.norm(p, axis=1) - radius
+    )
 
 
 @pytest.fixture(scope="module")
@@ -46,14 +53,16 @@ def test_helpers_on_a_regular_tet():
     assert tet_volumes(particles, tets)[0] == pytest.approx(8 / 3)
     assert tet_volumes(particles, tets[:, [1, 0, 2, 3]])[0] == pytest.approx(-8 / 3)
     assert min_dihedral_angle(particles, tets)[0] == pytest.approx(np.degrees(np.arccos(1 / 3)))
-    np.testing.assert_array_equal(tet_edges(np.array([[3, 1, 2, 0], [0, 1, 2, 4]])),
-                                  [[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [1, 3], [1, 4], [2, 3], [2, 4]])
+    np.testing.assert_array_equal(
+        tet_edges(np.array([[3, 1, 2, 0], [0, 1, 2, 4]])),
+        [[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [1, 3], [1, 4], [2, 3], [2, 4]],
+    )
 
 
 def test_sphere_volume_and_orientation(sphere):
     volumes = tet_volumes(sphere.particles, sphere.tets)
     assert np.all(volumes > 0)
-    assert volumes.sum() == pytest.approx(4 / 3 * np.pi * RADIUS ** 3, rel=0.03)
+    assert volumes.sum() == pytest.approx(4 / 3 * np.pi * RADIUS**3, rel=0.03)
     assert sphere.particles.dtype == np.float64 and sphere.tets.dtype == np.int64
     assert np.array_equal(np.unique(sphere.tets), np.arange(len(sphere.particles)))
     assert 4.5 < len(sphere.tets) / len(sphere.particles) < 6.5
@@ -66,14 +75,18 @@ def test_interior_tets_are_bcc_and_snapped_tets_stay_good(sphere):
     interior = ~on_skin[sphere.tets].any(axis=1)
     assert interior.sum() > len(sphere.tets) / 2
     assert quality[interior].min() >= 59.9
-    np.testing.assert_allclose(tet_volumes(sphere.particles, sphere.tets[interior]), SPACING ** 3 / 12)
+    np.testing.assert_allclose(
+        tet_volumes(sphere.particles, sphere.tets[interior]), SPACING**3 / 12
+    )
     assert quality.min() >= SNAPPED_MIN_DIHEDRAL
 
 
 def test_sphere_skin_is_watertight_outward_and_on_the_sphere(sphere):
     skin = sphere.surface
     assert np.all(edge_use_counts(skin.triangles) == 2)
-    assert signed_volume(skin) == pytest.approx(tet_volumes(sphere.particles, sphere.tets).sum(), rel=1e-9)
+    assert signed_volume(skin) == pytest.approx(
+        tet_volumes(sphere.particles, sphere.tets).sum(), rel=1e-9
+    )
     radial_error = np.abs(np.linalg.norm(skin.vertices, axis=1) - RADIUS)
     assert radial_error.max() <= 1e-3 * SPACING
 
@@ -102,7 +115,7 @@ def test_parity_inside_test_matches_the_polyhedron(icosphere):
     points = np.random.default_rng(7).uniform(-1.2 * RADIUS, 1.2 * RADIUS, (5000, 3))
     normal = icosphere.face_normals
     offset = np.einsum("fi,fi->f", icosphere.vertices[icosphere.faces[:, 0]], normal)
-    plane_distance = (points @ normal.T - offset).max(axis=1)   # convex: behind every face
+    plane_distance = (points @ normal.T - offset).max(axis=1)  # convex: behind every face
     clear = np.abs(plane_distance) > 1e-6
     inside = points_inside(surface, points)
     np.testing.assert_array_equal(inside[clear], plane_distance[clear] < 0)
@@ -111,10 +124,14 @@ def test_parity_inside_test_matches_the_polyhedron(icosphere):
 
 def test_parity_inside_test_with_rays_along_box_edges():
     box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
-    grid = np.stack(np.meshgrid(*[np.arange(-1, 1.01, 0.125)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    grid = np.stack(np.meshgrid(*[np.arange(-1, 1.01, 0.125)] * 3, indexing="ij"), axis=-1).reshape(
+        -1, 3
+    )
     on_surface = np.any(np.isclose(np.abs(grid), 0.5), axis=1) & np.all(np.abs(grid) <= 0.5, axis=1)
     inside = points_inside(TriangleMesh(box.vertices, box.faces), grid)
-    np.testing.assert_array_equal(inside[~on_surface], np.all(np.abs(grid) < 0.5, axis=1)[~on_surface])
+    np.testing.assert_array_equal(
+        inside[~on_surface], np.all(np.abs(grid) < 0.5, axis=1)[~on_surface]
+    )
 
 
 def test_given_surface_is_bound_barycentrically(icosphere):
@@ -138,6 +155,8 @@ def test_timing_100k_particle_sphere():
     start = time.perf_counter()
     mesh = tetrahedralize(sphere_solid(radius), radius / 23)
     elapsed = time.perf_counter() - start
-    print(f"\n100k-particle sphere: {len(mesh.particles)} particles, {len(mesh.tets)} tets, "
-          f"{len(mesh.surface.vertices)} skin vertices in {elapsed:.2f} s")
+    print(
+        f"\n100k-particle sphere: {len(mesh.particles)} particles, {len(mesh.tets)} tets, "
+        f"{len(mesh.surface.vertices)} skin vertices in {elapsed:.2f} s"
+    )
     assert len(mesh.particles) > 90_000

@@ -12,7 +12,8 @@ from tests.trajectories import RUNS, load_reference, max_difference, run_scene
 def assert_within_tolerance(name: str, result: dict, tolerance: float):
     differences = max_difference(load_reference(name), result)
     assert max(differences.values()) <= tolerance, (
-        f"{name} left its reference trajectory (tolerance {tolerance:g} m): {differences}")
+        f"{name} left its reference trajectory (tolerance {tolerance:g} m): {differences}"
+    )
 
 
 @pytest.mark.parametrize("name", sorted(RUNS))
@@ -24,5 +25,8 @@ def test_scene_follows_its_reference_trajectory(name):
 @pytest.mark.parametrize("name", sorted(RUNS))
 def test_scene_follows_its_reference_trajectory_on_vulkan(name):
     run = RUNS[name]
-    assert_within_tolerance(name, run_on_arch("vulkan", "tests.trajectories:run_scene", name=name),
-                            run.vulkan_tolerance or run.tolerance)
+    assert_within_tolerance(
+        name,
+        run_on_arch("vulkan", "tests.trajectories:run_scene", name=name),
+        run.vulkan_tolerance or run.tolerance,
+    )

@@ -59,8 +59,11 @@ def alg2_by_loops(mesh: TriangleMesh) -> tuple[dict, dict]:
         for j in range(len(v)):
             rel = v[j] - v[i]
             dist = np.linalg.norm(rel)
-            if j != i and np.dot(rel, axis) >= math.cos(CONE) * dist and \
-                    np.dot(normals[i], normals[j]) < math.cos(THRESHOLD):
+            if (
+                j != i
+                and np.dot(rel, axis) >= math.cos(CONE) * dist
+                and np.dot(normals[i], normals[j]) < math.cos(THRESHOLD)
+            ):
                 struts.append((j, dist))
         if not struts:
             continue
@@ -103,17 +106,21 @@ def test_shortest_strut_of_each_vertex_is_the_stiffest():
 
 
 def organ(cone_angle):
-    return {"name": "gland", "model": "truss",
-            "geometry": {"generator": "ellipsoid", "radii": [0.02, 0.014, 0.016], "subdivisions": 2},
-            "material": {"cone_angle": cone_angle, "edge_stiffness": 1.0, "damping": 2.0}}
+    return {
+        "name": "gland",
+        "model": "truss",
+        "geometry": {"generator": "ellipsoid", "radii": [0.02, 0.014, 0.016], "subdivisions": 2},
+        "material": {"cone_angle": cone_angle, "edge_stiffness": 1.0, "damping": 2.0},
+    }
 
 
 def test_truss_holds_the_gland_up_where_edges_alone_collapse():
     floor = {"point": [0, -0.014, 0], "normal": [0, 1, 0], "friction": 0.5}
     heights = {}
     for cone in (0.35, 0.01):
-        _, data, _, state, control, solver = simulation([organ(cone)], planes=[floor],
-                                                        iterations=10, substeps=4)
+        _, data, _, state, control, solver = simulation(
+            [organ(cone)], planes=[floor], iterations=10, substeps=4
+        )
         for _ in range(90):
             solver.step(state, control, 1 / 60)
         x = state.x.to_numpy()

@@ -19,11 +19,14 @@ def rig():
     """One TubeMesh and its input/output fields for the whole module (one compilation)."""
     mesh = TubeMesh(CAPACITY, TUBES, sides=SIDES, max_level=MAX_LEVEL)
     g = FieldGroup()
-    fields = dict(points=g.field(ti.f32, CAPACITY, vector=3), radius=g.field(ti.f32, CAPACITY),
-                  tube_range=g.field(ti.i32, TUBES, vector=2),
-                  vertices=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
-                  normals=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
-                  indices=g.field(ti.i32, 3 * mesh.triangle_capacity + 5))
+    fields = dict(
+        points=g.field(ti.f32, CAPACITY, vector=3),
+        radius=g.field(ti.f32, CAPACITY),
+        tube_range=g.field(ti.i32, TUBES, vector=2),
+        vertices=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
+        normals=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
+        indices=g.field(ti.i32, 3 * mesh.triangle_capacity + 5),
+    )
     g.finalize()
     return mesh, fields
 
@@ -35,27 +38,39 @@ def tessellate(polylines, radii, epsilon=0.1, level=2, vertex_offset=7, index_of
     radius = np.zeros(CAPACITY, np.float32)
     ranges, start = np.zeros((TUBES, 2), np.int32), 0
     for t, (p, r) in enumerate(zip(polylines, radii)):
-        points[start:start + len(p)], radius[start:start + len(p)] = p, r
+        points[start : start + len(p)], radius[start : start + len(p)] = p, r
         ranges[t] = start, start + len(p)
         start += len(p)
     f["points"].from_numpy(points)
     f["radius"].from_numpy(radius)
     f["tube_range"].from_numpy(ranges)
-    mesh.update(f["points"], f["radius"], f["tube_range"], len(polylines), f["vertices"],
-                f["normals"], f["indices"], vertex_offset=vertex_offset,
-                index_offset=index_offset, epsilon=epsilon, level=level)
+    mesh.update(
+        f["points"],
+        f["radius"],
+        f["tube_range"],
+        len(polylines),
+        f["vertices"],
+        f["normals"],
+        f["indices"],
+        vertex_offset=vertex_offset,
+        index_offset=index_offset,
+        epsilon=epsilon,
+        level=level,
+    )
     nv, nt = mesh.live_counts()
-    v = f["vertices"].to_numpy()[vertex_offset:vertex_offset + mesh.vertex_capacity]
-    n = f["normals"].to_numpy()[vertex_offset:vertex_offset + mesh.vertex_capacity]
-    i = f["indices"].to_numpy()[index_offset:index_offset + 3 * mesh.triangle_capacity]
+    v = f["vertices"].to_numpy()[vertex_offset : vertex_offset + mesh.vertex_capacity]
+    n = f["normals"].to_numpy()[vertex_offset : vertex_offset + mesh.vertex_capacity]
+    i = f["indices"].to_numpy()[index_offset : index_offset + 3 * mesh.triangle_capacity]
     i = i.reshape(-1, 3) - vertex_offset
     return mesh, dict(vertices=v[:nv], normals=n[:nv], triangles=i[:nt]), (v, n, i)
 
 
 def samples(mesh, tube=0):
     s, c = mesh.tube_sample_start[tube], mesh.tube_sample_count[tube]
-    return {k: getattr(mesh, "sample_" + k).to_numpy()[s:s + c]
-            for k in ("segment", "parameter", "position", "tangent", "normal", "radius")}
+    return {
+        k: getattr(mesh, "sample_" + k).to_numpy()[s : s + c]
+        for k in ("segment", "parameter", "position", "tangent", "normal", "radius")
+    }
 
 
 def bend(degrees, h=1.0, legs=5):
@@ -76,7 +91,7 @@ def catmull_rom(p, i):
     """NumPy reference: coefficients (4, 3) of segment i with Bessel ghost points."""
     p = np.asarray(p, np.float64)
     q = np.vstack([3 * p[0] - 3 * p[1] + p[2], p, 3 * p[-1] - 3 * p[-2] + p[-3]])
-    q0, q1, q2, q3 = q[i:i + 4]
+    q0, q1, q2, q3 = q[i : i + 4]
     m1, m2 = 0.5 * (q2 - q0), 0.5 * (q3 - q1)
     return np.array([q1, m1, 3 * (q2 - q1) - 2 * m1 - m2, 2 * (q1 - q2) + m1 + m2])
 
@@ -99,7 +114,7 @@ def test_spline_interpolates_the_mechanical_points():
     inner = ~knots & (s["parameter"] < 1.0)
     assert inner.sum() > 10
     for seg, u, x in zip(s["segment"][inner], s["parameter"][inner], s["position"][inner]):
-        assert np.allclose(np.array([1, u, u * u, u ** 3]) @ catmull_rom(p, seg), x, atol=1e-6)
+        assert np.allclose(np.array([1, u, u * u, u**3]) @ catmull_rom(p, seg), x, atol=1e-6)
 
 
 def test_rmf_frames_stay_orthonormal_and_follow_the_helix_rmf():
@@ -134,8 +149,8 @@ def test_rmf_frames_stay_orthonormal_and_follow_the_helix_rmf():
 def test_more_samples_land_where_curvature_is_high():
     p = bend(120.0)  # sharp bend at point 5; straight legs
     mesh, _, _ = tessellate([p], [np.full(len(p), 0.3)], epsilon=0.1)
-    counts = mesh.segment_sample_count.to_numpy()[:len(p)]
-    c = mesh.segment_indicator.to_numpy()[:len(p)]
+    counts = mesh.segment_sample_count.to_numpy()[: len(p)]
+    c = mesh.segment_indicator.to_numpy()[: len(p)]
     assert c[5] == pytest.approx(0.75) and np.abs(np.delete(c, 5)).max() < 1e-6
     assert counts[4] > 1 and counts[5] > 1  # the two segments meeting at the bend
     assert np.all(np.delete(counts, [4, 5, len(p) - 1]) == 1) and counts[-1] == 0
@@ -145,13 +160,13 @@ def test_eq11_samples_straddle_the_curvature_maximum():
     x = np.array([-2.0, -1.2, -0.55, 0.3, 1.1, 2.0])  # uneven knots on a parabola
     p = np.stack([x, 0.8 * x * x, 0 * x], 1).astype(np.float32)
     mesh, _, _ = tessellate([p], [np.full(len(p), 0.1)], epsilon=0.0)  # refine every segment
-    peak = mesh.segment_peak.to_numpy()[:len(p) - 1]
+    peak = mesh.segment_peak.to_numpy()[: len(p) - 1]
     s = samples(mesh)
     grid = np.linspace(0.0, 1.0, 20001)
     interior = 0
     for i in np.nonzero(peak >= 0)[0]:
         C = catmull_rom(p, i)
-        d1 = np.stack([np.zeros_like(grid), np.ones_like(grid), 2 * grid, 3 * grid ** 2], 1) @ C
+        d1 = np.stack([np.zeros_like(grid), np.ones_like(grid), 2 * grid, 3 * grid**2], 1) @ C
         d2 = np.stack([0 * grid, 0 * grid, 2 + 0 * grid, 6 * grid], 1) @ C
         kappa = np.linalg.norm(np.cross(d1, d2), axis=1) / np.linalg.norm(d1, axis=1) ** 3
         m = grid[np.argmax(kappa)]
@@ -180,7 +195,7 @@ def test_cross_sections_do_not_cross_at_a_sharp_bend(radius, legs, h):
         assert ahead > 0 and behind < 0, (level, ahead, behind)
         v, tri = out["vertices"].astype(np.float64), out["triangles"]
         face = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
-        real = np.linalg.norm(face, axis=1) > 1e-9 * radius ** 2
+        real = np.linalg.norm(face, axis=1) > 1e-9 * radius**2
         facing = (face * out["normals"][tri].sum(1)).sum(1)
         assert np.all(facing[real] > 0), level
         assert np.isfinite(v).all()
@@ -192,11 +207,11 @@ def test_surface_lies_at_the_radius_on_straight_parts():
     p = bend(90.0, 0.04, 8)
     mesh, out, _ = tessellate([straight, p], [np.full(12, 0.02), np.full(len(p), 0.015)])
     v = out["vertices"].astype(np.float64)
-    first = v[:mesh.tube_ring_base[1] * SIDES]
+    first = v[: mesh.tube_ring_base[1] * SIDES]
     along = first @ direction
     distance = np.linalg.norm(first - along[:, None] * direction, axis=1)
     assert np.abs(distance / 0.02 - 1).max() < 0.01
-    second = v[len(first):].reshape(-1, SIDES, 3)
+    second = v[len(first) :].reshape(-1, SIDES, 3)
     legs = second[second[:, :, 0].max(1) < -0.1]  # more than 2.5 segments before the bend
     assert len(legs) > 20
     assert np.abs(np.hypot(legs[..., 1], legs[..., 2]) / 0.015 - 1).max() < 0.01
@@ -221,7 +236,7 @@ def test_packed_tubes_match_tubes_drawn_alone():
     na = len(alone_a["vertices"])
     assert np.array_equal(both["vertices"][:na], alone_a["vertices"])
     assert np.array_equal(both["vertices"][na:], alone_b["vertices"])
-    assert np.array_equal(both["triangles"][len(alone_a["triangles"]):], alone_b["triangles"] + na)
+    assert np.array_equal(both["triangles"][len(alone_a["triangles"]) :], alone_b["triangles"] + na)
 
 
 def wiggle(n=100, seed=3):
@@ -278,8 +293,12 @@ def test_two_runs_are_identical():
 
 def vulkan_case(level=2):
     """Live output for a wiggle and a bend (run on CPU and on Vulkan)."""
-    _, out, _ = tessellate([wiggle(50, seed=7), bend(120.0, 0.03, 6)],
-                           [np.full(50, 0.02), np.full(13, 0.03)], 0.1, level)
+    _, out, _ = tessellate(
+        [wiggle(50, seed=7), bend(120.0, 0.03, 6)],
+        [np.full(50, 0.02), np.full(13, 0.03)],
+        0.1,
+        level,
+    )
     return out
 
 

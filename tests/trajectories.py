@@ -50,12 +50,19 @@ class Run:
 RUNS = {
     # the probe presses into the liver's top from frame 27 on (the scene's own script
     # stops above the liver); the perturbed run is 3e-6 m away at frame 33
-    "liver": Run(("scene.detail=0.1", "scene.settle_time=0.5",
-                  "tools.probe.script=[{time = 0.0, tip = [0.03, 0.06, 0.03]}, "
-                  "{time = 0.6, tip = [0.03, 0.021, 0.03]}]"), (1, 16, 33)),
+    "liver": Run(
+        (
+            "scene.detail=0.1",
+            "scene.settle_time=0.5",
+            "tools.probe.script=[{time = 0.0, tip = [0.03, 0.06, 0.03]}, "
+            "{time = 0.6, tip = [0.03, 0.021, 0.03]}]",
+        ),
+        (1, 16, 33),
+    ),
     # wall, polyp, fascia, gland and vessel settle and touch; the grasper descends
-    "rectum": Run(("scene.detail=0.3", "scene.settle_time=0.25"), (1, 7, 13),
-                  vulkan_tolerance=2e-3),
+    "rectum": Run(
+        ("scene.detail=0.3", "scene.settle_time=0.25"), (1, 7, 13), vulkan_tolerance=2e-3
+    ),
     # springs, tool and planes without the stochastic self-collision (its tests compare
     # it with the exact detector); the perturbed run is 1e-5 m away at frame 20
     "intestine": Run(("scene.self_collision=false",), (1, 10, 20)),
@@ -96,8 +103,9 @@ def max_difference(reference: dict[str, np.ndarray], result: dict[str, np.ndarra
     for key, expected in reference.items():
         got = result[key]
         if got.shape != expected.shape:
-            raise AssertionError(f"{key}: {got.shape[0]} particles, the reference has "
-                                 f"{expected.shape[0]}")
+            raise AssertionError(
+                f"{key}: {got.shape[0]} particles, the reference has {expected.shape[0]}"
+            )
         out[key] = float(np.abs(got.astype(np.float64) - expected).max())
     return out
 
@@ -111,8 +119,10 @@ def write(names: list[str]):
     for name in names:
         result = run_scene(name)
         np.savez_compressed(reference_path(name), **result)
-        print(f"wrote {reference_path(name).relative_to(Path.cwd())}: "
-              f"{len(result)} frames of {next(iter(result.values())).shape[0]} particles")
+        print(
+            f"wrote {reference_path(name).relative_to(Path.cwd())}: "
+            f"{len(result)} frames of {next(iter(result.values())).shape[0]} particles"
+        )
 
 
 if __name__ == "__main__":

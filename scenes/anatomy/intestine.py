@@ -36,8 +36,14 @@ def fold_curve(amplitude: float, folds: int, radius: float, n: int) -> np.ndarra
     s = np.linspace(0.0, 1.0, n)
     span = 2.0 * np.pi * folds / (folds + 1.0)
     theta = 0.5 * np.pi + 0.5 * (2.0 * np.pi - span) + span * s
-    return np.stack([radius * np.cos(theta), radius * np.sin(theta),
-                     amplitude * np.sin(2.0 * np.pi * folds * s)], axis=1)
+    return np.stack(
+        [
+            radius * np.cos(theta),
+            radius * np.sin(theta),
+            amplitude * np.sin(2.0 * np.pi * folds * s),
+        ],
+        axis=1,
+    )
 
 
 def _sample(amplitude, folds, radius, count):
@@ -54,8 +60,10 @@ def _polyline_length(p):
 
 def solve_amplitude(length: float, folds: int, radius: float, count: int) -> float:
     """Fold amplitude [m] giving a row-0 polyline of ``length`` [m]."""
+
     def excess(a):
         return _polyline_length(_sample(a, folds, radius, count)) - length
+
     lo = 1e-6
     if excess(lo) >= 0.0:
         raise ValueError("intestine length too short for the cylinder: nothing to fold")
@@ -84,16 +92,38 @@ def _build(params: dict) -> SpringSheet:
 
 
 GENERATORS = [
-    Generator("intestine", _build, {
-        "length": Param("float", 4.0, "intestine length (row-0 polyline)", 0.5, 10.0, unit="m"),
-        "cylinder_radius": Param("float", 0.15, "radius of the cylinder carrying the folds (mesentery width)",
-                                 0.03, 0.5, unit="m"),
-        "vessel_length": Param("float", 0.10, "length of the main vessel (mesentery root) on the z axis",
-                               0.01, 0.5, unit="m"),
-        "folds": Param("int", 10, "sine periods around the cylinder", 1, 64),
-        "intestine_radius": Param("float", 0.02, "intestine tube radius (row 0)", 0.005, 0.05, unit="m"),
-        "mesentery_thickness": Param("float", 0.01, "mesentery thickness", 0.001, 0.05, unit="m"),
-        "rows": Param("int", 4, "mass rows from intestine (0) to root", 2, 16),
-        "points_per_row": Param("int", 100, "masses per row", 4, 2000),
-    }, "spring_sheet", "Intestine + mesentery mass-spring rest geometry (seed 001 §3)."),
+    Generator(
+        "intestine",
+        _build,
+        {
+            "length": Param("float", 4.0, "intestine length (row-0 polyline)", 0.5, 10.0, unit="m"),
+            "cylinder_radius": Param(
+                "float",
+                0.15,
+                "radius of the cylinder carrying the folds (mesentery width)",
+                0.03,
+                0.5,
+                unit="m",
+            ),
+            "vessel_length": Param(
+                "float",
+                0.10,
+                "length of the main vessel (mesentery root) on the z axis",
+                0.01,
+                0.5,
+                unit="m",
+            ),
+            "folds": Param("int", 10, "sine periods around the cylinder", 1, 64),
+            "intestine_radius": Param(
+                "float", 0.02, "intestine tube radius (row 0)", 0.005, 0.05, unit="m"
+            ),
+            "mesentery_thickness": Param(
+                "float", 0.01, "mesentery thickness", 0.001, 0.05, unit="m"
+            ),
+            "rows": Param("int", 4, "mass rows from intestine (0) to root", 2, 16),
+            "points_per_row": Param("int", 100, "masses per row", 4, 2000),
+        },
+        "spring_sheet",
+        "Intestine + mesentery mass-spring rest geometry (seed 001 §3).",
+    ),
 ]

@@ -25,8 +25,8 @@ from . import sdf as S
 from . import tubes
 from .params import Generator, Param
 
-_CAL = 0.9869       # brings the scale-1 volume to 1.78 L (measured on a 0.8 mm grid)
-CLEARANCE = 0.002   # [m] at scale 1: centreline points stay (r + CLEARANCE) inside
+_CAL = 0.9869  # brings the scale-1 volume to 1.78 L (measured on a 0.8 mm grid)
+CLEARANCE = 0.002  # [m] at scale 1: centreline points stay (r + CLEARANCE) inside
 _BOUNDS = (np.array([-0.1240, -0.0410, -0.0760]), np.array([0.1250, 0.0680, 0.0760]))
 
 
@@ -70,6 +70,7 @@ def _build_liver(params: dict) -> Solid:
 # the branch curves from its first to its last direction, children start at its end.
 # A start with an inward direction is a surface point, moved inward until deep enough.
 
+
 def _unit(v) -> np.ndarray:
     v = np.asarray(v, float)
     return v / np.linalg.norm(v)
@@ -77,7 +78,11 @@ def _unit(v) -> np.ndarray:
 
 def _rotate(v, axis, angle):
     """Rodrigues rotation of ``v`` about unit ``axis`` by ``angle`` [rad]."""
-    return v * np.cos(angle) + np.cross(axis, v) * np.sin(angle) + axis * (axis @ v) * (1 - np.cos(angle))
+    return (
+        v * np.cos(angle)
+        + np.cross(axis, v) * np.sin(angle)
+        + axis * (axis @ v) * (1 - np.cos(angle))
+    )
 
 
 def _node(d0, d1, length, r_end, kids=()):
@@ -97,16 +102,35 @@ def _forks(d, levels, length, radii, angle=0.6, roll=0.5 * np.pi, roll_step=0.25
     for sgn in (1.0, -1.0):
         c = _unit(_rotate(d, axis, sgn * angle))
         e = _unit(c + d)
-        out.append(_node(c, e, length, radii[0], _forks(e, levels - 1, 0.75 * length, radii[1:],
-                                                        angle, roll + roll_step, roll_step)))
+        out.append(
+            _node(
+                c,
+                e,
+                length,
+                radii[0],
+                _forks(e, levels - 1, 0.75 * length, radii[1:], angle, roll + roll_step, roll_step),
+            )
+        )
     return out
 
 
 def _portal_spec():
     """Trunk up from the hilum, right and left portal veins, two more splits each."""
     trunk = _unit((-0.2, 1.0, 0.0))
-    right = _node((-1, 0.1, -0.1), (-1, 0.0, -0.2), 30, 4.2, _forks(_unit((-1, 0.0, -0.2)), 2, 36, (3.0, 2.0), 0.65))
-    left = _node((1, 0.05, -0.1), (1, -0.05, -0.25), 45, 3.6, _forks(_unit((1, -0.05, -0.25)), 2, 28, (2.8, 2.0)))
+    right = _node(
+        (-1, 0.1, -0.1),
+        (-1, 0.0, -0.2),
+        30,
+        4.2,
+        _forks(_unit((-1, 0.0, -0.2)), 2, 36, (3.0, 2.0), 0.65),
+    )
+    left = _node(
+        (1, 0.05, -0.1),
+        (1, -0.05, -0.25),
+        45,
+        3.6,
+        _forks(_unit((1, -0.05, -0.25)), 2, 28, (2.8, 2.0)),
+    )
     hilum = np.array([-0.010, -0.035, -0.010])
     return (hilum, np.array([0.0, 1.0, 0.0]), [_node(trunk, trunk, 18, 5.2, [right, left])], 6.0)
 
@@ -142,7 +166,7 @@ def _grow(spec, f, margin):
     ``[(points (n, 3), radii (n,), parent index or -1)]`` on dense curves."""
     start, inward, roots, r_root = spec
     r_root *= 1e-3
-    if inward is not None:   # march from the surface point inward until deep enough
+    if inward is not None:  # march from the surface point inward until deep enough
         for _ in range(200):
             if -f(start[None])[0] >= margin(r_root):
                 break
@@ -242,11 +266,24 @@ def _build_vessel(params: dict) -> Solid:
 _SCALE = Param("float", 1.0, "uniform size factor (1 = adult liver, 1.78 L)", 0.1, 3.0)
 
 GENERATORS = [
-    Generator("liver", _build_liver, {"scale": _SCALE}, "solid",
-              "Liver parenchyma (seed 002 §3.2): smooth union of lobes, 1.78 L at scale 1."),
-    Generator("liver_vessel", _build_vessel, {
-        "vessel": Param("str", "portal_vein", "which intrahepatic vessel tree", choices=VESSELS),
-        "scale": _SCALE,
-        "segments_around": Param("int", 12, "vertices around each tube ring", 6, 64),
-    }, "solid", "Intrahepatic vessel tree inside the liver of the same scale (seed 002 Table 1)."),
+    Generator(
+        "liver",
+        _build_liver,
+        {"scale": _SCALE},
+        "solid",
+        "Liver parenchyma (seed 002 §3.2): smooth union of lobes, 1.78 L at scale 1.",
+    ),
+    Generator(
+        "liver_vessel",
+        _build_vessel,
+        {
+            "vessel": Param(
+                "str", "portal_vein", "which intrahepatic vessel tree", choices=VESSELS
+            ),
+            "scale": _SCALE,
+            "segments_around": Param("int", 12, "vertices around each tube ring", 6, 64),
+        },
+        "solid",
+        "Intrahepatic vessel tree inside the liver of the same scale (seed 002 Table 1).",
+    ),
 ]

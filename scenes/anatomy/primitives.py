@@ -21,24 +21,65 @@ def icosphere(subdivisions: int = 2, keep_volume: bool = True) -> TriangleMesh:
     quarters every triangle and pushes the new vertices onto the sphere). With
     ``keep_volume`` the vertices are then pushed out uniformly so the mesh encloses
     the sphere's volume 4 pi / 3 (by 1.2 % at 2 subdivisions), so masses come out right."""
-    t = (1.0 + 5.0 ** 0.5) / 2.0
-    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0],
-                  [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
-                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], dtype=np.float64)
-    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11],
-                  [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
-                  [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9],
-                  [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]], dtype=np.int64)
+    t = (1.0 + 5.0**0.5) / 2.0
+    v = np.array(
+        [
+            [-1, t, 0],
+            [1, t, 0],
+            [-1, -t, 0],
+            [1, -t, 0],
+            [0, -1, t],
+            [0, 1, t],
+            [0, -1, -t],
+            [0, 1, -t],
+            [t, 0, -1],
+            [t, 0, 1],
+            [-t, 0, -1],
+            [-t, 0, 1],
+        ],
+        dtype=np.float64,
+    )
+    f = np.array(
+        [
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ],
+        dtype=np.int64,
+    )
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     for _ in range(int(subdivisions)):
         edges = np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
         uniq, inv = np.unique(edges, axis=0, return_inverse=True)
         mid = v[uniq].mean(axis=1)
         mid /= np.linalg.norm(mid, axis=1, keepdims=True)
-        m = inv.reshape(3, -1) + len(v)          # midpoints of edges 01, 12, 20 per face
+        m = inv.reshape(3, -1) + len(v)  # midpoints of edges 01, 12, 20 per face
         a, b, c = f.T
-        f = np.vstack([np.stack([a, m[0], m[2]], 1), np.stack([m[0], b, m[1]], 1),
-                       np.stack([m[2], m[1], c], 1), np.stack([m[0], m[1], m[2]], 1)])
+        f = np.vstack(
+            [
+                np.stack([a, m[0], m[2]], 1),
+                np.stack([m[0], b, m[1]], 1),
+                np.stack([m[2], m[1], c], 1),
+                np.stack([m[0], m[1], m[2]], 1),
+            ]
+        )
         v = np.vstack([v, mid])
     if keep_volume:
         vol = np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6.0
@@ -82,22 +123,57 @@ def _vessel(params: dict) -> TriangleMesh:
 _ARC = ((-0.06, 0.0, 0.0), (-0.02, 0.006, 0.0), (0.02, 0.006, 0.0), (0.06, 0.0, 0.0))
 
 GENERATORS = [
-    Generator("sphere", _sphere, {"radius": Param("float", 0.03, "radius", 0.001, 1.0, unit="m")},
-              "solid", "Sphere centred at the origin (exact sdf)."),
-    Generator("box", _box, {"half_extents": Param("vec3", (0.03, 0.02, 0.02), "half sizes along x, y, z",
-                                                   0.001, 1.0, unit="m")},
-              "solid", "Axis-aligned box centred at the origin (exact sdf)."),
-    Generator("icosphere", _icosphere, {
-        "radius": Param("float", 0.03, "radius", 0.001, 1.0, unit="m"),
-        "subdivisions": Param("int", 2, "icosahedron subdivisions (20 * 4^n triangles)", 0, 6),
-    }, "surface", "Closed sphere mesh centred at the origin."),
-    Generator("ellipsoid", _ellipsoid, {
-        "radii": Param("vec3", (0.015, 0.010, 0.012), "semi-axes along x, y, z", 0.001, 0.3, unit="m"),
-        "subdivisions": Param("int", 3, "icosahedron subdivisions", 0, 6),
-    }, "surface", "Gland: closed ellipsoid mesh centred at the origin."),
-    Generator("vessel", _vessel, {
-        "points": Param("vec3list", _ARC, "spline control points (at least two)", -2.0, 2.0, unit="m"),
-        "radius": Param("float", 0.003, "tube radius", 0.0005, 0.03, unit="m"),
-        "segments_around": Param("int", 12, "vertices around each ring", 6, 64),
-    }, "surface", "Closed tube with round ends along a Catmull-Rom spline; rings about one radius apart."),
+    Generator(
+        "sphere",
+        _sphere,
+        {"radius": Param("float", 0.03, "radius", 0.001, 1.0, unit="m")},
+        "solid",
+        "Sphere centred at the origin (exact sdf).",
+    ),
+    Generator(
+        "box",
+        _box,
+        {
+            "half_extents": Param(
+                "vec3", (0.03, 0.02, 0.02), "half sizes along x, y, z", 0.001, 1.0, unit="m"
+            )
+        },
+        "solid",
+        "Axis-aligned box centred at the origin (exact sdf).",
+    ),
+    Generator(
+        "icosphere",
+        _icosphere,
+        {
+            "radius": Param("float", 0.03, "radius", 0.001, 1.0, unit="m"),
+            "subdivisions": Param("int", 2, "icosahedron subdivisions (20 * 4^n triangles)", 0, 6),
+        },
+        "surface",
+        "Closed sphere mesh centred at the origin.",
+    ),
+    Generator(
+        "ellipsoid",
+        _ellipsoid,
+        {
+            "radii": Param(
+                "vec3", (0.015, 0.010, 0.012), "semi-axes along x, y, z", 0.001, 0.3, unit="m"
+            ),
+            "subdivisions": Param("int", 3, "icosahedron subdivisions", 0, 6),
+        },
+        "surface",
+        "Gland: closed ellipsoid mesh centred at the origin.",
+    ),
+    Generator(
+        "vessel",
+        _vessel,
+        {
+            "points": Param(
+                "vec3list", _ARC, "spline control points (at least two)", -2.0, 2.0, unit="m"
+            ),
+            "radius": Param("float", 0.003, "tube radius", 0.0005, 0.03, unit="m"),
+            "segments_around": Param("int", 12, "vertices around each ring", 6, 64),
+        },
+        "surface",
+        "Closed tube with round ends along a Catmull-Rom spline; rings about one radius apart.",
+    ),
 ]

@@ -77,12 +77,16 @@ def round_cones(p, a, b, ra, rb) -> np.ndarray:
     pa2 = np.einsum("...i,...i->...", pa, pa)
     y = np.einsum("...i,...i->...", pa, ba)
     z = y - l2
-    x2 = np.maximum(l2 * (l2 * pa2 - y * y), 0.0)      # |pa * l2 - ba * y|^2
+    x2 = np.maximum(l2 * (l2 * pa2 - y * y), 0.0)  # |pa * l2 - ba * y|^2
     k = np.sign(rr) * rr * rr * x2
-    d_a = np.sqrt(pa2) - ra                             # Quilez: sqrt(x2 + y2) / l2 - ra
-    d_b = np.sqrt(np.maximum(pa2 - 2.0 * y + l2, 0.0)) - rb   # |p - b| - rb
+    d_a = np.sqrt(pa2) - ra  # Quilez: sqrt(x2 + y2) / l2 - ra
+    d_b = np.sqrt(np.maximum(pa2 - 2.0 * y + l2, 0.0)) - rb  # |p - b| - rb
     d_side = (np.sqrt(x2 * np.maximum(a2, 0.0) / l2) + y * rr) / l2 - ra
-    d = np.where(np.sign(z) * a2 * z * z * l2 > k, d_b, np.where(np.sign(y) * a2 * y * y * l2 < k, d_a, d_side))
+    d = np.where(
+        np.sign(z) * a2 * z * z * l2 > k,
+        d_b,
+        np.where(np.sign(y) * a2 * y * y * l2 < k, d_a, d_side),
+    )
     # degenerate cone (one sphere contains the other): the bigger sphere
     return np.where(a2 > 0.0, d, np.minimum(d_a, d_b))
 

@@ -131,8 +131,14 @@ def _strip(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return tris[ok]
 
 
-def tube_mesh(points, radii, segments_around: int = 12, caps: str = "round",
-              cap_rings: int | None = None, normal0=None) -> TriangleMesh:
+def tube_mesh(
+    points,
+    radii,
+    segments_around: int = 12,
+    caps: str = "round",
+    cap_rings: int | None = None,
+    normal0=None,
+) -> TriangleMesh:
     """Closed tube through the centreline ``points`` ``(n, 3)`` with radius
     ``radii`` (scalar or ``(n,)``) [m]; ``caps`` is ``"round"`` (hemispheres) or
     ``"flat"`` (discs). Rings are placed at the given points (see :func:`resample`)."""
@@ -168,8 +174,9 @@ def tube_mesh(points, radii, segments_around: int = 12, caps: str = "round",
     return TriangleMesh(np.vstack([verts, poles]), np.vstack(tris))
 
 
-def hollow_tube_mesh(points, outer_radius: float, inner_radius: float,
-                     segments_around: int = 24) -> TriangleMesh:
+def hollow_tube_mesh(
+    points, outer_radius: float, inner_radius: float, segments_around: int = 24
+) -> TriangleMesh:
     """Closed thick-walled tube: outer wall, inner wall (normals into the lumen),
     annular end caps. ``points`` ``(n, 3)`` are the ring centres [m]."""
     if not 0.0 < inner_radius < outer_radius:
@@ -183,8 +190,8 @@ def hollow_tube_mesh(points, outer_radius: float, inner_radius: float,
     o = np.arange(n * m).reshape(n, m)
     i = o + n * m
     tris = [_strip(o[k], o[k + 1]) for k in range(n - 1)]
-    tris += [_strip(i[k + 1], i[k]) for k in range(n - 1)]   # reversed: faces the lumen
-    tris += [_strip(i[0], o[0]), _strip(o[-1], i[-1])]      # annular end caps
+    tris += [_strip(i[k + 1], i[k]) for k in range(n - 1)]  # reversed: faces the lumen
+    tris += [_strip(i[0], o[0]), _strip(o[-1], i[-1])]  # annular end caps
     return TriangleMesh(np.vstack([outer, inner]), np.vstack(tris))
 
 
@@ -219,7 +226,9 @@ class TubeTree:
         self.a, self.b = np.vstack(a), np.vstack(b)
         self.ra, self.rb = np.concatenate(ra), np.concatenate(rb)
         mid = 0.5 * (self.a + self.b)
-        self.extent = (0.5 * np.linalg.norm(self.b - self.a, axis=1) + np.maximum(self.ra, self.rb)).max()
+        self.extent = (
+            0.5 * np.linalg.norm(self.b - self.a, axis=1) + np.maximum(self.ra, self.rb)
+        ).max()
         self.k = min(int(candidates), len(mid))
         self.kd = cKDTree(mid)
         lo = np.minimum(self.a - self.ra[:, None], self.b - self.rb[:, None]).min(0)
@@ -228,9 +237,11 @@ class TubeTree:
 
     def _all(self, p):
         out = np.empty(len(p))
-        step = max(1, 2 ** 18 // len(self.a))
+        step = max(1, 2**18 // len(self.a))
         for s in range(0, len(p), step):
-            out[s:s + step] = _sdf.round_cones(p[s:s + step], self.a, self.b, self.ra, self.rb).min(1)
+            out[s : s + step] = _sdf.round_cones(
+                p[s : s + step], self.a, self.b, self.ra, self.rb
+            ).min(1)
         return out
 
     def _nearest(self, p, k):
@@ -246,7 +257,7 @@ class TubeTree:
         while k < len(self.a) and len(todo):
             best, lb = self._nearest(p[todo], k)
             out[todo] = np.minimum(best, lb)
-            todo = todo[(lb < best) & (lb < self.extent)]   # not settled by the k nearest
+            todo = todo[(lb < best) & (lb < self.extent)]  # not settled by the k nearest
             k *= 4
         if len(todo):
             out[todo] = self._all(p[todo])

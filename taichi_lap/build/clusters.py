@@ -55,11 +55,17 @@ def _from_lists(lists: list[np.ndarray], centers: np.ndarray, radius: float) -> 
     sizes = np.array([len(m) for m in lists], dtype=np.int64)
     start = np.concatenate([[0], np.cumsum(sizes)])
     members = np.concatenate(lists).astype(np.int64) if lists else np.zeros(0, np.int64)
-    return Clusters(start=start, members=members, center=np.asarray(centers, float).reshape(-1, 3),
-                    radius=np.full(len(lists), float(radius)))
+    return Clusters(
+        start=start,
+        members=members,
+        center=np.asarray(centers, float).reshape(-1, 3),
+        radius=np.full(len(lists), float(radius)),
+    )
 
 
-def lattice_clusters(positions: np.ndarray, radius: float, max_gap: float | None = None) -> Clusters:
+def lattice_clusters(
+    positions: np.ndarray, radius: float, max_gap: float | None = None
+) -> Clusters:
     """Clusters of ``positions`` (N, 3) [m] with centres on a cubic lattice of
     spacing ``radius`` (seed 002 §3.2). Centres farther than ``max_gap`` [m] from
     every particle (outside a filled body) and centres reaching fewer than
@@ -71,16 +77,20 @@ def lattice_clusters(positions: np.ndarray, radius: float, max_gap: float | None
     lo = positions.min(axis=0)
     cells = np.unique(np.floor((positions - lo) / radius).astype(np.int64), axis=0)
     # candidate centres: the corners of every occupied cell
-    corners = (cells[:, None, :] + np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"))
-               .reshape(3, -1).T[None]).reshape(-1, 3)
+    corners = (
+        cells[:, None, :]
+        + np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T[None]
+    ).reshape(-1, 3)
     corners = np.unique(corners, axis=0)
     centers = lo + corners * radius
     tree = cKDTree(positions)
     if max_gap is not None:
         gap, _ = tree.query(centers)
         centers = centers[gap <= max_gap]
-    lists = [np.sort(np.asarray(m, dtype=np.int64))
-             for m in tree.query_ball_point(centers, radius * (1 + 1e-9))]
+    lists = [
+        np.sort(np.asarray(m, dtype=np.int64))
+        for m in tree.query_ball_point(centers, radius * (1 + 1e-9))
+    ]
     keep = [i for i, m in enumerate(lists) if len(m) >= MIN_MEMBERS]
     if not keep:
         centroid = positions.mean(axis=0, keepdims=True)
@@ -109,8 +119,9 @@ def whole_body_cluster(positions: np.ndarray) -> Clusters:
     return _from_lists([np.arange(len(positions))], center[None], radius)
 
 
-def joining_clusters(positions: np.ndarray, own: np.ndarray, other: np.ndarray,
-                     radius: float) -> Clusters:
+def joining_clusters(
+    positions: np.ndarray, own: np.ndarray, other: np.ndarray, radius: float
+) -> Clusters:
     """Clusters tying two organs together (seed 002 §3.2: "additional clusters to
     physically connect the liver parenchyma and intrahepatic vessels").
 
@@ -128,11 +139,16 @@ def joining_clusters(positions: np.ndarray, own: np.ndarray, other: np.ndarray,
     cell = np.floor(zone / (2.0 * radius)).astype(np.int64)
     _, which = np.unique(cell, axis=0, return_inverse=True)
     which = which.reshape(-1)
-    centers = np.stack([np.bincount(which, weights=zone[:, a]) for a in range(3)], axis=1) \
+    centers = (
+        np.stack([np.bincount(which, weights=zone[:, a]) for a in range(3)], axis=1)
         / np.bincount(which)[:, None]
+    )
     lists, kept = [], []
-    for center, a, b in zip(centers, own_tree.query_ball_point(centers, radius),
-                            other_tree.query_ball_point(centers, radius)):
+    for center, a, b in zip(
+        centers,
+        own_tree.query_ball_point(centers, radius),
+        other_tree.query_ball_point(centers, radius),
+    ):
         if len(a) >= 2 and len(b) >= 2:
             lists.append(np.sort(np.concatenate([own[a], other[b]])))
             kept.append(center)
@@ -141,8 +157,9 @@ def joining_clusters(positions: np.ndarray, own: np.ndarray, other: np.ndarray,
 
 def concatenate(parts: list[Clusters]) -> Clusters:
     """All clusters of ``parts`` in one compressed-row table (members are global)."""
-    lists = [p.members[p.start[c]:p.start[c + 1]] for p in parts for c in range(p.count)]
-    merged = _from_lists(lists, np.concatenate([p.center for p in parts] or [np.zeros((0, 3))]),
-                         0.0)
+    lists = [p.members[p.start[c] : p.start[c + 1]] for p in parts for c in range(p.count)]
+    merged = _from_lists(
+        lists, np.concatenate([p.center for p in parts] or [np.zeros((0, 3))]), 0.0
+    )
     merged.radius = np.concatenate([p.radius for p in parts] or [np.zeros(0)])
     return merged

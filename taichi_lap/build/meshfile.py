@@ -17,11 +17,12 @@ from ..errors import InputError
 from .geometry import TriangleMesh
 
 MESH_EXTENSIONS = (".obj", ".stl", ".ply")
-_DEGENERATE_AREA = 1e-12        # of the squared bounding-box diagonal
+_DEGENERATE_AREA = 1e-12  # of the squared bounding-box diagonal
 
 
-def load_surface_mesh(path, *, scene_file: str, key: str, scale: float = 1.0,
-                      watertight: bool) -> TriangleMesh:
+def load_surface_mesh(
+    path, *, scene_file: str, key: str, scale: float = 1.0, watertight: bool
+) -> TriangleMesh:
     """Read the triangle mesh at ``path`` named by ``key`` in ``scene_file``.
 
     Vertices are multiplied by ``scale`` (0.001 for a file in millimetres).
@@ -30,28 +31,46 @@ def load_surface_mesh(path, *, scene_file: str, key: str, scale: float = 1.0,
     faces); it is then oriented with outward normals.
     """
     if not (np.isfinite(scale) and scale > 0):
-        raise InputError(scene_file, key, f"a positive finite mesh scale was expected, found {scale}")
+        raise InputError(
+            scene_file, key, f"a positive finite mesh scale was expected, found {scale}"
+        )
     path = Path(path)
     vertices, triangles = _read(path, scene_file, key)
     where = str(path)
     bad_values = int(np.count_nonzero(~np.isfinite(vertices)))
     if bad_values:
-        raise InputError(where, key, f"finite vertex coordinates were expected, found {bad_values} "
-                                     f"non-finite values (NaN or infinity)")
+        raise InputError(
+            where,
+            key,
+            f"finite vertex coordinates were expected, found {bad_values} "
+            f"non-finite values (NaN or infinity)",
+        )
     vertices, triangles = _merge_vertices(vertices, triangles)
     degenerate = _count_degenerate(vertices, triangles)
     if degenerate:
-        raise InputError(where, key, f"non-degenerate triangles were expected, found {degenerate} "
-                                     f"degenerate faces (repeated vertex or zero area)")
+        raise InputError(
+            where,
+            key,
+            f"non-degenerate triangles were expected, found {degenerate} "
+            f"degenerate faces (repeated vertex or zero area)",
+        )
     if watertight:
         open_edges, fins = _edge_defects(triangles)
         if open_edges or fins:
-            raise InputError(where, key, f"a watertight (closed, manifold) surface was expected, found "
-                                         f"{open_edges} open edges and {fins} non-manifold edges")
+            raise InputError(
+                where,
+                key,
+                f"a watertight (closed, manifold) surface was expected, found "
+                f"{open_edges} open edges and {fins} non-manifold edges",
+            )
         flipped = _inconsistent_edges(triangles)
         if flipped:
-            raise InputError(where, key, f"consistently oriented faces were expected, found {flipped} "
-                                         f"edges whose two faces run them the same way")
+            raise InputError(
+                where,
+                key,
+                f"consistently oriented faces were expected, found {flipped} "
+                f"edges whose two faces run them the same way",
+            )
     mesh = TriangleMesh(vertices * float(scale), triangles)
     if watertight and signed_volume(mesh) < 0:
         mesh.triangles = np.ascontiguousarray(mesh.triangles[:, ::-1])
@@ -68,27 +87,46 @@ def _read(path: Path, scene_file: str, key: str) -> tuple[np.ndarray, np.ndarray
     """Raw vertices ``(V, 3)`` and triangles ``(M, 3)`` as stored in the file."""
     extension = path.suffix.lower()
     if extension not in MESH_EXTENSIONS:
-        raise InputError(scene_file, key, f"a mesh file ending in {', '.join(MESH_EXTENSIONS)} was "
-                                          f"expected, found {extension or 'no extension'} ({path})")
+        raise InputError(
+            scene_file,
+            key,
+            f"a mesh file ending in {', '.join(MESH_EXTENSIONS)} was "
+            f"expected, found {extension or 'no extension'} ({path})",
+        )
     if not path.is_file():
         raise InputError(scene_file, key, f"mesh file {path} was expected, it does not exist")
     try:
-        loaded = trimesh.load(str(path), force="mesh", process=False)   # scenes are concatenated
+        loaded = trimesh.load(str(path), force="mesh", process=False)  # scenes are concatenated
     except OSError as exc:
-        raise InputError(scene_file, key, f"mesh file {path} was expected, it cannot be read "
-                                          f"({exc.strerror or exc})") from exc
+        raise InputError(
+            scene_file,
+            key,
+            f"mesh file {path} was expected, it cannot be read ({exc.strerror or exc})",
+        ) from exc
     except Exception as exc:  # trimesh raises many types on malformed files
-        raise InputError(str(path), key, f"a readable {extension[1:].upper()} mesh was expected, "
-                                         f"parsing failed ({type(exc).__name__}: {exc})") from exc
+        raise InputError(
+            str(path),
+            key,
+            f"a readable {extension[1:].upper()} mesh was expected, "
+            f"parsing failed ({type(exc).__name__}: {exc})",
+        ) from exc
     vertices = np.asarray(getattr(loaded, "vertices", ()), dtype=np.float64).reshape(-1, 3)
     triangles = np.asarray(getattr(loaded, "faces", ()), dtype=np.int64).reshape(-1, 3)
     if len(triangles) == 0:
-        raise InputError(str(path), key, "a mesh with triangles was expected, found none "
-                                         f"({len(vertices)} vertices, 0 triangles)")
+        raise InputError(
+            str(path),
+            key,
+            "a mesh with triangles was expected, found none "
+            f"({len(vertices)} vertices, 0 triangles)",
+        )
     out_of_range = int(np.count_nonzero((triangles < 0) | (triangles >= len(vertices))))
     if out_of_range:
-        raise InputError(str(path), key, f"face indices below the vertex count {len(vertices)} were "
-                                         f"expected, found {out_of_range} out of range")
+        raise InputError(
+            str(path),
+            key,
+            f"face indices below the vertex count {len(vertices)} were "
+            f"expected, found {out_of_range} out of range",
+        )
     return vertices, triangles
 
 
@@ -107,8 +145,11 @@ def _count_degenerate(vertices: np.ndarray, triangles: np.ndarray) -> int:
     a, b, c = (vertices[triangles[:, k]] for k in range(3))
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     diagonal_sq = float(np.sum((vertices.max(axis=0) - vertices.min(axis=0)) ** 2))
-    repeated = ((triangles[:, 0] == triangles[:, 1]) | (triangles[:, 1] == triangles[:, 2])
-                | (triangles[:, 2] == triangles[:, 0]))
+    repeated = (
+        (triangles[:, 0] == triangles[:, 1])
+        | (triangles[:, 1] == triangles[:, 2])
+        | (triangles[:, 2] == triangles[:, 0])
+    )
     return int(np.count_nonzero(repeated | (area < _DEGENERATE_AREA * diagonal_sq)))
 
 

@@ -41,29 +41,29 @@ class ModelData:
     ``V`` surface vertices, ``F`` surface triangles. Units: metres, kilograms.
     """
 
-    rest_position: np.ndarray                 # (N, 3) [m]
-    mass: np.ndarray                          # (N,) [kg]; pinned particles keep their mass
-    pinned: np.ndarray                        # (N,) bool: fixed at the rest position
-    radius: np.ndarray                        # (N,) contact radius [m]
-    organ: np.ndarray                         # (N,) organ index
-    material: dict[str, np.ndarray]           # PARTICLE_MATERIAL name -> (N,)
-    cluster_start: np.ndarray                 # (C + 1,)
-    cluster_member: np.ndarray                # (K,)
-    cluster_radius: np.ndarray                # (C,) [m]
-    distance_pair: np.ndarray                 # (D, 2) struts, sheet edges
-    distance_rest: np.ndarray                 # (D,) [m]
-    distance_stiffness: np.ndarray            # (D,) PBD stiffness in [0, 1] (seed 000 Alg. 2)
-    lra_particle: np.ndarray                  # (L,) constrained particle
-    lra_anchor: np.ndarray                    # (L,) attached (pinned) particle
-    lra_rest: np.ndarray                      # (L,) d_LRA' [m] (seed 000 Eq. 3)
-    spring_pair: np.ndarray                   # (S, 2)
-    spring_rest: np.ndarray                   # (S,) [m]
-    spring_stiffness: np.ndarray              # (S,) [N/m]
-    spring_damping: np.ndarray                # (S,) [N s/m]
-    tets: np.ndarray                          # (T, 4)
-    surface_index: np.ndarray                 # (V, 4) particles each surface vertex follows
-    surface_weight: np.ndarray                # (V, 4) barycentric / direct weights
-    surface_triangles: np.ndarray             # (F, 3) into surface vertices
+    rest_position: np.ndarray  # (N, 3) [m]
+    mass: np.ndarray  # (N,) [kg]; pinned particles keep their mass
+    pinned: np.ndarray  # (N,) bool: fixed at the rest position
+    radius: np.ndarray  # (N,) contact radius [m]
+    organ: np.ndarray  # (N,) organ index
+    material: dict[str, np.ndarray]  # PARTICLE_MATERIAL name -> (N,)
+    cluster_start: np.ndarray  # (C + 1,)
+    cluster_member: np.ndarray  # (K,)
+    cluster_radius: np.ndarray  # (C,) [m]
+    distance_pair: np.ndarray  # (D, 2) struts, sheet edges
+    distance_rest: np.ndarray  # (D,) [m]
+    distance_stiffness: np.ndarray  # (D,) PBD stiffness in [0, 1] (seed 000 Alg. 2)
+    lra_particle: np.ndarray  # (L,) constrained particle
+    lra_anchor: np.ndarray  # (L,) attached (pinned) particle
+    lra_rest: np.ndarray  # (L,) d_LRA' [m] (seed 000 Eq. 3)
+    spring_pair: np.ndarray  # (S, 2)
+    spring_rest: np.ndarray  # (S,) [m]
+    spring_stiffness: np.ndarray  # (S,) [N/m]
+    spring_damping: np.ndarray  # (S,) [N s/m]
+    tets: np.ndarray  # (T, 4)
+    surface_index: np.ndarray  # (V, 4) particles each surface vertex follows
+    surface_weight: np.ndarray  # (V, 4) barycentric / direct weights
+    surface_triangles: np.ndarray  # (F, 3) into surface vertices
     organs: list[OrganRecord] = field(default_factory=list)
 
     @property

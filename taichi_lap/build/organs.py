@@ -20,8 +20,13 @@ import numpy as np
 from taichi_lap.build import clusters as clustering
 from taichi_lap.build.geometry import Geometry, Solid, SpringSheet, TriangleMesh
 from taichi_lap.build.meshfile import load_surface_mesh
-from taichi_lap.build.sheets import (bending_pairs, long_range_attachments, mesh_edges,
-                                     sheet_springs, sheet_triangles)
+from taichi_lap.build.sheets import (
+    bending_pairs,
+    long_range_attachments,
+    mesh_edges,
+    sheet_springs,
+    sheet_triangles,
+)
 from taichi_lap.build.tetrahedralize import tetrahedralize
 from taichi_lap.build.transform import place
 from taichi_lap.build.truss import generate_truss
@@ -71,8 +76,13 @@ def make_geometry(organ: OrganSpec, source: str) -> Geometry:
     spec = organ.geometry
     if spec.mesh is not None:
         closed = organ.model in ("tet_clusters", "truss")
-        geometry = load_surface_mesh(spec.mesh, scene_file=source, key=f"{organ.key}.geometry.mesh",
-                                     scale=spec.units, watertight=closed)
+        geometry = load_surface_mesh(
+            spec.mesh,
+            scene_file=source,
+            key=f"{organ.key}.geometry.mesh",
+            scale=spec.units,
+            watertight=closed,
+        )
     else:
         geometry = GENERATORS[spec.generator].build(dict(spec.params))
     return place(geometry, spec.rotate, spec.translate)
@@ -98,10 +108,15 @@ def _surface_parts(mesh: TriangleMesh, mass: float) -> OrganParts:
     """Particles at the vertices of ``mesh``, surface bound directly."""
     n = len(mesh.vertices)
     index, weight = _direct_binding(n)
-    return OrganParts(positions=mesh.vertices.copy(), mass=_uniform(n, mass),
-                      radius=np.full(n, 0.5 * _mean_edge(mesh)), pinned=np.zeros(n, bool),
-                      surface_index=index, surface_weight=weight,
-                      surface_triangles=mesh.triangles.copy())
+    return OrganParts(
+        positions=mesh.vertices.copy(),
+        mass=_uniform(n, mass),
+        radius=np.full(n, 0.5 * _mean_edge(mesh)),
+        pinned=np.zeros(n, bool),
+        surface_index=index,
+        surface_weight=weight,
+        surface_triangles=mesh.triangles.copy(),
+    )
 
 
 def _edge_constraints(parts: OrganParts, pairs: np.ndarray, stiffness: float | np.ndarray):
@@ -109,19 +124,22 @@ def _edge_constraints(parts: OrganParts, pairs: np.ndarray, stiffness: float | n
     parts.distance_pairs = np.concatenate([parts.distance_pairs, pairs])
     parts.distance_rest = np.concatenate([parts.distance_rest, rest])
     parts.distance_stiffness = np.concatenate(
-        [parts.distance_stiffness, np.broadcast_to(stiffness, (len(pairs),))])
+        [parts.distance_stiffness, np.broadcast_to(stiffness, (len(pairs),))]
+    )
 
 
-def _with_organ_cluster(local: clustering.Clusters, positions: np.ndarray,
-                        material: dict) -> clustering.Clusters:
+def _with_organ_cluster(
+    local: clustering.Clusters, positions: np.ndarray, material: dict
+) -> clustering.Clusters:
     """The local clusters, plus the whole-organ cluster when ``organ_cluster`` is set."""
     if not material["organ_cluster"]:
         return local
     return clustering.concatenate([local, clustering.whole_body_cluster(positions)])
 
 
-def build_tet_clusters(organ: OrganSpec, geometry: Geometry, detail: float,
-                       progress: Progress | None) -> OrganParts:
+def build_tet_clusters(
+    organ: OrganSpec, geometry: Geometry, detail: float, progress: Progress | None
+) -> OrganParts:
     """Seed 002 §3.2: BCC tets fill the solid, tet vertices are the particles,
     overlapping lattice clusters; the surface is bound to the tets."""
     material = organ.material
@@ -135,20 +153,26 @@ def build_tet_clusters(organ: OrganSpec, geometry: Geometry, detail: float,
     radius = material["cluster_radius"]
     radius = clustering.auto_cluster_radius(spacing) if radius is None else radius * shrink
     clusters = clustering.lattice_clusters(tet.particles, radius, max_gap=BODY_GAP * spacing)
-    return OrganParts(positions=tet.particles, mass=_uniform(n, material["mass"]),
-                      radius=np.full(n, 0.5 * spacing), pinned=np.zeros(n, bool),
-                      clusters=_with_organ_cluster(clusters, tet.particles, material),
-                      tets=tet.tets,
-                      surface_index=tet.binding_index, surface_weight=tet.binding_weight,
-                      surface_triangles=tet.surface.triangles)
+    return OrganParts(
+        positions=tet.particles,
+        mass=_uniform(n, material["mass"]),
+        radius=np.full(n, 0.5 * spacing),
+        pinned=np.zeros(n, bool),
+        clusters=_with_organ_cluster(clusters, tet.particles, material),
+        tets=tet.tets,
+        surface_index=tet.binding_index,
+        surface_weight=tet.binding_weight,
+        surface_triangles=tet.surface.triangles,
+    )
 
 
 def build_shape_matching(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
     """Seed 000 §3.1: the surface vertices are the particles, grouped in clusters."""
     parts = _surface_parts(mesh, organ.material["mass"])
     radius = organ.material["cluster_radius"] or SURFACE_CLUSTER_EDGES * _mean_edge(mesh)
-    parts.clusters = _with_organ_cluster(clustering.lattice_clusters(parts.positions, radius),
-                                         parts.positions, organ.material)
+    parts.clusters = _with_organ_cluster(
+        clustering.lattice_clusters(parts.positions, radius), parts.positions, organ.material
+    )
     return parts
 
 
@@ -174,9 +198,13 @@ def build_truss(organ: OrganSpec, mesh: TriangleMesh, progress: Progress | None)
     material = organ.material
     parts = _surface_parts(mesh, material["mass"])
     _edge_constraints(parts, mesh_edges(mesh.triangles), material["edge_stiffness"])
-    truss = generate_truss(mesh, cone_angle=material["cone_angle"],
-                           bending_threshold=material["bending_threshold"],
-                           min_stiffness=material["min_stiffness"], progress=progress)
+    truss = generate_truss(
+        mesh,
+        cone_angle=material["cone_angle"],
+        bending_threshold=material["bending_threshold"],
+        min_stiffness=material["min_stiffness"],
+        progress=progress,
+    )
     parts.distance_pairs = np.concatenate([parts.distance_pairs, truss.pairs])
     parts.distance_rest = np.concatenate([parts.distance_rest, truss.rest])
     parts.distance_stiffness = np.concatenate([parts.distance_stiffness, truss.stiffness])
@@ -188,23 +216,39 @@ def build_mass_spring(organ: OrganSpec, sheet: SpringSheet) -> OrganParts:
     """Seed 001 §3.2: rows of masses (row 0 the intestine) joined by damped springs."""
     material = organ.material
     rows, cols = sheet.rows.shape[:2]
-    mass = np.concatenate([_uniform(cols, material["intestine_mass"]),
-                           _uniform((rows - 1) * cols, material["mesentery_mass"])])
+    mass = np.concatenate(
+        [
+            _uniform(cols, material["intestine_mass"]),
+            _uniform((rows - 1) * cols, material["mesentery_mass"]),
+        ]
+    )
     radius = np.repeat(sheet.row_radius if len(sheet.row_radius) == rows else np.zeros(rows), cols)
-    springs = sheet_springs(sheet, intestine=material["intestine_stiffness"],
-                            mesentery=material["mesentery_stiffness"],
-                            bending=material["bending_stiffness"])
+    springs = sheet_springs(
+        sheet,
+        intestine=material["intestine_stiffness"],
+        mesentery=material["mesentery_stiffness"],
+        bending=material["bending_stiffness"],
+    )
     index, weight = _direct_binding(rows * cols)
-    return OrganParts(positions=sheet.rows.reshape(-1, 3).copy(), mass=mass, radius=radius,
-                      pinned=np.zeros(rows * cols, bool), spring_pairs=springs.pairs,
-                      spring_rest=springs.rest, spring_stiffness=springs.stiffness,
-                      spring_damping=np.full(len(springs.pairs), material["spring_damping"]),
-                      surface_index=index, surface_weight=weight,
-                      surface_triangles=sheet_triangles(rows, cols), row_length=cols)
+    return OrganParts(
+        positions=sheet.rows.reshape(-1, 3).copy(),
+        mass=mass,
+        radius=radius,
+        pinned=np.zeros(rows * cols, bool),
+        spring_pairs=springs.pairs,
+        spring_rest=springs.rest,
+        spring_stiffness=springs.stiffness,
+        spring_damping=np.full(len(springs.pairs), material["spring_damping"]),
+        surface_index=index,
+        surface_weight=weight,
+        surface_triangles=sheet_triangles(rows, cols),
+        row_length=cols,
+    )
 
 
-def build_organ(organ: OrganSpec, source: str, detail: float,
-                progress: Progress | None = None) -> OrganParts:
+def build_organ(
+    organ: OrganSpec, source: str, detail: float, progress: Progress | None = None
+) -> OrganParts:
     """Geometry and tissue model of one organ."""
     geometry = make_geometry(organ, source)
     if organ.model == "tet_clusters":
@@ -219,29 +263,36 @@ def build_organ(organ: OrganSpec, source: str, detail: float,
     return build_truss(organ, mesh, progress)
 
 
-def select_region(parts: OrganParts, region: dict, *, source: str, key: str,
-                  organ: str) -> np.ndarray:
+def select_region(
+    parts: OrganParts, region: dict, *, source: str, key: str, organ: str
+) -> np.ndarray:
     """Local indices of the particles in a box, sphere or set of rows."""
     x = parts.positions
     if "rows" in region:
         if not parts.row_length:
-            raise InputError(source, f"{key}.rows", f"rows select spring-sheet rows; organ "
-                                                    f"{organ!r} has none")
+            raise InputError(
+                source, f"{key}.rows", f"rows select spring-sheet rows; organ {organ!r} has none"
+            )
         rows = len(x) // parts.row_length
         picked = []
         for r in region["rows"]:
             if not -rows <= r < rows:
-                raise InputError(source, f"{key}.rows", f"a row in [{-rows}, {rows - 1}] was "
-                                                        f"expected, found {r}")
+                raise InputError(
+                    source, f"{key}.rows", f"a row in [{-rows}, {rows - 1}] was expected, found {r}"
+                )
             picked.append(np.arange(parts.row_length) + (r % rows) * parts.row_length)
         selected = np.concatenate(picked)
     elif "center" in region:
-        selected = np.flatnonzero(np.linalg.norm(x - np.asarray(region["center"]), axis=1)
-                                  <= region["radius"])
+        selected = np.flatnonzero(
+            np.linalg.norm(x - np.asarray(region["center"]), axis=1) <= region["radius"]
+        )
     else:
         lo, hi = np.asarray(region["box_min"]), np.asarray(region["box_max"])
         selected = np.flatnonzero(np.all((x >= lo) & (x <= hi), axis=1))
     if len(selected) == 0:
-        raise InputError(source, key, f"a region holding particles of organ {organ!r} was "
-                                      f"expected, it holds none")
+        raise InputError(
+            source,
+            key,
+            f"a region holding particles of organ {organ!r} was expected, it holds none",
+        )
     return np.unique(selected)

@@ -69,8 +69,9 @@ class Springs:
     stiffness: np.ndarray
 
 
-def sheet_springs(sheet: SpringSheet, *, intestine: float, mesentery: float,
-                  bending: float) -> Springs:
+def sheet_springs(
+    sheet: SpringSheet, *, intestine: float, mesentery: float, bending: float
+) -> Springs:
     """Springs of seed 001 Fig. 6 on rows (R, C): along every row (row 0, the
     intestine, with ``intestine`` stiffness), between rows and across each quad's
     diagonals (``mesentery``), and skipping one mass along the intestine (``bending``).
@@ -79,14 +80,21 @@ def sheet_springs(sheet: SpringSheet, *, intestine: float, mesentery: float,
     index = np.arange(rows * cols).reshape(rows, cols)
     along = np.stack([index[:, :-1].ravel(), index[:, 1:].ravel()], axis=1)
     across = np.stack([index[:-1].ravel(), index[1:].ravel()], axis=1)
-    diagonal = np.concatenate([
-        np.stack([index[:-1, :-1].ravel(), index[1:, 1:].ravel()], axis=1),
-        np.stack([index[:-1, 1:].ravel(), index[1:, :-1].ravel()], axis=1)])
+    diagonal = np.concatenate(
+        [
+            np.stack([index[:-1, :-1].ravel(), index[1:, 1:].ravel()], axis=1),
+            np.stack([index[:-1, 1:].ravel(), index[1:, :-1].ravel()], axis=1),
+        ]
+    )
     skip = np.stack([index[0, :-2], index[0, 2:]], axis=1)
     pairs = np.concatenate([along, across, diagonal, skip])
-    stiffness = np.concatenate([
-        np.where(np.arange(len(along)) < cols - 1, intestine, mesentery),
-        np.full(len(across) + len(diagonal), mesentery), np.full(len(skip), bending)])
+    stiffness = np.concatenate(
+        [
+            np.where(np.arange(len(along)) < cols - 1, intestine, mesentery),
+            np.full(len(across) + len(diagonal), mesentery),
+            np.full(len(skip), bending),
+        ]
+    )
     points = sheet.rows.reshape(-1, 3)
     rest = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
     return Springs(pairs=pairs, rest=rest, stiffness=stiffness)

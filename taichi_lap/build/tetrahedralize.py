@@ -28,13 +28,13 @@ _FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 _EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
 # Deterministic ray shift (times the mesh diagonal) so rays miss vertices and edges.
 _RAY_SHIFT = np.array([0.7548776662466927e-9, 0.5698402909980532e-9])
-_SDF_CHUNK = 1 << 20          # points per sdf call
-_PAIR_CHUNK = 1 << 20         # (triangle, ray) pairs tested at once
-_REPAIR_ROUNDS = 8            # non-manifold edge repairs before giving up
-_NEWTON_STEPS = 4             # boundary snapping iterations
-_HALVINGS = 8                 # step halvings before a moving particle is held
-_MIN_VOLUME_FRACTION = 0.1    # of the rest lattice volume, while moving the skin
-_BIND_CANDIDATES = 16         # nearest tets tried per bound surface vertex
+_SDF_CHUNK = 1 << 20  # points per sdf call
+_PAIR_CHUNK = 1 << 20  # (triangle, ray) pairs tested at once
+_REPAIR_ROUNDS = 8  # non-manifold edge repairs before giving up
+_NEWTON_STEPS = 4  # boundary snapping iterations
+_HALVINGS = 8  # step halvings before a moving particle is held
+_MIN_VOLUME_FRACTION = 0.1  # of the rest lattice volume, while moving the skin
+_BIND_CANDIDATES = 16  # nearest tets tried per bound surface vertex
 
 
 @dataclass
@@ -68,7 +68,10 @@ def _bcc_templates() -> np.ndarray:
         b, c = eye[(a + 1) % 3], eye[(a + 2) % 3]
         face = centre + eye[a]
         for s in (-1, 1):
-            for edge in ((face - b + s * c, face + b + s * c), (face + s * b - c, face + s * b + c)):
+            for edge in (
+                (face - b + s * c, face + b + s * c),
+                (face + s * b - c, face + s * b + c),
+            ):
                 templates.append([centre, centre + 2 * eye[a], *edge])
     templates = np.array(templates)
     negative = np.linalg.det((templates[:, 1:] - templates[:, :1]).astype(float)) < 0
@@ -118,7 +121,9 @@ class _Lattice:
     @cached_property
     def doubled(self) -> np.ndarray:
         """Doubled coordinates ``(V, 3)`` of all lattice vertices, by vertex id."""
-        corners = np.stack(np.unravel_index(np.arange(np.prod(self.cells + 1)), self.cells + 1), axis=1)
+        corners = np.stack(
+            np.unravel_index(np.arange(np.prod(self.cells + 1)), self.cells + 1), axis=1
+        )
         centres = np.stack(np.unravel_index(np.arange(np.prod(self.cells)), self.cells), axis=1)
         return np.concatenate([2 * corners, 2 * centres + 1])
 
@@ -127,10 +132,15 @@ class _Lattice:
         template, cell = self.split(ids)
         corner_stride = np.array([(self.cells[1] + 1) * (self.cells[2] + 1), self.cells[2] + 1, 1])
         centre_stride = np.array([self.cells[1] * self.cells[2], self.cells[2], 1])
-        centre = _TEMPLATES[:, :, 0] % 2 == 1                        # (12, 4)
-        delta = np.where(centre, (_TEMPLATES // 2) @ centre_stride, (_TEMPLATES // 2) @ corner_stride)
-        base = np.where(centre[template], (np.prod(self.cells + 1) + cell @ centre_stride)[:, None],
-                        (cell @ corner_stride)[:, None])
+        centre = _TEMPLATES[:, :, 0] % 2 == 1  # (12, 4)
+        delta = np.where(
+            centre, (_TEMPLATES // 2) @ centre_stride, (_TEMPLATES // 2) @ corner_stride
+        )
+        base = np.where(
+            centre[template],
+            (np.prod(self.cells + 1) + cell @ centre_stride)[:, None],
+            (cell @ corner_stride)[:, None],
+        )
         return base + delta[template]
 
     def position(self, doubled: np.ndarray) -> np.ndarray:
@@ -142,9 +152,11 @@ class _Lattice:
         template = np.repeat(np.arange(12), 4)
         delta = doubled[:, None, :] - offsets[None]
         cell = delta // 2
-        limit = self.cells - np.eye(3, dtype=np.int64).repeat(4, axis=0)   # (12, 3)
+        limit = self.cells - np.eye(3, dtype=np.int64).repeat(4, axis=0)  # (12, 3)
         ok = np.all((delta % 2 == 0) & (cell >= 0) & (cell < limit[template]), axis=2)
-        flat = np.ravel_multi_index(tuple(np.clip(cell, 0, self.cells - 1).transpose(2, 0, 1)), self.cells)
+        flat = np.ravel_multi_index(
+            tuple(np.clip(cell, 0, self.cells - 1).transpose(2, 0, 1)), self.cells
+        )
         return np.where(ok, template * np.prod(self.cells) + flat, -1)
 
 
@@ -153,8 +165,13 @@ def _morton(doubled: np.ndarray) -> np.ndarray:
     key = np.zeros(len(doubled), dtype=np.uint64)
     for axis in range(3):
         v = doubled[:, axis].astype(np.uint64) & np.uint64(0x1FFFFF)
-        for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-                            (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
+        for shift, mask in (
+            (32, 0x1F00000000FFFF),
+            (16, 0x1F0000FF0000FF),
+            (8, 0x100F00F00F00F00F),
+            (4, 0x10C30C30C30C30C3),
+            (2, 0x1249249249249249),
+        ):
             v = (v | (v << np.uint64(shift))) & np.uint64(mask)
         key |= v << np.uint64(axis)
     return key
@@ -179,8 +196,11 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
     if n >= 1 << 21:
         raise ValueError(f"{n} particles exceed the 2^21 face keys of boundary_faces")
     ordered = np.sort(faces, axis=1)
-    _, first, count = np.unique((ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2],
-                                return_index=True, return_counts=True)
+    _, first, count = np.unique(
+        (ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2],
+        return_index=True,
+        return_counts=True,
+    )
     return faces[np.sort(first[count == 1])]
 
 
@@ -191,10 +211,13 @@ def _edge_keys(pairs: np.ndarray, n: int) -> np.ndarray:
 
 def _repair_ids(lattice: _Lattice, doubled: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Candidate tets around the boundary edges used by more than two faces."""
-    keys, count = np.unique(_edge_keys(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), len(doubled)),
-                            return_counts=True)
+    keys, count = np.unique(
+        _edge_keys(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), len(doubled)), return_counts=True
+    )
     edges = np.stack(np.divmod(keys[count > 2], len(doubled)), axis=1)
-    around = np.concatenate([lattice.star(doubled[edges[:, 0]]), lattice.star(doubled[edges[:, 1]])], axis=1)
+    around = np.concatenate(
+        [lattice.star(doubled[edges[:, 0]]), lattice.star(doubled[edges[:, 1]])], axis=1
+    )
     tagged = np.where(around >= 0, np.arange(len(edges))[:, None] * lattice.candidates + around, -1)
     tagged, count = np.unique(tagged[tagged >= 0], return_counts=True)
     return tagged[count == 2] % lattice.candidates
@@ -231,18 +254,21 @@ def _classify_by_warp(lattice: _Lattice, distance: np.ndarray, ids: np.ndarray):
     edges = tet_edges(corners[straddling])
     edges = edges[inside[edges].any(axis=1) & outside[edges].any(axis=1)]
     f = distance[edges]
-    along = f[:, 0] / (f[:, 0] - f[:, 1])                          # cut, from end 0
+    along = f[:, 0] / (f[:, 0] - f[:, 1])  # cut, from end 0
     vertex = edges.T.reshape(-1)
     fraction = np.concatenate([along, 1 - along])
     near = fraction <= 0.5
     vertex, fraction = vertex[near], fraction[near]
     cut = np.concatenate([edges[:, 1], edges[:, 0]])[near]
     order = np.lexsort((fraction, vertex))
-    first = order[np.unique(vertex[order], return_index=True)[1]]         # nearest cut
+    first = order[np.unique(vertex[order], return_index=True)[1]]  # nearest cut
     doubled = lattice.doubled
     warp = np.zeros((len(distance), 3))
-    warp[vertex[first]] = (doubled[cut[first]] - doubled[vertex[first]]) * (lattice.spacing / 2) \
+    warp[vertex[first]] = (
+        (doubled[cut[first]] - doubled[vertex[first]])
+        * (lattice.spacing / 2)
         * fraction[first, None]
+    )
     side = np.sign(distance)
     side[vertex[first]] = 0
     corner_side = side[corners]
@@ -250,8 +276,13 @@ def _classify_by_warp(lattice: _Lattice, distance: np.ndarray, ids: np.ndarray):
 
 
 def _sdf(sdf: SignedDistance, points: np.ndarray) -> np.ndarray:
-    return np.concatenate([np.asarray(sdf(points[i:i + _SDF_CHUNK]), dtype=np.float64).reshape(-1)
-                           for i in range(0, len(points), _SDF_CHUNK)] or [np.zeros(0)])
+    return np.concatenate(
+        [
+            np.asarray(sdf(points[i : i + _SDF_CHUNK]), dtype=np.float64).reshape(-1)
+            for i in range(0, len(points), _SDF_CHUNK)
+        ]
+        or [np.zeros(0)]
+    )
 
 
 def _edge_function(u: np.ndarray, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -270,7 +301,7 @@ def _ray_crossings(vertices: np.ndarray, triangles: np.ndarray, lines: np.ndarra
     Returns line index and x [m] of each crossing. Rays are bucketed into strips
     of y and sorted by z inside a strip; each triangle's (y, z) box selects rays.
     """
-    corner = vertices[triangles]                                   # (M, 3, 3)
+    corner = vertices[triangles]  # (M, 3, 3)
     tlo, thi = corner[:, :, 1:].min(axis=1), corner[:, :, 1:].max(axis=1)
     lo, hi = lines.min(axis=0), lines.max(axis=0)
     width = max(float(np.median(thi[:, 0] - tlo[:, 0])), (hi[0] - lo[0]) / 4096, 1e-300)
@@ -286,9 +317,12 @@ def _ray_crossings(vertices: np.ndarray, triangles: np.ndarray, lines: np.ndarra
     tri = np.repeat(np.arange(len(triangles)), count)
     strip = first[tri] + np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
     z_range = hi[1] - lo[1]
-    start = np.searchsorted(keys, strip * stride + np.clip(tlo[tri, 1] - lo[1], 0, z_range) - margin)
-    stop = np.searchsorted(keys, strip * stride + np.clip(thi[tri, 1] - lo[1], 0, z_range) + margin,
-                           side="right")
+    start = np.searchsorted(
+        keys, strip * stride + np.clip(tlo[tri, 1] - lo[1], 0, z_range) - margin
+    )
+    stop = np.searchsorted(
+        keys, strip * stride + np.clip(thi[tri, 1] - lo[1], 0, z_range) + margin, side="right"
+    )
     rays = stop - start
     chunk = (np.cumsum(rays) - rays) // _PAIR_CHUNK
     cuts = np.concatenate([[0], np.flatnonzero(np.diff(chunk)) + 1, [len(rays)]])
@@ -296,7 +330,9 @@ def _ray_crossings(vertices: np.ndarray, triangles: np.ndarray, lines: np.ndarra
     for a, b in zip(cuts[:-1], cuts[1:]):
         n = rays[a:b]
         pair_tri = np.repeat(tri[a:b], n)
-        pair_line = order[np.repeat(start[a:b], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+        pair_line = order[
+            np.repeat(start[a:b], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        ]
         p, c = lines[pair_line], corner[pair_tri]
         e_ab, bit_ab = _edge_function(c[:, 0, 1:], c[:, 1, 1:], p)
         e_bc, bit_bc = _edge_function(c[:, 1, 1:], c[:, 2, 1:], p)
@@ -360,7 +396,7 @@ def tet_edges(tets: np.ndarray) -> np.ndarray:
 def min_dihedral_angle(particles: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Smallest dihedral angle of each tet ``(T,)`` [degrees]; 60 for BCC tets."""
     x = particles[tets]
-    faces = x[:, _FACES]                                           # (T, 4, 3, 3)
+    faces = x[:, _FACES]  # (T, 4, 3, 3)
     normal = np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=2, keepdims=True), 1e-300)
     cosine = -np.einsum("tei,tei->te", normal[:, _EDGES[:, 0]], normal[:, _EDGES[:, 1]])
@@ -371,13 +407,19 @@ def _newton_step(sdf: SignedDistance, x: np.ndarray, h: float) -> np.ndarray:
     """Step ``-f grad f / |grad f|^2`` onto the zero set, central differences ``h``."""
     offsets = np.concatenate([np.eye(3), -np.eye(3)]) * h
     values = _sdf(sdf, np.concatenate([x, (x[:, None, :] + offsets).reshape(-1, 3)]))
-    f, probes = values[:len(x)], values[len(x):].reshape(-1, 6)
+    f, probes = values[: len(x)], values[len(x) :].reshape(-1, 6)
     grad = (probes[:, :3] - probes[:, 3:]) / (2 * h)
     return -(f / np.maximum(np.einsum("ij,ij->i", grad, grad), 1e-300))[:, None] * grad
 
 
-def _displace(particles: np.ndarray, near: np.ndarray, moving: np.ndarray, step: np.ndarray,
-              slot: np.ndarray, floor: float) -> None:
+def _displace(
+    particles: np.ndarray,
+    near: np.ndarray,
+    moving: np.ndarray,
+    step: np.ndarray,
+    slot: np.ndarray,
+    floor: float,
+) -> None:
     """Move ``moving`` particles by ``step`` ``(m, 3)`` [m] in place, halving (then
     cancelling) the step of each particle of a tet in ``near`` that would end at
     ``floor`` [m^3] or less and smaller than it was."""
@@ -397,14 +439,20 @@ def _displace(particles: np.ndarray, near: np.ndarray, moving: np.ndarray, step:
         halvings += 1
 
 
-def _snap(particles: np.ndarray, tets: np.ndarray, moving: np.ndarray, warp: np.ndarray,
-          sdf: SignedDistance, spacing: float) -> None:
+def _snap(
+    particles: np.ndarray,
+    tets: np.ndarray,
+    moving: np.ndarray,
+    warp: np.ndarray,
+    sdf: SignedDistance,
+    spacing: float,
+) -> None:
     """Warp the ``moving`` particles, then put them on the sdf zero set by Newton
     steps, in place; no tet falls to 10% of the rest volume ``spacing^3 / 12``."""
     near = tets[np.isin(tets, moving).any(axis=1)]
     slot = np.full(len(particles), -1)
     slot[moving] = np.arange(len(moving))
-    floor = _MIN_VOLUME_FRACTION * spacing ** 3 / 12
+    floor = _MIN_VOLUME_FRACTION * spacing**3 / 12
     _displace(particles, near, moving, warp, slot, floor)
     for _ in range(_NEWTON_STEPS):
         step = _newton_step(sdf, particles[moving], 1e-4 * spacing)
@@ -417,7 +465,7 @@ def _bind_barycentric(particles: np.ndarray, tets: np.ndarray, points: np.ndarra
     k = min(_BIND_CANDIDATES, len(tets))
     _, candidate = cKDTree(particles[tets].mean(axis=1)).query(points, k=k)
     candidate = candidate.reshape(len(points), k)
-    x = particles[tets[candidate]]                                 # (S, k, 4, 3)
+    x = particles[tets[candidate]]  # (S, k, 4, 3)
     frame = np.swapaxes(x[:, :, 1:] - x[:, :, :1], -1, -2)
     inner = np.linalg.solve(frame, (points[:, None, :] - x[:, :, 0])[..., None])[..., 0]
     weight = np.concatenate([1.0 - inner.sum(axis=2, keepdims=True), inner], axis=2)
@@ -426,8 +474,9 @@ def _bind_barycentric(particles: np.ndarray, tets: np.ndarray, points: np.ndarra
     return tets[candidate[rows, best]], weight[rows, best]
 
 
-def tetrahedralize(solid: Solid, spacing: float, *,
-                   progress: Callable[[float], None] | None = None) -> TetMesh:
+def tetrahedralize(
+    solid: Solid, spacing: float, *, progress: Callable[[float], None] | None = None
+) -> TetMesh:
     """Fill ``solid`` with BCC tets of cube edge ``spacing`` [m] (seed 002 §3.2).
 
     With a given ``solid.surface``, tets whose centroid is inside (``sdf < 0``,

@@ -30,11 +30,13 @@ def place(geometry: Geometry, rotate, translate) -> Geometry:
     if isinstance(geometry, TriangleMesh):
         return TriangleMesh(move(geometry.vertices), geometry.triangles)
     if isinstance(geometry, SpringSheet):
-        return SpringSheet(move(geometry.rows.reshape(-1, 3)).reshape(geometry.rows.shape),
-                           geometry.row_radius)
+        return SpringSheet(
+            move(geometry.rows.reshape(-1, 3)).reshape(geometry.rows.shape), geometry.row_radius
+        )
     lo, hi = geometry.bounds
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
+    corners = np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
     moved = move(corners)
     sdf = None
     if geometry.sdf is not None:

@@ -50,7 +50,7 @@ def _nearest_opposite_hit(origins, directions, v, f, face_normals) -> np.ndarray
     a, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
     hits = np.full(len(origins), -1)
     for start in range(0, len(origins), 64):
-        o, d = origins[start:start + 64, None, :], directions[start:start + 64, None, :]
+        o, d = origins[start : start + 64, None, :], directions[start : start + 64, None, :]
         pvec = np.cross(d, e2[None])
         det = np.einsum("rfk,fk->rf", pvec, e1)
         inv = 1.0 / np.where(np.abs(det) < 1e-18, np.inf, det)
@@ -64,13 +64,18 @@ def _nearest_opposite_hit(origins, directions, v, f, face_normals) -> np.ndarray
         t = np.where(ok, t, np.inf)
         best = np.argmin(t, axis=1)
         found = np.isfinite(t[np.arange(len(t)), best])
-        hits[start:start + 64] = np.where(found, best, -1)
+        hits[start : start + 64] = np.where(found, best, -1)
     return hits
 
 
-def generate_truss(mesh: TriangleMesh, *, cone_angle: float, bending_threshold: float,
-                   min_stiffness: float,
-                   progress: Callable[[float], None] | None = None) -> Truss:
+def generate_truss(
+    mesh: TriangleMesh,
+    *,
+    cone_angle: float,
+    bending_threshold: float,
+    min_stiffness: float,
+    progress: Callable[[float], None] | None = None,
+) -> Truss:
     """Alg. 2 on a closed, outward-oriented surface ``mesh``; angles in radians."""
     v, f = mesh.vertices, mesh.triangles
     normals, face_normals = vertex_normals(mesh)

@@ -10,16 +10,42 @@ from taichi_lap.haptics.device import HapticDevice, WorkspaceMapping
 from taichi_lap.haptics.openhaptics import HDError, OpenHapticsDevice, OpenHapticsError
 from taichi_lap.haptics.safety import ForceSafety
 
-__all__ = ["ForceSafety", "HDError", "HapticDevice", "OpenHapticsDevice", "OpenHapticsError",
-           "WorkspaceMapping"]
-from taichi_lap.haptics.proxy import (HapticProxy, ProxySettings, ProxyStatus,
-                                      SurfaceClusters, ToolCapsule, grasp_edges, pull_force)
+__all__ = [
+    "ForceSafety",
+    "HDError",
+    "HapticDevice",
+    "OpenHapticsDevice",
+    "OpenHapticsError",
+    "WorkspaceMapping",
+]
+from taichi_lap.haptics.proxy import (
+    HapticProxy,
+    ProxySettings,
+    ProxyStatus,
+    SurfaceClusters,
+    ToolCapsule,
+    grasp_edges,
+    pull_force,
+)
 from taichi_lap.haptics.servo import ScriptedHapticDevice, ServoProcess, ServoSettings
 from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
-from taichi_lap.haptics.snapshot import (HapticScene, SceneSnapshot,
-                                         SnapshotCapacityError)
+from taichi_lap.haptics.snapshot import HapticScene, SceneSnapshot, SnapshotCapacityError
 
-__all__ += ["HapticProxy", "HapticScene", "ProxySettings", "ProxyStatus", "SceneSnapshot",
-            "ScriptedHapticDevice", "ServoFeedback", "ServoProcess", "ServoSettings", "ServoState",
-            "SnapshotCapacityError", "SurfaceClusters", "ToolCapsule", "ToolFeedback",
-            "grasp_edges", "pull_force"]
+__all__ += [
+    "HapticProxy",
+    "HapticScene",
+    "ProxySettings",
+    "ProxyStatus",
+    "SceneSnapshot",
+    "ScriptedHapticDevice",
+    "ServoFeedback",
+    "ServoProcess",
+    "ServoSettings",
+    "ServoState",
+    "SnapshotCapacityError",
+    "SurfaceClusters",
+    "ToolCapsule",
+    "ToolFeedback",
+    "grasp_edges",
+    "pull_force",
+]

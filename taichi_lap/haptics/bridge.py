@@ -36,17 +36,26 @@ def tool_capsule(tool: dict) -> ToolCapsule:
     """The proxy's shape of a scene tool: its shaft, and its jaws when it has them (as
     the simulation's contacts, :class:`~taichi_lap.sim.control.Control`)."""
     jaws = tool["kind"] in JAW_KINDS
-    return ToolCapsule(length=tool["length"], radius=tool["radius"],
-                       jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0,
-                       jaw_radius=JAW_RADIUS * tool["radius"] if jaws else 0.0)
+    return ToolCapsule(
+        length=tool["length"],
+        radius=tool["radius"],
+        jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0,
+        jaw_radius=JAW_RADIUS * tool["radius"] if jaws else 0.0,
+    )
 
 
 class HapticBridge:
     """Drives ``tool`` (a scene tool table) from the device ``device_factory``
     (a picklable callable opening a :class:`HapticDevice` in the servo process)."""
 
-    def __init__(self, tool: dict, device_factory, *, label: str = "haptic device",
-                 settings: ServoSettings = ServoSettings()):
+    def __init__(
+        self,
+        tool: dict,
+        device_factory,
+        *,
+        label: str = "haptic device",
+        settings: ServoSettings = ServoSettings(),
+    ):
         self.name, self.device_label = tool["name"], label
         self.source = label  # what the session record names
         self.capsule = tool_capsule(tool)
@@ -64,18 +73,22 @@ class HapticBridge:
         self.session = session
         self.tool_index = [tool["name"] for tool in session.scene.tools].index(self.name)
         self.surface = SurfaceClusters(session.data)
-        self.snapshot = SceneSnapshot.create(clusters=self.surface.cluster_count,
-                                             particles=self.surface.particle_count,
-                                             grasp_edges=GRASP_EDGE_CAPACITY)
+        self.snapshot = SceneSnapshot.create(
+            clusters=self.surface.cluster_count,
+            particles=self.surface.particle_count,
+            grasp_edges=GRASP_EDGE_CAPACITY,
+        )
         self.surface.publish(self.snapshot, session.state.x.to_numpy())
         try:
             proxy = ProxySettings(self.capsule, grasp_stiffness=self.grasp_stiffness)
-            self.servo = ServoProcess(self.snapshot.name, self._factory, proxy,
-                                      self._settings).start()
+            self.servo = ServoProcess(
+                self.snapshot.name, self._factory, proxy, self._settings
+            ).start()
         except RuntimeError as exc:
             self.snapshot.close()
-            raise InputError("--device", self.device_label, f"a working haptic device was "
-                                                            f"expected: {exc}") from None
+            raise InputError(
+                "--device", self.device_label, f"a working haptic device was expected: {exc}"
+            ) from None
 
     def poses(self, time: float) -> dict[str, Pose]:
         """Publish the current surface and grasp; the tool at the servo's graphical pose."""
@@ -99,12 +112,17 @@ class HapticBridge:
         (pose, buttons, force)})`` for :meth:`RecordStream.tick`."""
         ticks, self._ticks_seen, lost = self.servo.feedback.ticks_since(self._ticks_seen)
         if lost:
-            log.warning("%d servo ticks of %s were overwritten before they were recorded",
-                        lost, self.device_label)
-        return [(float(clock), {self.name: (Pose(tip, direction), int(buttons), force)})
-                for clock, tip, direction, buttons, force in
-                zip(ticks["clock"], ticks["tip"], ticks["direction"], ticks["buttons"],
-                    ticks["force"])]
+            log.warning(
+                "%d servo ticks of %s were overwritten before they were recorded",
+                lost,
+                self.device_label,
+            )
+        return [
+            (float(clock), {self.name: (Pose(tip, direction), int(buttons), force)})
+            for clock, tip, direction, buttons, force in zip(
+                ticks["clock"], ticks["tip"], ticks["direction"], ticks["buttons"], ticks["force"]
+            )
+        ]
 
     def _grasp(self, x: np.ndarray) -> dict:
         """The grasp edges of the particles this tool holds (at most the snapshot's
@@ -123,8 +141,11 @@ class HapticBridge:
         edges, pose = self._edges, self.feedback.graphic_pose
         local = (x[edges[:, 0]] - pose[:3, 3]) @ pose[:3, :3]
         order = np.argsort(np.linalg.norm(local, axis=1), kind="stable")[:GRASP_EDGE_CAPACITY]
-        return {"grasp_local": local[order], "grasp_neighbor": x[edges[order, 1]],
-                "grasp_rest": self._edge_rest[order]}
+        return {
+            "grasp_local": local[order],
+            "grasp_neighbor": x[edges[order, 1]],
+            "grasp_rest": self._edge_rest[order],
+        }
 
     def close(self):
         """Stop the servo (zero force first), then free the shared memory."""
@@ -140,6 +161,8 @@ def openhaptics_bridge(tool: dict, device_name: str | None, library: str | None)
     from taichi_lap.haptics.openhaptics import OpenHapticsDevice
 
     mapping = WorkspaceMapping(scale=tool["workspace_scale"], offset=tuple(tool["tip"]))
-    return HapticBridge(tool, functools.partial(OpenHapticsDevice, device_name, library=library,
-                                                mapping=mapping),
-                        label=f"openhaptics:{device_name}" if device_name else "openhaptics")
+    return HapticBridge(
+        tool,
+        functools.partial(OpenHapticsDevice, device_name, library=library, mapping=mapping),
+        label=f"openhaptics:{device_name}" if device_name else "openhaptics",
+    )

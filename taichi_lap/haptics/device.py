@@ -30,14 +30,19 @@ class WorkspaceMapping:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
-        if not (isinstance(self.scale, (int, float)) and math.isfinite(self.scale)
-                and self.scale > 0):
-            raise ValueError(f"WorkspaceMapping.scale: a positive finite number [m/mm] was "
-                             f"expected, found {self.scale!r}")
+        if not (
+            isinstance(self.scale, (int, float)) and math.isfinite(self.scale) and self.scale > 0
+        ):
+            raise ValueError(
+                f"WorkspaceMapping.scale: a positive finite number [m/mm] was "
+                f"expected, found {self.scale!r}"
+            )
         offset = np.asarray(self.offset, dtype=np.float64)
         if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-            raise ValueError(f"WorkspaceMapping.offset: three finite numbers [m] were "
-                             f"expected, found {self.offset!r}")
+            raise ValueError(
+                f"WorkspaceMapping.offset: three finite numbers [m] were "
+                f"expected, found {self.offset!r}"
+            )
         object.__setattr__(self, "scale", float(self.scale))
         object.__setattr__(self, "offset", tuple(float(v) for v in offset))
 

@@ -11,8 +11,13 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from taichi_lap.haptics.snapshot import (FEEDBACK_MAGIC, HEADER_WORDS, MESSAGE_BYTES, _capacity,
-                                         _Region)
+from taichi_lap.haptics.snapshot import (
+    FEEDBACK_MAGIC,
+    HEADER_WORDS,
+    MESSAGE_BYTES,
+    _capacity,
+    _Region,
+)
 
 
 class ServoState(enum.IntEnum):
@@ -52,14 +57,28 @@ class ToolFeedback:
     max_force_sent: float
 
 
-_INT_FIELDS = ("tick", "buttons", "contacts", "proxy_status", "snapshot_sequence", "missed_2ms",
-               "qp_fallbacks", "qp_failures")
+_INT_FIELDS = (
+    "tick",
+    "buttons",
+    "contacts",
+    "proxy_status",
+    "snapshot_sequence",
+    "missed_2ms",
+    "qp_fallbacks",
+    "qp_failures",
+)
 _FLOAT_FIELDS = ("time", "max_force_sent")
-_ARRAY_FIELDS = (("haptic_pose", (4, 4)), ("graphic_pose", (4, 4)), ("force", (3,)),
-                 ("contact_force", (3,)), ("pull_force", (3,)))
-_FEEDBACK_FIELDS = [("ints", np.int64, (len(_INT_FIELDS),)),
-                    ("floats", np.float64, (len(_FLOAT_FIELDS),))] + \
-    [(name, np.float64, shape) for name, shape in _ARRAY_FIELDS]
+_ARRAY_FIELDS = (
+    ("haptic_pose", (4, 4)),
+    ("graphic_pose", (4, 4)),
+    ("force", (3,)),
+    ("contact_force", (3,)),
+    ("pull_force", (3,)),
+)
+_FEEDBACK_FIELDS = [
+    ("ints", np.int64, (len(_INT_FIELDS),)),
+    ("floats", np.float64, (len(_FLOAT_FIELDS),)),
+] + [(name, np.float64, shape) for name, shape in _ARRAY_FIELDS]
 CAPACITY_WORD, STATE_WORD, FIFO_WORD, RING_WORD, MESSAGE_WORD = 2, 3, 4, 5, 6
 
 
@@ -68,10 +87,13 @@ RING_INPUT = ("clock", "tip", "direction", "buttons", "force")
 
 
 def _ring_fields(ticks: int):
-    return [(name, np.float64, (ticks,)) for name in RING_TIMES + ("clock",)] + \
-        [("tip", np.float64, (ticks, 3)), ("direction", np.float64, (ticks, 3)),
-         ("buttons", np.int64, (ticks,)), ("force", np.float64, (ticks, 3)),
-         ("message", np.uint8, (MESSAGE_BYTES,))]
+    return [(name, np.float64, (ticks,)) for name in RING_TIMES + ("clock",)] + [
+        ("tip", np.float64, (ticks, 3)),
+        ("direction", np.float64, (ticks, 3)),
+        ("buttons", np.int64, (ticks,)),
+        ("force", np.float64, (ticks, 3)),
+        ("message", np.uint8, (MESSAGE_BYTES,)),
+    ]
 
 
 class ServoFeedback:
@@ -125,11 +147,24 @@ class ServoFeedback:
         if self._region.read(copy) <= 0:
             return None
         ints, floats = out.pop("ints"), out.pop("floats")
-        return ToolFeedback(**{k: int(v) for k, v in zip(_INT_FIELDS, ints)},
-                            **{k: float(v) for k, v in zip(_FLOAT_FIELDS, floats)}, **out)
+        return ToolFeedback(
+            **{k: int(v) for k, v in zip(_INT_FIELDS, ints)},
+            **{k: float(v) for k, v in zip(_FLOAT_FIELDS, floats)},
+            **out,
+        )
 
-    def record_tick(self, period: float, compute: float, qp: float, *, clock: float, tip,
-                    direction, buttons: int, force):
+    def record_tick(
+        self,
+        period: float,
+        compute: float,
+        qp: float,
+        *,
+        clock: float,
+        tip,
+        direction,
+        buttons: int,
+        force,
+    ):
         """Append one tick to the ring: its period, compute time and QP time [s], its
         ``clock`` [s] (``time.monotonic()``), the device's ``tip`` [m] and shaft
         ``direction``, ``buttons`` and the ``force`` sent [N]. The count is published
@@ -191,7 +226,7 @@ class ServoFeedback:
     def set_state(self, state: ServoState, message: str = ""):
         """Record the servo state, the message first (truncated to fit)."""
         data = message.encode()[:MESSAGE_BYTES]
-        self._region.extra["message"][:len(data)] = np.frombuffer(data, np.uint8)
+        self._region.extra["message"][: len(data)] = np.frombuffer(data, np.uint8)
         self._header[MESSAGE_WORD] = len(data)
         self._header[STATE_WORD] = int(state)
 

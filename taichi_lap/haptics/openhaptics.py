@@ -41,26 +41,52 @@ HD_NOMINAL_MAX_CONTINUOUS_FORCE = 0x2604
 HD_CURRENT_FORCE = 0x2700
 HD_FORCE_OUTPUT = 0x4000
 HD_MAX_SCHEDULER_PRIORITY = 65535
-HD_CALIBRATION_OK, HD_CALIBRATION_NEEDS_UPDATE, HD_CALIBRATION_NEEDS_MANUAL_INPUT = \
-    0x5000, 0x5001, 0x5002
+HD_CALIBRATION_OK, HD_CALIBRATION_NEEDS_UPDATE, HD_CALIBRATION_NEEDS_MANUAL_INPUT = (
+    0x5000,
+    0x5001,
+    0x5002,
+)
 HD_CALIBRATION_ENCODER_RESET, HD_CALIBRATION_AUTO, HD_CALIBRATION_INKWELL = 1, 2, 4
 SERVO_RATE_HZ = 1000
 
 ERROR_NAMES = {
-    0x100: "HD_INVALID_ENUM", 0x101: "HD_INVALID_VALUE", 0x102: "HD_INVALID_OPERATION",
-    0x103: "HD_INVALID_INPUT_TYPE", 0x104: "HD_BAD_HANDLE",
-    0x200: "HD_WARM_MOTORS", 0x201: "HD_EXCEEDED_MAX_FORCE", 0x204: "HD_FORCE_ERROR",
-    0x202: "HD_EXCEEDED_MAX_FORCE_IMPULSE", 0x203: "HD_EXCEEDED_MAX_VELOCITY",
-    0x300: "HD_DEVICE_FAULT", 0x301: "HD_DEVICE_ALREADY_INITIATED", 0x302: "HD_COMM_ERROR",
-    0x303: "HD_COMM_CONFIG_ERROR", 0x304: "HD_TIMER_ERROR",
-    0x400: "HD_ILLEGAL_BEGIN", 0x401: "HD_ILLEGAL_END", 0x402: "HD_FRAME_ERROR",
-    0x500: "HD_INVALID_PRIORITY", 0x501: "HD_SCHEDULER_FULL", 0x600: "HD_INVALID_LICENSE"}
-CALIBRATION_NAMES = {0x5000: "HD_CALIBRATION_OK", 0x5001: "HD_CALIBRATION_NEEDS_UPDATE",
-                     0x5002: "HD_CALIBRATION_NEEDS_MANUAL_INPUT"}
-CALIBRATION_STYLES = {1: "HD_CALIBRATION_ENCODER_RESET", 2: "HD_CALIBRATION_AUTO",
-                      4: "HD_CALIBRATION_INKWELL"}
-LIBRARY_NAMES = ("HD.dll",) if sys.platform == "win32" else \
-    ("libHD.so", "libHD.so.3.0", "libHD.so.3.0.0", "libHD.so.3.4")
+    0x100: "HD_INVALID_ENUM",
+    0x101: "HD_INVALID_VALUE",
+    0x102: "HD_INVALID_OPERATION",
+    0x103: "HD_INVALID_INPUT_TYPE",
+    0x104: "HD_BAD_HANDLE",
+    0x200: "HD_WARM_MOTORS",
+    0x201: "HD_EXCEEDED_MAX_FORCE",
+    0x204: "HD_FORCE_ERROR",
+    0x202: "HD_EXCEEDED_MAX_FORCE_IMPULSE",
+    0x203: "HD_EXCEEDED_MAX_VELOCITY",
+    0x300: "HD_DEVICE_FAULT",
+    0x301: "HD_DEVICE_ALREADY_INITIATED",
+    0x302: "HD_COMM_ERROR",
+    0x303: "HD_COMM_CONFIG_ERROR",
+    0x304: "HD_TIMER_ERROR",
+    0x400: "HD_ILLEGAL_BEGIN",
+    0x401: "HD_ILLEGAL_END",
+    0x402: "HD_FRAME_ERROR",
+    0x500: "HD_INVALID_PRIORITY",
+    0x501: "HD_SCHEDULER_FULL",
+    0x600: "HD_INVALID_LICENSE",
+}
+CALIBRATION_NAMES = {
+    0x5000: "HD_CALIBRATION_OK",
+    0x5001: "HD_CALIBRATION_NEEDS_UPDATE",
+    0x5002: "HD_CALIBRATION_NEEDS_MANUAL_INPUT",
+}
+CALIBRATION_STYLES = {
+    1: "HD_CALIBRATION_ENCODER_RESET",
+    2: "HD_CALIBRATION_AUTO",
+    4: "HD_CALIBRATION_INKWELL",
+}
+LIBRARY_NAMES = (
+    ("HD.dll",)
+    if sys.platform == "win32"
+    else ("libHD.so", "libHD.so.3.0", "libHD.so.3.0.0", "libHD.so.3.4")
+)
 MAX_ERRORS_DRAINED = 256  # bound on one drain of the error stack
 TICK_WAIT = 0.050  # [s] longest wait for servo ticks (first pose; zero force on close)
 
@@ -76,16 +102,28 @@ class _HDErrorInfo(ctypes.Structure):
 _SchedulerCallback = ctypes.CFUNCTYPE(c_uint, c_void_p)
 
 _SIGNATURES = {  # name: (restype, argtypes)
-    **{name: (None, [c_uint]) for name in ("hdDisableDevice", "hdMakeCurrentDevice",
-                                           "hdBeginFrame", "hdEndFrame", "hdEnable",
-                                           "hdDisable", "hdUpdateCalibration")},
+    **{
+        name: (None, [c_uint])
+        for name in (
+            "hdDisableDevice",
+            "hdMakeCurrentDevice",
+            "hdBeginFrame",
+            "hdEndFrame",
+            "hdEnable",
+            "hdDisable",
+            "hdUpdateCalibration",
+        )
+    },
     "hdInitDevice": (c_uint, [c_char_p]),
     "hdGetDoublev": (None, [c_uint, POINTER(c_double)]),
     "hdGetIntegerv": (None, [c_uint, POINTER(c_int)]),
     "hdSetDoublev": (None, [c_uint, POINTER(c_double)]),
-    "hdGetString": (c_char_p, [c_uint]), "hdGetError": (_HDErrorInfo, []),
-    "hdCheckCalibration": (c_uint, []), "hdSetSchedulerRate": (None, [c_ulong]),
-    "hdStartScheduler": (None, []), "hdStopScheduler": (None, []),
+    "hdGetString": (c_char_p, [c_uint]),
+    "hdGetError": (_HDErrorInfo, []),
+    "hdCheckCalibration": (c_uint, []),
+    "hdSetSchedulerRate": (None, [c_ulong]),
+    "hdStartScheduler": (None, []),
+    "hdStopScheduler": (None, []),
     "hdScheduleAsynchronous": (c_ulong, [_SchedulerCallback, c_void_p, c_ushort]),
     "hdUnschedule": (None, [c_ulong]),
 }
@@ -120,8 +158,9 @@ class _Library:
             try:
                 function = getattr(cdll, symbol)
             except AttributeError:
-                raise OpenHapticsError(f"{name} was loaded but is not libHD: it lacks the "
-                                       f"HDAPI function {symbol}") from None
+                raise OpenHapticsError(
+                    f"{name} was loaded but is not libHD: it lacks the HDAPI function {symbol}"
+                ) from None
             function.restype, function.argtypes = restype, argtypes
         self.hd = cdll
         self.error_string = getattr(cdll, "hdGetErrorString", None)
@@ -151,9 +190,12 @@ class _Library:
                 continue
             cls.loaded[key] = cls(cdll, name)
             return cls.loaded[key]
-        raise OpenHapticsError("the OpenHaptics HDAPI library libHD could not be loaded; tried "
-                               + "; ".join(tried) + ". Install the OpenHaptics runtime and the "
-                               "device driver, or pass library=PATH")
+        raise OpenHapticsError(
+            "the OpenHaptics HDAPI library libHD could not be loaded; tried "
+            + "; ".join(tried)
+            + ". Install the OpenHaptics runtime and the "
+            "device driver, or pass library=PATH"
+        )
 
     def drain_errors(self, caller: int, route: bool = True) -> list[HDError]:
         """Pop the whole error stack. With ``route``, errors of other open devices go to
@@ -164,8 +206,12 @@ class _Library:
             if info.errorCode == HD_SUCCESS:
                 break
             text = self.error_string(info.errorCode) if self.error_string else None
-            error = HDError(int(info.errorCode), int(info.internalErrorCode), int(info.hHD),
-                            text.decode(errors="replace") if text else "")
+            error = HDError(
+                int(info.errorCode),
+                int(info.internalErrorCode),
+                int(info.hHD),
+                text.decode(errors="replace") if text else "",
+            )
             owner = self.devices.get(error.handle)
             if route and owner is not None and error.handle != caller:
                 owner.servo_errors.put(error)
@@ -206,13 +252,22 @@ class OpenHapticsDevice(HapticDevice):
     once; :attr:`fault` then names the errors and :meth:`set_force` raises.
     """
 
-    def __init__(self, name: str | None = None, library: str | None = None,
-                 mapping: WorkspaceMapping = WorkspaceMapping(), *, max_rate: float = 100.0,
-                 watchdog_timeout: float = 0.100, fade_time: float = 0.050,
-                 calibration_style: int = HD_CALIBRATION_INKWELL):
+    def __init__(
+        self,
+        name: str | None = None,
+        library: str | None = None,
+        mapping: WorkspaceMapping = WorkspaceMapping(),
+        *,
+        max_rate: float = 100.0,
+        watchdog_timeout: float = 0.100,
+        fade_time: float = 0.050,
+        calibration_style: int = HD_CALIBRATION_INKWELL,
+    ):
         if calibration_style not in CALIBRATION_STYLES:
-            raise ValueError(f"calibration_style: one of {sorted(CALIBRATION_STYLES)} was "
-                             f"expected, found {calibration_style!r}")
+            raise ValueError(
+                f"calibration_style: one of {sorted(CALIBRATION_STYLES)} was "
+                f"expected, found {calibration_style!r}"
+            )
         self.name = name
         self.mapping = mapping
         self.handle = HD_INVALID_HANDLE
@@ -255,11 +310,13 @@ class OpenHapticsDevice(HapticDevice):
                 if handle == HD_INVALID_HANDLE or errors:
                     raise OpenHapticsError(
                         f"hdInitDevice({self.name or 'HD_DEFAULT_DEVICE'!r}) failed: "
-                        + ("; ".join(map(str, errors)) or "HD_INVALID_HANDLE returned"))
+                        + ("; ".join(map(str, errors)) or "HD_INVALID_HANDLE returned")
+                    )
                 self._read_properties(calibration_style)
                 lib.devices[handle] = self
-                self._schedule = hd.hdScheduleAsynchronous(self._callback, None,
-                                                           HD_MAX_SCHEDULER_PRIORITY)
+                self._schedule = hd.hdScheduleAsynchronous(
+                    self._callback, None, HD_MAX_SCHEDULER_PRIORITY
+                )
                 lib.check(f"{self!r}: hdScheduleAsynchronous", handle)
                 lib.start_scheduler()
                 self._wait_ticks(1)  # the first pose
@@ -279,28 +336,41 @@ class OpenHapticsDevice(HapticDevice):
         self.model = model.decode(errors="replace") if model else ""
         value = (c_double * 1)()
         hd.hdGetDoublev(HD_NOMINAL_MAX_CONTINUOUS_FORCE, value)
-        lib.check(f"{self!r}: reading HD_DEVICE_MODEL_TYPE and "
-                  f"HD_NOMINAL_MAX_CONTINUOUS_FORCE", self.handle)
+        lib.check(
+            f"{self!r}: reading HD_DEVICE_MODEL_TYPE and HD_NOMINAL_MAX_CONTINUOUS_FORCE",
+            self.handle,
+        )
         if not (np.isfinite(value[0]) and value[0] > 0):
-            raise OpenHapticsError(f"{self!r}: HD_NOMINAL_MAX_CONTINUOUS_FORCE: a positive "
-                                   f"force [N] was expected, found {value[0]}")
+            raise OpenHapticsError(
+                f"{self!r}: HD_NOMINAL_MAX_CONTINUOUS_FORCE: a positive "
+                f"force [N] was expected, found {value[0]}"
+            )
         self._max_force = float(value[0])
-        self._safety = ForceSafety(self._max_force, self._safety_args[0],
-                                   watchdog_timeout=self._safety_args[1],
-                                   fade_time=self._safety_args[2])
+        self._safety = ForceSafety(
+            self._max_force,
+            self._safety_args[0],
+            watchdog_timeout=self._safety_args[1],
+            fade_time=self._safety_args[2],
+        )
         hd.hdEnable(HD_FORCE_OUTPUT)
         lib.check(f"{self!r}: hdEnable(HD_FORCE_OUTPUT)", self.handle)
         self.calibration = hd.hdCheckCalibration()
         if self.calibration == HD_CALIBRATION_NEEDS_UPDATE:
             hd.hdUpdateCalibration(calibration_style)
-            lib.check(f"{self!r}: hdUpdateCalibration({CALIBRATION_STYLES[calibration_style]})",
-                      self.handle)
+            lib.check(
+                f"{self!r}: hdUpdateCalibration({CALIBRATION_STYLES[calibration_style]})",
+                self.handle,
+            )
             self.calibration = hd.hdCheckCalibration()
         if self.calibration != HD_CALIBRATION_OK:
-            log.warning("%r: calibration status %s%s", self,
-                        CALIBRATION_NAMES.get(self.calibration, hex(self.calibration)),
-                        " (place the stylus in its inkwell)"
-                        if self.calibration == HD_CALIBRATION_NEEDS_MANUAL_INPUT else "")
+            log.warning(
+                "%r: calibration status %s%s",
+                self,
+                CALIBRATION_NAMES.get(self.calibration, hex(self.calibration)),
+                " (place the stylus in its inkwell)"
+                if self.calibration == HD_CALIBRATION_NEEDS_MANUAL_INPUT
+                else "",
+            )
 
     @property
     def max_force(self) -> float:
@@ -323,8 +393,9 @@ class OpenHapticsDevice(HapticDevice):
             raise OpenHapticsError(f"{self!r} is closed")
         force = np.array(force_newtons, dtype=np.float64)
         if force.shape != (3,):
-            raise ValueError(f"set_force: a force 3-vector [N] was expected, found shape "
-                             f"{force.shape}")
+            raise ValueError(
+                f"set_force: a force 3-vector [N] was expected, found shape {force.shape}"
+            )
         stamp = time.monotonic() if snapshot_time is None else float(snapshot_time)
         self._command = (force, stamp)
 

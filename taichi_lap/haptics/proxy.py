@@ -52,18 +52,23 @@ NO_BOUND = 1e30
 class ProxyStatus(enum.IntEnum):
     """How the graphical tool of a tick was found."""
 
-    FREE = 0     # no contact: q_g = q_h
+    FREE = 0  # no contact: q_g = q_h
     CONTACT = 1  # QP with the linearised non-penetration constraints
     RELAXED = 2  # those were infeasible: QP with offsets q_g(t-1) satisfies
-    HELD = 3     # the solver failed: q_g(t-1) held
+    HELD = 3  # the solver failed: q_g(t-1) held
 
 
 def _positive(owner: str, name: str, value, allow_zero: bool = False) -> float:
-    ok = isinstance(value, (int, float)) and math.isfinite(value) and \
-        (value >= 0 if allow_zero else value > 0)
+    ok = (
+        isinstance(value, (int, float))
+        and math.isfinite(value)
+        and (value >= 0 if allow_zero else value > 0)
+    )
     if not ok:
-        raise ValueError(f"{owner}.{name}: a {'non-negative' if allow_zero else 'positive'} "
-                         f"finite number was expected, found {value!r}")
+        raise ValueError(
+            f"{owner}.{name}: a {'non-negative' if allow_zero else 'positive'} "
+            f"finite number was expected, found {value!r}"
+        )
     return float(value)
 
 
@@ -87,8 +92,9 @@ class ToolCapsule:
         _positive("ToolCapsule", "jaw_radius", self.jaw_radius, allow_zero=True)
         axis = np.asarray(self.axis, dtype=np.float64)
         if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9:
-            raise ValueError(f"ToolCapsule.axis: a non-zero 3-vector was expected, found "
-                             f"{self.axis!r}")
+            raise ValueError(
+                f"ToolCapsule.axis: a non-zero 3-vector was expected, found {self.axis!r}"
+            )
         object.__setattr__(self, "axis", tuple(float(v) for v in axis / np.linalg.norm(axis)))
 
 
@@ -110,17 +116,22 @@ class ProxySettings:
     def __post_init__(self):
         stiffness = np.asarray(self.stiffness, dtype=np.float64)
         if stiffness.shape != (3,) or not np.all(np.isfinite(stiffness) & (stiffness > 0)):
-            raise ValueError(f"ProxySettings.stiffness: three positive numbers [N/m] were "
-                             f"expected, found {self.stiffness!r}")
+            raise ValueError(
+                f"ProxySettings.stiffness: three positive numbers [N/m] were "
+                f"expected, found {self.stiffness!r}"
+            )
         _positive("ProxySettings", "gain", self.gain)
         _positive("ProxySettings", "contact_margin", self.contact_margin, allow_zero=True)
         _positive("ProxySettings", "grasp_stiffness", self.grasp_stiffness, allow_zero=True)
         if not (isinstance(self.omega, (int, float)) and 0.0 <= self.omega < 1.0):
-            raise ValueError(f"ProxySettings.omega: a number in [0, 1) was expected, found "
-                             f"{self.omega!r}")
+            raise ValueError(
+                f"ProxySettings.omega: a number in [0, 1) was expected, found {self.omega!r}"
+            )
         if not (isinstance(self.max_contacts, int) and self.max_contacts >= 1):
-            raise ValueError(f"ProxySettings.max_contacts: a positive integer was expected, "
-                             f"found {self.max_contacts!r}")
+            raise ValueError(
+                f"ProxySettings.max_contacts: a positive integer was expected, "
+                f"found {self.max_contacts!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -138,8 +149,9 @@ class ProxyResult:
     qp_seconds: float
 
 
-def capsule_distance_sq(points: np.ndarray, tip: np.ndarray, axis: np.ndarray,
-                        length: float) -> tuple[np.ndarray, np.ndarray]:
+def capsule_distance_sq(
+    points: np.ndarray, tip: np.ndarray, axis: np.ndarray, length: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Squared distances [m²] of ``points`` (n, 3) to the segment from ``tip`` along the
     unit ``axis`` for ``length`` [m], and the vectors from each point to its closest
     point on the segment (n, 3) [m]."""
@@ -151,16 +163,18 @@ def capsule_distance_sq(points: np.ndarray, tip: np.ndarray, axis: np.ndarray,
     return np.einsum("ij,ij->i", offset, offset), offset
 
 
-def tool_gap(tool: ToolCapsule, points: np.ndarray, tip: np.ndarray, axis: np.ndarray) \
-        -> tuple[np.ndarray, np.ndarray]:
+def tool_gap(
+    tool: ToolCapsule, points: np.ndarray, tip: np.ndarray, axis: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Distances [m] of ``points`` (n, 3) from the surface of ``tool`` at ``tip`` with the
     unit shaft ``axis`` (the nearer of shaft and jaws; negative inside), and the vectors
     from each point to the closest axis point of that part (n, 3) [m]."""
     d2, offset = capsule_distance_sq(points, tip, axis, tool.length)
     gap = np.sqrt(d2) - tool.radius
     if tool.jaw_length > 0.0:
-        jaw_d2, jaw_offset = capsule_distance_sq(points, tip - tool.jaw_length * axis, axis,
-                                                 tool.jaw_length)
+        jaw_d2, jaw_offset = capsule_distance_sq(
+            points, tip - tool.jaw_length * axis, axis, tool.jaw_length
+        )
         jaw_gap = np.sqrt(jaw_d2) - tool.jaw_radius
         nearer = jaw_gap < gap
         gap[nearer], offset[nearer] = jaw_gap[nearer], jaw_offset[nearer]
@@ -175,8 +189,9 @@ def ranges(start: np.ndarray, which: np.ndarray) -> np.ndarray:
     return np.arange(ends[-1] if len(ends) else 0) + np.repeat(first - ends + counts, counts)
 
 
-def pull_force(grasped: np.ndarray, neighbor: np.ndarray, rest: np.ndarray,
-               stiffness: float = GRASP_STIFFNESS) -> np.ndarray:
+def pull_force(
+    grasped: np.ndarray, neighbor: np.ndarray, rest: np.ndarray, stiffness: float = GRASP_STIFFNESS
+) -> np.ndarray:
     """Grasp pull force [N] on the tool, seed 002 §3.4 (Hooke's law over tet edges):
 
         h_p = k Σ_e max(0, |e| - |e0|) ê,   e = p_neighbor - p_grasped,
@@ -191,16 +206,24 @@ def pull_force(grasped: np.ndarray, neighbor: np.ndarray, rest: np.ndarray,
     return stiffness * (scale[:, None] * e).sum(axis=0)
 
 
-def grasp_edges(tets: np.ndarray, grasped: np.ndarray, pairs: np.ndarray | None = None) \
-        -> np.ndarray:
+def grasp_edges(
+    tets: np.ndarray, grasped: np.ndarray, pairs: np.ndarray | None = None
+) -> np.ndarray:
     """Unique edges (E, 2) from a grasped particle (column 0) to a neighbour that is
     not grasped (column 1): the edges of ``tets`` (T, 4) and the ``pairs`` (P, 2) of
     organs without tets (struts, sheet edges); all are particle indices."""
     tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
-    pairs = np.concatenate([tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6)
-                            .transpose(0, 2, 1).reshape(-1, 2),
-                            np.asarray(pairs if pairs is not None else np.zeros((0, 2)),
-                                       dtype=np.int64).reshape(-1, 2)])
+    pairs = np.concatenate(
+        [
+            tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]]
+            .reshape(-1, 2, 6)
+            .transpose(0, 2, 1)
+            .reshape(-1, 2),
+            np.asarray(pairs if pairs is not None else np.zeros((0, 2)), dtype=np.int64).reshape(
+                -1, 2
+            ),
+        ]
+    )
     pairs = np.concatenate([pairs, pairs[:, ::-1]])
     mark = np.zeros(int(pairs.max(initial=-1)) + 1, dtype=bool)
     grasped = np.asarray(grasped, dtype=np.int64)
@@ -220,8 +243,9 @@ class HapticProxy:
         try:
             import daqp
         except ImportError as exc:
-            raise ImportError("the haptic proxy QP needs the daqp package (pip install daqp)") \
-                from exc
+            raise ImportError(
+                "the haptic proxy QP needs the daqp package (pip install daqp)"
+            ) from exc
         self._qp = daqp.solve
         self._graphic: np.ndarray | None = None
         self._failing = False
@@ -246,11 +270,13 @@ class HapticProxy:
                 q_g, status, contacts, qp_seconds = self._solve(q_h, q_prev, axis, scene, found)
             if len(scene.grasp_rest):
                 world = scene.grasp_local @ np.asarray(haptic_pose[:3, :3]).T + q_h
-                pull = pull_force(world, scene.grasp_neighbor, scene.grasp_rest,
-                                  self.settings.grasp_stiffness)
+                pull = pull_force(
+                    world, scene.grasp_neighbor, scene.grasp_rest, self.settings.grasp_stiffness
+                )
         self._graphic = q_g
-        return ProxyResult(q_g.copy(), q_p, self.settings.gain * (q_g - q_h), pull, contacts,
-                           status, qp_seconds)
+        return ProxyResult(
+            q_g.copy(), q_p, self.settings.gain * (q_g - q_h), pull, contacts, status, qp_seconds
+        )
 
     def contacts(self, q_p: np.ndarray, axis: np.ndarray, scene) -> np.ndarray:
         """Indices of the particles within contact (plus the margin) of the capsule at
@@ -283,7 +309,7 @@ class HapticProxy:
         b = scene.particle_radius[found].astype(np.float64) - gap
         if len(b) > self.settings.max_contacts:
             deepest = np.argpartition(-b, self.settings.max_contacts - 1)
-            keep = deepest[:self.settings.max_contacts]
+            keep = deepest[: self.settings.max_contacts]
             normal, b = normal[keep], b[keep]
         if not len(b):
             return q_h, ProxyStatus.FREE, 0, 0.0
@@ -299,8 +325,12 @@ class HapticProxy:
                 self._failing = False
                 return q_prev + delta, status, len(b), seconds
         if not self._failing:
-            log.warning("proxy QP failed (DAQP exit flag %d) with %d contacts even with "
-                        "relaxed offsets; holding the previous graphical tool", exitflag, len(b))
+            log.warning(
+                "proxy QP failed (DAQP exit flag %d) with %d contacts even with "
+                "relaxed offsets; holding the previous graphical tool",
+                exitflag,
+                len(b),
+            )
         self._failing = True
         return q_prev.copy(), ProxyStatus.HELD, len(b), seconds
 
@@ -328,8 +358,10 @@ class SurfaceClusters:
         member = np.asarray(data.cluster_member, dtype=np.int64)
         organ_size = np.bincount(data.organ)[data.organ]
         rest = np.asarray(data.rest_position, dtype=np.float64)
-        center = np.stack([np.bincount(owner, rest[member, a], len(sizes)) for a in range(3)],
-                          axis=1) / np.maximum(sizes, 1)[:, None]
+        center = (
+            np.stack([np.bincount(owner, rest[member, a], len(sizes)) for a in range(3)], axis=1)
+            / np.maximum(sizes, 1)[:, None]
+        )
         keep = on_surface[member] & (sizes[owner] < organ_size[member])
         member, owner = member[keep], owner[keep]
         dist = ((rest[member] - center[owner]) ** 2).sum(axis=1)
@@ -342,8 +374,9 @@ class SurfaceClusters:
         if len(lonely):
             radii = np.asarray(data.cluster_radius)
             cell = cell or (float(np.median(radii)) if len(radii) else 0.01)
-            _, cell_id = np.unique(np.floor(rest[lonely] / cell).astype(np.int64), axis=0,
-                                   return_inverse=True)
+            _, cell_id = np.unique(
+                np.floor(rest[lonely] / cell).astype(np.int64), axis=0, return_inverse=True
+            )
             group[lonely] = len(sizes) + cell_id.ravel()
         labels = group[surface]
         order = np.argsort(labels, kind="stable")

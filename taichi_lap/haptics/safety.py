@@ -19,8 +19,9 @@ log = logging.getLogger("taichi_lap.haptics")
 
 def _positive(name: str, value: float) -> float:
     if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise ValueError(f"ForceSafety.{name}: a positive finite number was expected, "
-                         f"found {value!r}")
+        raise ValueError(
+            f"ForceSafety.{name}: a positive finite number was expected, found {value!r}"
+        )
     return float(value)
 
 
@@ -46,13 +47,20 @@ class ForceSafety:
     The watchdog and the fault act after the rate limit, so neither is slowed by it.
     """
 
-    def __init__(self, max_force: float, max_rate: float, *, watchdog_timeout: float = 0.100,
-                 fade_time: float = 0.050, max_dt: float = 0.002):
-        self.max_force = _positive("max_force", max_force)         # [N]
-        self.max_rate = _positive("max_rate", max_rate)            # [N/s]
+    def __init__(
+        self,
+        max_force: float,
+        max_rate: float,
+        *,
+        watchdog_timeout: float = 0.100,
+        fade_time: float = 0.050,
+        max_dt: float = 0.002,
+    ):
+        self.max_force = _positive("max_force", max_force)  # [N]
+        self.max_rate = _positive("max_rate", max_rate)  # [N/s]
         self.watchdog_timeout = _positive("watchdog_timeout", watchdog_timeout)  # [s]
-        self.fade_time = _positive("fade_time", fade_time)         # [s]
-        self.max_dt = _positive("max_dt", max_dt)                  # [s]
+        self.fade_time = _positive("fade_time", fade_time)  # [s]
+        self.max_dt = _positive("max_dt", max_dt)  # [s]
         self.nonfinite_count = 0
         self._faulted = False
         self._reset_state()
@@ -92,8 +100,9 @@ class ForceSafety:
         """
         target = np.array(force, dtype=np.float64)
         if target.shape != (3,):
-            raise ValueError(f"ForceSafety.filter: a force 3-vector [N] was expected, "
-                             f"found shape {target.shape}")
+            raise ValueError(
+                f"ForceSafety.filter: a force 3-vector [N] was expected, found shape {target.shape}"
+            )
         dt = 0.0 if self._last_time is None else now - self._last_time
         self._last_time = now
         if self._faulted:
@@ -119,8 +128,11 @@ class ForceSafety:
             return target
         self.nonfinite_count += 1
         if not self._in_nonfinite_burst:
-            log.warning("non-finite force %s N replaced by zero (further non-finite forces "
-                        "are not logged until a finite one arrives)", target.tolist())
+            log.warning(
+                "non-finite force %s N replaced by zero (further non-finite forces "
+                "are not logged until a finite one arrives)",
+                target.tolist(),
+            )
             self._in_nonfinite_burst = True
         return np.zeros(3)
 

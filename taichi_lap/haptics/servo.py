@@ -67,11 +67,14 @@ class ServoSettings:
         for name in ("period", "max_rate", "watchdog_timeout", "fade_time", "missed_period"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"ServoSettings.{name}: a positive number was expected, "
-                                 f"found {value!r}")
+                raise ValueError(
+                    f"ServoSettings.{name}: a positive number was expected, found {value!r}"
+                )
         if not (isinstance(self.spin, (int, float)) and 0 <= self.spin <= self.period):
-            raise ValueError(f"ServoSettings.spin: a time [s] from 0 to the period was "
-                             f"expected, found {self.spin!r}")
+            raise ValueError(
+                f"ServoSettings.spin: a time [s] from 0 to the period was "
+                f"expected, found {self.spin!r}"
+            )
 
 
 class ScriptedHapticDevice(HapticDevice):
@@ -80,14 +83,23 @@ class ScriptedHapticDevice(HapticDevice):
     (cyclically with ``loop``), with a fixed ``rotation`` (3×3). ``fail_after`` [s]
     makes :meth:`pose` raise from then on, as a device fault would."""
 
-    def __init__(self, keyframes=((0.0, (0.0, 0.0, 0.0)),), *, rotation=None,
-                 max_force: float = 0.88, buttons: int = 0, loop: bool = False,
-                 fail_after: float | None = None):
+    def __init__(
+        self,
+        keyframes=((0.0, (0.0, 0.0, 0.0)),),
+        *,
+        rotation=None,
+        max_force: float = 0.88,
+        buttons: int = 0,
+        loop: bool = False,
+        fail_after: float | None = None,
+    ):
         times = np.array([float(t) for t, _ in keyframes])
         self._tips = np.array([np.asarray(p, dtype=np.float64) for _, p in keyframes])
         if len(times) == 0 or self._tips.shape != (len(times), 3) or np.any(np.diff(times) < 0):
-            raise ValueError("ScriptedHapticDevice: keyframes [(time [s], (x, y, z) [m]), ...] "
-                             f"with non-decreasing times were expected, found {keyframes!r}")
+            raise ValueError(
+                "ScriptedHapticDevice: keyframes [(time [s], (x, y, z) [m]), ...] "
+                f"with non-decreasing times were expected, found {keyframes!r}"
+            )
         self._times = times
         self._pose = np.eye(4)
         if rotation is not None:
@@ -131,9 +143,12 @@ def _realtime(settings: ServoSettings) -> bool:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(settings.fifo_priority))
         return True
     except (AttributeError, OSError) as exc:
-        log.warning("SCHED_FIFO priority %d was refused (%s): the haptic servo runs at normal "
-                    "priority and may miss ticks beside the simulation", settings.fifo_priority,
-                    exc)
+        log.warning(
+            "SCHED_FIFO priority %d was refused (%s): the haptic servo runs at normal "
+            "priority and may miss ticks beside the simulation",
+            settings.fifo_priority,
+            exc,
+        )
         return False
 
 
@@ -149,14 +164,23 @@ def _sleep_until(deadline: float, spin: float):
 class _Servo:
     """The loop's state inside the servo process."""
 
-    def __init__(self, snapshot: SceneSnapshot, device: HapticDevice, proxy: ProxySettings,
-                 settings: ServoSettings, feedback: ServoFeedback):
+    def __init__(
+        self,
+        snapshot: SceneSnapshot,
+        device: HapticDevice,
+        proxy: ProxySettings,
+        settings: ServoSettings,
+        feedback: ServoFeedback,
+    ):
         self.reader = snapshot.reader()
         self.device, self.feedback, self.settings = device, feedback, settings
         self.proxy = HapticProxy(proxy)
-        self.safety = ForceSafety(device.max_force, settings.max_rate,
-                                  watchdog_timeout=settings.watchdog_timeout,
-                                  fade_time=settings.fade_time)
+        self.safety = ForceSafety(
+            device.max_force,
+            settings.max_rate,
+            watchdog_timeout=settings.watchdog_timeout,
+            fade_time=settings.fade_time,
+        )
         self.tick = self.missed = self.fallbacks = self.failures = self.buttons = 0
         self.max_sent = 0.0
         self.haptic = np.eye(4)  # the last device pose [m]
@@ -186,9 +210,15 @@ class _Servo:
                     ready.set()
                 self.missed += start - previous > late
                 self.feedback.record_tick(
-                    start - previous, time.monotonic() - start, qp, clock=start,
-                    tip=self.haptic[:3, 3], direction=self.haptic[:3, :3] @ self.axis,
-                    buttons=self.buttons, force=self.force)
+                    start - previous,
+                    time.monotonic() - start,
+                    qp,
+                    clock=start,
+                    tip=self.haptic[:3, 3],
+                    direction=self.haptic[:3, :3] @ self.axis,
+                    buttons=self.buttons,
+                    force=self.force,
+                )
                 previous = start
                 deadline += period
                 now = time.monotonic()
@@ -215,29 +245,59 @@ class _Servo:
         graphic = np.array(haptic, dtype=np.float64)
         graphic[:3, 3] = result.graphic_position
         self.tick += 1
-        self.write(haptic, graphic, buttons, force, result.contact_force, result.pull_force,
-                   result.contacts, int(result.status), -1 if scene is None else scene.sequence)
+        self.write(
+            haptic,
+            graphic,
+            buttons,
+            force,
+            result.contact_force,
+            result.pull_force,
+            result.contacts,
+            int(result.status),
+            -1 if scene is None else scene.sequence,
+        )
         return result.qp_seconds
 
     def write(self, haptic, graphic, buttons, force, contact, pull, contacts, status, sequence):
-        self.feedback.write(ToolFeedback(
-            tick=self.tick, time=time.monotonic(), haptic_pose=haptic, graphic_pose=graphic,
-            buttons=buttons, force=force, contact_force=contact, pull_force=pull,
-            contacts=contacts, proxy_status=status, snapshot_sequence=sequence,
-            missed_2ms=self.missed, qp_fallbacks=self.fallbacks, qp_failures=self.failures,
-            max_force_sent=self.max_sent))
+        self.feedback.write(
+            ToolFeedback(
+                tick=self.tick,
+                time=time.monotonic(),
+                haptic_pose=haptic,
+                graphic_pose=graphic,
+                buttons=buttons,
+                force=force,
+                contact_force=contact,
+                pull_force=pull,
+                contacts=contacts,
+                proxy_status=status,
+                snapshot_sequence=sequence,
+                missed_2ms=self.missed,
+                qp_fallbacks=self.fallbacks,
+                qp_failures=self.failures,
+                max_force_sent=self.max_sent,
+            )
+        )
 
     def zero_force(self):
         """Stop force output: latch the safety filter, send zero, then record it."""
         self.safety.fault()
         self.device.set_force(np.zeros(3), snapshot_time=time.monotonic())
         self.force = zero = np.zeros(3)
-        self.write(self.haptic, self.haptic, self.buttons, zero, zero, zero, 0,
-                   int(ProxyStatus.FREE), -1)
+        self.write(
+            self.haptic, self.haptic, self.buttons, zero, zero, zero, 0, int(ProxyStatus.FREE), -1
+        )
 
 
-def _servo_main(snapshot_name: str, feedback_name: str, device_factory, proxy: ProxySettings,
-                settings: ServoSettings, stop, ready):
+def _servo_main(
+    snapshot_name: str,
+    feedback_name: str,
+    device_factory,
+    proxy: ProxySettings,
+    settings: ServoSettings,
+    stop,
+    ready,
+):
     """Entry point of the servo process. Ctrl-C is left to the simulation process,
     which stops the servo through ``stop``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -284,16 +344,31 @@ class ServoProcess:
     unlinks the feedback region.
     """
 
-    def __init__(self, snapshot_name: str, device: Callable[[], HapticDevice],
-                 proxy: ProxySettings, settings: ServoSettings = ServoSettings()):
+    def __init__(
+        self,
+        snapshot_name: str,
+        device: Callable[[], HapticDevice],
+        proxy: ProxySettings,
+        settings: ServoSettings = ServoSettings(),
+    ):
         self.settings = settings
         self.feedback = ServoFeedback.create(ticks=settings.ticks)
         context = multiprocessing.get_context("spawn")
         self._stop, self._ready = context.Event(), context.Event()
         self._process = context.Process(
-            target=_servo_main, name="taichi-lap-servo", daemon=True,
-            args=(snapshot_name, self.feedback.name, device, proxy, settings, self._stop,
-                  self._ready))
+            target=_servo_main,
+            name="taichi-lap-servo",
+            daemon=True,
+            args=(
+                snapshot_name,
+                self.feedback.name,
+                device,
+                proxy,
+                settings,
+                self._stop,
+                self._ready,
+            ),
+        )
 
     @property
     def exitcode(self) -> int | None:
@@ -309,8 +384,10 @@ class ServoProcess:
         while not self._ready.wait(0.02):
             if not self._process.is_alive() or time.monotonic() > deadline:
                 self.stop()
-                raise RuntimeError("the haptic servo process did not start: "
-                                   + (self.feedback.message or f"no ready signal in {timeout} s"))
+                raise RuntimeError(
+                    "the haptic servo process did not start: "
+                    + (self.feedback.message or f"no ready signal in {timeout} s")
+                )
         return self
 
     def stop(self, timeout: float = 5.0):
@@ -322,8 +399,9 @@ class ServoProcess:
             self._process.join(timeout)
             if not self._process.is_alive():
                 return
-            log.error("the haptic servo process did not stop within %s s; %s", timeout,
-                      action.__name__)
+            log.error(
+                "the haptic servo process did not stop within %s s; %s", timeout, action.__name__
+            )
             action()
         self._process.join(timeout)
 

@@ -48,8 +48,10 @@ def _layout(fields, offset: int) -> tuple[dict, int]:
 
 
 def _views(buf, layout: dict) -> dict[str, np.ndarray]:
-    return {name: np.ndarray(shape, dtype, buffer=buf, offset=off)
-            for name, (off, dtype, shape) in layout.items()}
+    return {
+        name: np.ndarray(shape, dtype, buffer=buf, offset=off)
+        for name, (off, dtype, shape) in layout.items()
+    }
 
 
 # The scene arrays: shared dtype, row shape, which count sizes them (1 clusters,
@@ -69,9 +71,10 @@ _SCENE_ARRAYS = {
 def _scene_fields(counts, private: bool = False):
     """``(name, dtype, shape)`` of a scene slot (``counts``: 0, clusters, particles,
     grasp edges), or of the servo's private copy."""
-    return [("counts", np.int64, (4,)), ("timestamp", np.float64, (1,))] + \
-        [(name, copy if private else shared, (counts[i] + extra,) + row)
-         for name, (shared, row, i, extra, copy) in _SCENE_ARRAYS.items()]
+    return [("counts", np.int64, (4,)), ("timestamp", np.float64, (1,))] + [
+        (name, copy if private else shared, (counts[i] + extra,) + row)
+        for name, (shared, row, i, extra, copy) in _SCENE_ARRAYS.items()
+    ]
 
 
 class _Region:
@@ -87,8 +90,10 @@ class _Region:
             found = int(self.header[0])
             self.header = None
             shm.close()
-            raise ValueError(f"shared memory {shm.name!r}: a taichi-lap region of layout "
-                             f"{LAYOUT_VERSION} was expected, found magic {found:#x}")
+            raise ValueError(
+                f"shared memory {shm.name!r}: a taichi-lap region of layout "
+                f"{LAYOUT_VERSION} was expected, found magic {found:#x}"
+            )
         self.versions = np.ndarray((2,), np.uint64, buffer=shm.buf, offset=ALIGN)
         first, second, extra, _ = self.layout(slot_fields, extra_fields)
         self.slots = (_views(shm.buf, first), _views(shm.buf, second))
@@ -157,14 +162,15 @@ def _capacity(name: str, value) -> int:
 def _rows(what: str, values, count: int, row: tuple, capacity: int, dtype) -> np.ndarray:
     """``values`` as ``dtype`` rows of shape ``row``, ``count`` of them (-1: any)."""
     array = np.asarray(values, dtype=dtype)
-    if array.ndim != 1 + len(row) or array.shape[1:] != row or \
-            (count >= 0 and len(array) != count):
+    if array.ndim != 1 + len(row) or array.shape[1:] != row or (count >= 0 and len(array) != count):
         dims = [str(count) if count >= 0 else "n"] + [str(s) for s in row]
         expected = f"({', '.join(dims)}{',' if len(dims) == 1 else ''})"
         raise ValueError(f"{what}: an array of shape {expected} was expected, found {array.shape}")
     if len(array) > capacity:
-        raise SnapshotCapacityError(f"{what}: {len(array)} rows exceed the capacity of "
-                                    f"{capacity} given when the snapshot was created")
+        raise SnapshotCapacityError(
+            f"{what}: {len(array)} rows exceed the capacity of "
+            f"{capacity} given when the snapshot was created"
+        )
     return array
 
 
@@ -205,13 +211,17 @@ class SceneSnapshot:
         self.capacity = dict(zip(("clusters", "particles", "grasp_edges"), self._capacities[1:]))
 
     @classmethod
-    def create(cls, *, clusters: int, particles: int, grasp_edges: int = 1024,
-               name: str | None = None) -> "SceneSnapshot":
+    def create(
+        cls, *, clusters: int, particles: int, grasp_edges: int = 1024, name: str | None = None
+    ) -> "SceneSnapshot":
         """A new region for at most ``clusters`` spheres, ``particles`` surface
         particles and ``grasp_edges`` grasped tet edges."""
-        counts = (0, _capacity("SceneSnapshot.create: clusters", clusters),
-                  _capacity("SceneSnapshot.create: particles", particles),
-                  _capacity("SceneSnapshot.create: grasp_edges", grasp_edges))
+        counts = (
+            0,
+            _capacity("SceneSnapshot.create: clusters", clusters),
+            _capacity("SceneSnapshot.create: particles", particles),
+            _capacity("SceneSnapshot.create: grasp_edges", grasp_edges),
+        )
         region = _Region.create(name, SCENE_MAGIC, _scene_fields(counts), ())
         region.header[2:5] = counts[1:]
         return cls(region)
@@ -227,9 +237,19 @@ class SceneSnapshot:
     def name(self) -> str:
         return self._region.shm.name
 
-    def publish(self, cluster_center, cluster_radius, cluster_start, particle_position,
-                particle_radius, *, grasp_local=None, grasp_neighbor=None, grasp_rest=None,
-                timestamp: float | None = None) -> int:
+    def publish(
+        self,
+        cluster_center,
+        cluster_radius,
+        cluster_start,
+        particle_position,
+        particle_radius,
+        *,
+        grasp_local=None,
+        grasp_neighbor=None,
+        grasp_rest=None,
+        timestamp: float | None = None,
+    ) -> int:
         """Write one snapshot; return its sequence number (1, 2, ...).
 
         ``cluster_center`` (C, 3) [m], ``cluster_radius`` (C,) [m], ``cluster_start``
@@ -240,31 +260,42 @@ class SceneSnapshot:
         """
         no_grasp = np.zeros((0, 3))
         grasp_rest = no_grasp[:, 0] if grasp_rest is None else grasp_rest
-        given = dict(cluster_center=cluster_center, cluster_radius=cluster_radius,
-                     cluster_start=cluster_start, particle_position=particle_position,
-                     particle_radius=particle_radius,
-                     grasp_local=no_grasp if grasp_local is None else grasp_local,
-                     grasp_neighbor=no_grasp if grasp_neighbor is None else grasp_neighbor,
-                     grasp_rest=grasp_rest)
+        given = dict(
+            cluster_center=cluster_center,
+            cluster_radius=cluster_radius,
+            cluster_start=cluster_start,
+            particle_position=particle_position,
+            particle_radius=particle_radius,
+            grasp_local=no_grasp if grasp_local is None else grasp_local,
+            grasp_neighbor=no_grasp if grasp_neighbor is None else grasp_neighbor,
+            grasp_rest=grasp_rest,
+        )
         counts, arrays = [0, -1, -1, -1], {}
         for name, (dtype, row, i, extra, _) in _SCENE_ARRAYS.items():
             values = given[name]
             if name == "particle_radius" and np.ndim(values) == 0:
                 values = np.full(counts[2], values)
-            arrays[name] = _rows(f"publish: {name}", values,
-                                 counts[i] + extra if counts[i] >= 0 else -1, row,
-                                 self._capacities[i] + extra, dtype)
+            arrays[name] = _rows(
+                f"publish: {name}",
+                values,
+                counts[i] + extra if counts[i] >= 0 else -1,
+                row,
+                self._capacities[i] + extra,
+                dtype,
+            )
             counts[i] = len(arrays[name]) - extra
         start = arrays["cluster_start"]
         if start[0] != 0 or start[-1] != counts[2] or np.any(np.diff(start) < 0):
-            raise ValueError(f"publish: cluster_start: non-decreasing offsets from 0 to the "
-                             f"{counts[2]} particles were expected, found {start[0]}..{start[-1]}")
+            raise ValueError(
+                f"publish: cluster_start: non-decreasing offsets from 0 to the "
+                f"{counts[2]} particles were expected, found {start[0]}..{start[-1]}"
+            )
         region = self._region
         slot = region.begin()
         slot["counts"][:] = region._next + 1, counts[1], counts[2], counts[3]
         slot["timestamp"][0] = time.monotonic() if timestamp is None else float(timestamp)
         for name, values in arrays.items():
-            slot[name][:len(values)] = values
+            slot[name][: len(values)] = values
         return region.end()
 
     def reader(self) -> "SnapshotReader":
@@ -288,8 +319,13 @@ class SnapshotReader:
     def __init__(self, snapshot: SceneSnapshot):
         self._region = snapshot._region
         self._capacities = snapshot._capacities
-        self._buffers = [{name: np.zeros(shape, dtype) for name, dtype, shape in
-                          _scene_fields(self._capacities, private=True)} for _ in range(2)]
+        self._buffers = [
+            {
+                name: np.zeros(shape, dtype)
+                for name, dtype, shape in _scene_fields(self._capacities, private=True)
+            }
+            for _ in range(2)
+        ]
         self._spare = 0
         self._version = 0
         self.scene: HapticScene | None = None
@@ -317,7 +353,11 @@ class SnapshotReader:
         self._version = version
         self._spare ^= 1
         self.scene = HapticScene(
-            sequence=int(counts[0]), timestamp=float(buffers["timestamp"][0]),
-            **{name: buffers[name][:int(counts[i]) + extra]
-               for name, (_, _, i, extra, _) in _SCENE_ARRAYS.items()})
+            sequence=int(counts[0]),
+            timestamp=float(buffers["timestamp"][0]),
+            **{
+                name: buffers[name][: int(counts[i]) + extra]
+                for name, (_, _, i, extra, _) in _SCENE_ARRAYS.items()
+            },
+        )
         return True

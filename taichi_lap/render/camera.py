@@ -25,14 +25,19 @@ class EndoscopeCamera:
     fov: float
     near: float
     far: float
-    speed: float = 0.05          # [m/s] along the axis and sideways (keys)
-    turn_rate: float = 2.0       # [rad] per window width of mouse drag
+    speed: float = 0.05  # [m/s] along the axis and sideways (keys)
+    turn_rate: float = 2.0  # [rad] per window width of mouse drag
 
     @classmethod
     def from_scene(cls, camera: dict) -> "EndoscopeCamera":
-        return cls(eye=np.asarray(camera["position"], float),
-                   target=np.asarray(camera["target"], float), up=_unit(camera["up"]),
-                   fov=float(camera["fov"]), near=float(camera["near"]), far=float(camera["far"]))
+        return cls(
+            eye=np.asarray(camera["position"], float),
+            target=np.asarray(camera["target"], float),
+            up=_unit(camera["up"]),
+            fov=float(camera["fov"]),
+            near=float(camera["near"]),
+            far=float(camera["far"]),
+        )
 
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Unit ``forward``, ``right`` and ``up`` of the view."""
@@ -61,8 +66,14 @@ class EndoscopeCamera:
         """Keys w/s advance and retreat, a/d strafe, r/f lift; dragging with
         ``drag_button`` turns the scope. Returns the cursor for the next call."""
         step = self.speed * dt
-        keys = {"w": dict(advance=step), "s": dict(advance=-step), "a": dict(strafe=-step),
-                "d": dict(strafe=step), "r": dict(lift=step), "f": dict(lift=-step)}
+        keys = {
+            "w": dict(advance=step),
+            "s": dict(advance=-step),
+            "a": dict(strafe=-step),
+            "d": dict(strafe=step),
+            "r": dict(lift=step),
+            "f": dict(lift=-step),
+        }
         for key, motion in keys.items():
             if window.is_pressed(key):
                 self.move(**motion)

@@ -27,8 +27,9 @@ def instrument_mesh(tool: dict) -> trimesh.Trimesh:
     """The mesh of one scene tool (``kind``, ``radius``, ``length`` [m]) with the
     tip at the origin and the shaft along +z."""
     radius, length = float(tool["radius"]), float(tool["length"])
-    shaft = trimesh.creation.capsule(height=length, radius=radius,
-                                     count=[SHAFT_SECTIONS, SHAFT_SECTIONS])
+    shaft = trimesh.creation.capsule(
+        height=length, radius=radius, count=[SHAFT_SECTIONS, SHAFT_SECTIONS]
+    )
     shaft.apply_translation((0.0, 0.0, 0.5 * length))
     parts = [shaft]
     if tool["kind"] in JAW_KINDS:
@@ -48,9 +49,15 @@ def instrument_arrays(tools: list[dict]) -> dict[str, np.ndarray]:
         triangles.append(mesh.faces + base)
         base += len(mesh.vertices)
     if not tools:
-        return {"position": np.zeros((0, 3), np.float32), "normal": np.zeros((0, 3), np.float32),
-                "tool": np.zeros(0, np.int32), "triangles": np.zeros((0, 3), np.int32)}
-    return {"position": np.concatenate(positions).astype(np.float32),
-            "normal": np.concatenate(normals).astype(np.float32),
-            "tool": np.concatenate(owner).astype(np.int32),
-            "triangles": np.concatenate(triangles).astype(np.int32)}
+        return {
+            "position": np.zeros((0, 3), np.float32),
+            "normal": np.zeros((0, 3), np.float32),
+            "tool": np.zeros(0, np.int32),
+            "triangles": np.zeros((0, 3), np.int32),
+        }
+    return {
+        "position": np.concatenate(positions).astype(np.float32),
+        "normal": np.concatenate(normals).astype(np.float32),
+        "tool": np.concatenate(owner).astype(np.int32),
+        "triangles": np.concatenate(triangles).astype(np.int32),
+    }

@@ -44,9 +44,17 @@ class Renderer:
     (``(width, height)`` vec3 field, GGUI layout). ``timings`` holds the last
     frame's milliseconds per pass."""
 
-    def __init__(self, mesh, camera: EndoscopeCamera, *, size=(640, 480),
-                 headlight: float = 0.15, ambient: float = 0.06, exposure: float = 1.0,
-                 spot_angle: float = 50.0):
+    def __init__(
+        self,
+        mesh,
+        camera: EndoscopeCamera,
+        *,
+        size=(640, 480),
+        headlight: float = 0.15,
+        ambient: float = 0.06,
+        exposure: float = 1.0,
+        spot_angle: float = 50.0,
+    ):
         self.width, self.height = size
         self.mesh = mesh
         self.camera = camera
@@ -82,10 +90,18 @@ class Renderer:
         ti.sync()
         marks.append(time.perf_counter())
         cam = self.camera
-        view, projection = camera_matrices(cam.eye, cam.target, cam.up, cam.fov,
-                                           self.width / self.height, cam.near, cam.far)
-        self.gbuffer.render(self.mesh.positions, self.mesh.normals, self.mesh.triangles,
-                            self.mesh.triangle_count, cam.eye, projection @ view, cam.near)
+        view, projection = camera_matrices(
+            cam.eye, cam.target, cam.up, cam.fov, self.width / self.height, cam.near, cam.far
+        )
+        self.gbuffer.render(
+            self.mesh.positions,
+            self.mesh.normals,
+            self.mesh.triangles,
+            self.mesh.triangle_count,
+            cam.eye,
+            projection @ view,
+            cam.near,
+        )
         ti.sync()
         marks.append(time.perf_counter())
         self.params.eye[None] = cam.eye

@@ -38,9 +38,17 @@ class ArrayMesh:
     ``smooth_count`` vertices are gathered from their triangles by
     :meth:`update`; the others are written by whoever places them."""
 
-    def __init__(self, triangles: np.ndarray, triangle_material: np.ndarray,
-                 materials: list[Material], *, vertex_count: int, smooth_count: int,
-                 triangle_object: np.ndarray | None = None, positions: np.ndarray | None = None):
+    def __init__(
+        self,
+        triangles: np.ndarray,
+        triangle_material: np.ndarray,
+        materials: list[Material],
+        *,
+        vertex_count: int,
+        smooth_count: int,
+        triangle_object: np.ndarray | None = None,
+        positions: np.ndarray | None = None,
+    ):
         triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
         self.vertex_count, self.smooth_count = vertex_count, smooth_count
         self.triangle_count = len(triangles)
@@ -52,8 +60,11 @@ class ArrayMesh:
         self.normals = group.field(ti.f32, vertex_count, vector=3)
         self.triangles = group.field(ti.i32, 3 * self.triangle_count, values=triangles.reshape(-1))
         self.triangle_material = group.field(ti.i32, self.triangle_count, values=triangle_material)
-        self.triangle_object = group.field(ti.i32, self.triangle_count, values=(
-            triangle_material if triangle_object is None else triangle_object))
+        self.triangle_object = group.field(
+            ti.i32,
+            self.triangle_count,
+            values=(triangle_material if triangle_object is None else triangle_object),
+        )
         self.incident_start = group.field(ti.i32, smooth_count + 1, values=start.astype(np.int32))
         self.incident = group.field(ti.i32, len(rows), values=smooth[rows // 3].astype(np.int32))
         self.albedo = group.field(ti.f32, len(materials), vector=3, values=table["albedo"])
@@ -64,8 +75,14 @@ class ArrayMesh:
 
     def update(self, state=None, control=None):
         """Gather the normals of the smooth vertices from the current positions."""
-        vertex_normals(self.positions, self.triangles, self.incident_start,
-                       self.incident, self.smooth_count, self.normals)
+        vertex_normals(
+            self.positions,
+            self.triangles,
+            self.incident_start,
+            self.incident,
+            self.smooth_count,
+            self.normals,
+        )
 
 
 class SceneMesh(ArrayMesh):
@@ -80,7 +97,7 @@ class SceneMesh(ArrayMesh):
         self.surface_count = len(data.surface_index)
         surface_material = np.zeros(len(data.surface_triangles), np.int32)
         for index, organ in enumerate(data.organs):
-            surface_material[organ.triangles[0]:organ.triangles[1]] = index
+            surface_material[organ.triangles[0] : organ.triangles[1]] = index
         tools = instrument_arrays(scene.tools)
         self.instrument_count = len(tools["position"])
         instrument_material = np.full(len(tools["triangles"]), len(data.organs), np.int32)
@@ -88,8 +105,9 @@ class SceneMesh(ArrayMesh):
         self.object_names = [o.name for o in data.organs] + [t["name"] for t in scene.tools]
 
         tubes = [(index, o) for index, o in enumerate(data.organs) if o.row_length]
-        self.tubes = [TubeMesh(o.row_length, sides=tube_sides, max_level=tube_max_level)
-                      for _, o in tubes]
+        self.tubes = [
+            TubeMesh(o.row_length, sides=tube_sides, max_level=tube_max_level) for _, o in tubes
+        ]
         self.tube_epsilon, self.tube_level = 0.1, tube_max_level
         base = self.surface_count + self.instrument_count
         first_triangle = len(data.surface_triangles) + len(tools["triangles"])
@@ -98,31 +116,48 @@ class SceneMesh(ArrayMesh):
             self.tube_offsets.append((base, 3 * first_triangle))
             base += mesh.vertex_capacity
             first_triangle += mesh.triangle_capacity
-        tube_material = np.concatenate([np.full(m.triangle_capacity, index, np.int32)
-                                        for (index, _), m in zip(tubes, self.tubes)]
-                                       or [np.zeros(0, np.int32)])
+        tube_material = np.concatenate(
+            [
+                np.full(m.triangle_capacity, index, np.int32)
+                for (index, _), m in zip(tubes, self.tubes)
+            ]
+            or [np.zeros(0, np.int32)]
+        )
         super().__init__(
-            np.concatenate([data.surface_triangles, tools["triangles"] + self.surface_count,
-                            np.zeros((len(tube_material), 3), np.int32)]),
-            np.concatenate([surface_material, instrument_material, tube_material]), materials,
+            np.concatenate(
+                [
+                    data.surface_triangles,
+                    tools["triangles"] + self.surface_count,
+                    np.zeros((len(tube_material), 3), np.int32),
+                ]
+            ),
+            np.concatenate([surface_material, instrument_material, tube_material]),
+            materials,
             triangle_object=np.concatenate([surface_material, instrument_object, tube_material]),
-            vertex_count=base, smooth_count=self.surface_count)
+            vertex_count=base,
+            smooth_count=self.surface_count,
+        )
 
         group = FieldGroup()
-        self.tool_position = group.field(ti.f32, self.instrument_count, vector=3,
-                                         values=tools["position"])
-        self.tool_normal = group.field(ti.f32, self.instrument_count, vector=3,
-                                       values=tools["normal"])
+        self.tool_position = group.field(
+            ti.f32, self.instrument_count, vector=3, values=tools["position"]
+        )
+        self.tool_normal = group.field(
+            ti.f32, self.instrument_count, vector=3, values=tools["normal"]
+        )
         self.vertex_tool = group.field(ti.i32, self.instrument_count, values=tools["tool"])
         self.tube_fields = []  # per tube: (source, points, radius, range) fields
         for _, organ in tubes:
             first, count = organ.surface_vertices[0], organ.row_length
-            radius = data.radius[organ.particles[0]:organ.particles[0] + count]
-            self.tube_fields.append((
-                group.field(ti.i32, count, values=np.arange(first, first + count)),
-                group.field(ti.f32, count, vector=3),
-                group.field(ti.f32, count, values=radius.astype(np.float32)),
-                group.field(ti.i32, 1, vector=2, values=np.array([[0, count]]))))
+            radius = data.radius[organ.particles[0] : organ.particles[0] + count]
+            self.tube_fields.append(
+                (
+                    group.field(ti.i32, count, values=np.arange(first, first + count)),
+                    group.field(ti.f32, count, vector=3),
+                    group.field(ti.f32, count, values=radius.astype(np.float32)),
+                    group.field(ti.i32, 1, vector=2, values=np.array([[0, count]])),
+                )
+            )
         group.finalize()
 
     def update(self, state, control):
@@ -131,12 +166,30 @@ class SceneMesh(ArrayMesh):
         copy_surface(state.surface_position, self.surface_count, self.positions)
         super().update()
         if self.instrument_count:
-            place_instruments(self.tool_position, self.tool_normal, self.vertex_tool,
-                              self.instrument_count, control, self.positions, self.normals,
-                              self.surface_count)
+            place_instruments(
+                self.tool_position,
+                self.tool_normal,
+                self.vertex_tool,
+                self.instrument_count,
+                control,
+                self.positions,
+                self.normals,
+                self.surface_count,
+            )
         for mesh, (source, points, radius, span), (vertex_offset, index_offset) in zip(
-                self.tubes, self.tube_fields, self.tube_offsets):
+            self.tubes, self.tube_fields, self.tube_offsets
+        ):
             gather_points(state.surface_position, source, points)
-            mesh.update(points, radius, span, 1, self.positions, self.normals, self.triangles,
-                        vertex_offset=vertex_offset, index_offset=index_offset,
-                        epsilon=self.tube_epsilon, level=self.tube_level)
+            mesh.update(
+                points,
+                radius,
+                span,
+                1,
+                self.positions,
+                self.normals,
+                self.triangles,
+                vertex_offset=vertex_offset,
+                index_offset=index_offset,
+                epsilon=self.tube_epsilon,
+                level=self.tube_level,
+            )

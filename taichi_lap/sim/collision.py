@@ -23,16 +23,24 @@ import taichi as ti
 from taichi_lap.kernels import circumsphere, tissue_collision
 from taichi_lap.kernels.contact import MAX_TOOLS
 from taichi_lap.kernels.spatial_hash import SpatialHash
-from taichi_lap.kernels.tool_shapes import (MAX_TOOL_SHAPES, SHAPE_CONTROL, SHAPE_JAWS,
-                                            SHAPE_KINDS, ToolPose, push_particles_out_of_tools)
+from taichi_lap.kernels.tool_shapes import (
+    MAX_TOOL_SHAPES,
+    SHAPE_CONTROL,
+    SHAPE_JAWS,
+    SHAPE_KINDS,
+    ToolPose,
+    push_particles_out_of_tools,
+)
 from taichi_lap.sim.csr import incidence
 from taichi_lap.sim.fields import FieldGroup
 
 log = logging.getLogger("taichi_lap")
 
-METHODS = {"circumsphere": circumsphere.CIRCUMSPHERE,
-           "bounding_sphere": circumsphere.BOUNDING_SPHERE,
-           "polygon": circumsphere.POLYGON}
+METHODS = {
+    "circumsphere": circumsphere.CIRCUMSPHERE,
+    "bounding_sphere": circumsphere.BOUNDING_SPHERE,
+    "polygon": circumsphere.POLYGON,
+}
 PHASES = ("bounds", "hash", "pairs", "spheres", "detect")
 """Phases of :meth:`TissueCollision.step` timed with ``timing``."""
 REACH_FACTOR = 1.5
@@ -115,10 +123,14 @@ def triangle_corner_tables(data) -> dict[str, np.ndarray]:
     first = np.full(len(data.surface_index), len(corner_vertex))
     np.minimum.at(first, corner_vertex, np.arange(len(corner_vertex)))
     owner = first[corner_vertex] == np.arange(len(corner_vertex))
-    return {"bound_particle": bound, "particle_start": start,
-            "particle_corner": corner[keep][rows],
-            "particle_weight": weight.reshape(-1)[keep][rows],
-            "corner_inv_mass": corner_inv_mass, "corner_owner": owner.astype(np.int32)}
+    return {
+        "bound_particle": bound,
+        "particle_start": start,
+        "particle_corner": corner[keep][rows],
+        "particle_weight": weight.reshape(-1)[keep][rows],
+        "corner_inv_mass": corner_inv_mass,
+        "corner_owner": owner.astype(np.int32),
+    }
 
 
 @ti.data_oriented
@@ -180,13 +192,25 @@ class TissueCollision:
     into the kernels: fixed per instance.
     """
 
-    def __init__(self, model, *, method: str = "circumsphere", scale_phi: float = 3.0,
-                 safe_angle: float = math.pi / 6, lazy_delta: float = 0.05,
-                 tissue_pairs: bool = True, self_collision: bool = True, tools: bool = True,
-                 tool_particles: bool = False, polygon_thickness: float = 1e-4,
-                 pair_margin: float | None = None, hash_slack: float | None = None,
-                 rest_exclusion: float = 2.0, cell_size: float | None = None,
-                 timing: bool = False):
+    def __init__(
+        self,
+        model,
+        *,
+        method: str = "circumsphere",
+        scale_phi: float = 3.0,
+        safe_angle: float = math.pi / 6,
+        lazy_delta: float = 0.05,
+        tissue_pairs: bool = True,
+        self_collision: bool = True,
+        tools: bool = True,
+        tool_particles: bool = False,
+        polygon_thickness: float = 1e-4,
+        pair_margin: float | None = None,
+        hash_slack: float | None = None,
+        rest_exclusion: float = 2.0,
+        cell_size: float | None = None,
+        timing: bool = False,
+    ):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if not 0.0 < safe_angle < math.pi / 2 or scale_phi < 0.0 or lazy_delta < 0.0:
@@ -213,8 +237,11 @@ class TissueCollision:
         rest_sphere = broad_spheres(corners)
         rest_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         rest_normal /= np.maximum(np.linalg.norm(rest_normal, axis=1, keepdims=True), 1e-30)
-        self.pair_margin = float(np.median(rest_sphere[:, 3]) if pair_margin is None
-                                 and len(triangles) else pair_margin or 0.0)
+        self.pair_margin = float(
+            np.median(rest_sphere[:, 3])
+            if pair_margin is None and len(triangles)
+            else pair_margin or 0.0
+        )
         self.hash_slack = self.pair_margin if hash_slack is None else float(hash_slack)
         self.rescan_drift = self.pair_margin / 3.0
         self.reach_bound = REACH_FACTOR * max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
@@ -225,19 +252,26 @@ class TissueCollision:
             if cell_size is None:
                 cell_size = 2.0 * self.reach_bound + self.pair_margin + self.hash_slack
             f = max(self.triangle_count, 1)
-            self.grid = SpatialHash(f, 1 << max(4, int(2 * f).bit_length()), cell_size,
-                                    pair_capacity=1)
+            self.grid = SpatialHash(
+                f, 1 << max(4, int(2 * f).bit_length()), cell_size, pair_capacity=1
+            )
             self.rows = PairRows(f, ROW_CAPACITY * f)
             self.spare = PairRows(f, ROW_CAPACITY * f)
             self.found = FoundPairs(ROW_CAPACITY // 2 * f)
 
-    def _init_fields(self, data, triangles: np.ndarray, tables: dict, rest_sphere: np.ndarray,
-                     rest_normal: np.ndarray):
+    def _init_fields(
+        self,
+        data,
+        triangles: np.ndarray,
+        tables: dict,
+        rest_sphere: np.ndarray,
+        rest_normal: np.ndarray,
+    ):
         f, v, group = self.triangle_count, self.vertex_count, FieldGroup()
         self._group = group
         organ = np.zeros(f, dtype=np.int32)
         for k, record in enumerate(data.organs):
-            organ[record.triangles[0]:record.triangles[1]] = k
+            organ[record.triangles[0] : record.triangles[1]] = k
         self.tri_body = group.field(ti.i32, f, values=organ_bodies(data)[organ])
         corner_inv_mass = tables["corner_inv_mass"]
         self.tri_vertex = group.field(ti.i32, f, vector=3, values=triangles)
@@ -258,19 +292,25 @@ class TissueCollision:
         rank[tables["bound_particle"]] = np.arange(len(tables["bound_particle"]))
         self.particle_rank = group.field(ti.i32, len(data.pinned), values=rank)
         self.broad = group.field(ti.i32, len(tissue_collision.BROAD))
-        self.tri_inv_mass = group.field(ti.f32, f,
-                                        values=corner_inv_mass.reshape(-1, 3).mean(axis=1))
+        self.tri_inv_mass = group.field(
+            ti.f32, f, values=corner_inv_mass.reshape(-1, 3).mean(axis=1)
+        )
         self.corner_inv_mass = group.field(ti.f32, 3 * f, values=corner_inv_mass)
         self.corner_owner = group.field(ti.i32, 3 * f, values=tables["corner_owner"])
         for name in ("bound_particle", "particle_start", "particle_corner"):
             setattr(self, name, group.field(ti.i32, len(tables[name]), values=tables[name]))
-        self.particle_weight = group.field(ti.f32, len(tables["particle_weight"]),
-                                           values=tables["particle_weight"])
-        self.hermite = group.field(ti.f32, circumsphere.HERMITE_SAMPLES + 1,
-                                   values=circumsphere.hermite_table())
+        self.particle_weight = group.field(
+            ti.f32, len(tables["particle_weight"]), values=tables["particle_weight"]
+        )
+        self.hermite = group.field(
+            ti.f32, circumsphere.HERMITE_SAMPLES + 1, values=circumsphere.hermite_table()
+        )
         shapes = MAX_TOOLS * MAX_TOOL_SHAPES
-        self.shape_kind = group.field(ti.i32, shapes, values=np.tile(
-            [SHAPE_CONTROL, SHAPE_JAWS] + [0] * (MAX_TOOL_SHAPES - 2), MAX_TOOLS))
+        self.shape_kind = group.field(
+            ti.i32,
+            shapes,
+            values=np.tile([SHAPE_CONTROL, SHAPE_JAWS] + [0] * (MAX_TOOL_SHAPES - 2), MAX_TOOLS),
+        )
         self.shape_a = group.field(ti.f32, shapes, vector=3)
         self.shape_b = group.field(ti.f32, shapes, vector=3)
         self.shape_size = group.field(ti.f32, shapes, vector=3)
@@ -283,11 +323,25 @@ class TissueCollision:
         self.tool_last_active = group.field(ti.i32, MAX_TOOLS)
         self.vertex_p = group.field(ti.f32, v, vector=3)
         self.vertex_x = group.field(ti.f32, v, vector=3)
-        for name in ("bound_center", "displacement", "start_centroid", "start_normal", "normal",
-                     "sphere_center"):
+        for name in (
+            "bound_center",
+            "displacement",
+            "start_centroid",
+            "start_normal",
+            "normal",
+            "sphere_center",
+        ):
             setattr(self, name, group.field(ti.f32, f, vector=3))
-        for name in ("bound_radius", "bound_reach", "sphere_radius", "sphere_cone", "area_last",
-                     "curvature", "curvature_factor", "recovery"):
+        for name in (
+            "bound_radius",
+            "bound_reach",
+            "sphere_radius",
+            "sphere_cone",
+            "area_last",
+            "curvature",
+            "curvature_factor",
+            "recovery",
+        ):
             setattr(self, name, group.field(ti.f32, f))
         self.sorted_sphere = group.field(ti.f32, f, vector=4)
         self.sorted_rest = group.field(ti.f32, f, vector=4)
@@ -304,27 +358,38 @@ class TissueCollision:
         ``("capsule", a, b, radius)``, ``("box", center, half_extents)``."""
         if not 0 <= tool < MAX_TOOLS or len(shapes) > MAX_TOOL_SHAPES:
             raise ValueError(f"tool in 0..{MAX_TOOLS - 1} with at most {MAX_TOOL_SHAPES} shapes")
-        kind, a, b, size = (self.shape_kind.to_numpy(), self.shape_a.to_numpy(),
-                            self.shape_b.to_numpy(), self.shape_size.to_numpy())
+        kind, a, b, size = (
+            self.shape_kind.to_numpy(),
+            self.shape_a.to_numpy(),
+            self.shape_b.to_numpy(),
+            self.shape_size.to_numpy(),
+        )
         rows = slice(tool * MAX_TOOL_SHAPES, (tool + 1) * MAX_TOOL_SHAPES)
         kind[rows], a[rows], b[rows], size[rows] = 0, 0.0, 0.0, 0.0
         for slot, shape in enumerate(shapes):
             row = tool * MAX_TOOL_SHAPES + slot
             name, args = shape[0], [np.asarray(x, dtype=np.float32) for x in shape[1:]]
             if name not in SHAPE_KINDS:
-                raise ValueError(f"unknown tool shape {name!r}: expected "
-                                 f"{', '.join(SHAPE_KINDS)}")
+                raise ValueError(f"unknown tool shape {name!r}: expected {', '.join(SHAPE_KINDS)}")
             kind[row] = SHAPE_KINDS[name]
             if name in ("sphere", "box"):
                 a[row], size[row] = args[0], np.broadcast_to(args[1], 3)
             elif name == "capsule":
                 a[row], b[row], size[row] = args[0], args[1], args[2]
-        for f, values in ((self.shape_kind, kind), (self.shape_a, a), (self.shape_b, b),
-                          (self.shape_size, size)):
+        for f, values in (
+            (self.shape_kind, kind),
+            (self.shape_a, a),
+            (self.shape_b, b),
+            (self.shape_size, size),
+        ):
             f.from_numpy(values)
         reach = self.tool_reach.to_numpy()
-        reach[tool] = max([shape_reach(kind[row], a[row], b[row], size[row])
-                           for row in range(rows.start, rows.stop)])
+        reach[tool] = max(
+            [
+                shape_reach(kind[row], a[row], b[row], size[row])
+                for row in range(rows.start, rows.stop)
+            ]
+        )
         self.tool_reach.from_numpy(reach)
 
     def begin_frame(self, control):
@@ -379,8 +444,9 @@ class TissueCollision:
             tissue_collision.mark_active(self, self.rows)
         circumsphere.update_spheres(self.model, state, self, False)
         self._lap("spheres")
-        tissue_collision.detect_and_respond(self.model, state, control, self, self.rows,
-                                            int(tissue))
+        tissue_collision.detect_and_respond(
+            self.model, state, control, self, self.rows, int(tissue)
+        )
         self._lap("detect")
         if self.timing:
             self.last_ms = (time.perf_counter() - start) * 1e3
@@ -390,9 +456,9 @@ class TissueCollision:
     def _refresh_pairs(self) -> int:
         """After :func:`kernels.tissue_collision.update_bounds`: rescan the triangles
         that drifted; returns how many outgrew the hash's bound."""
-        moved, stale, oversize = self.broad.to_numpy()[[tissue_collision.B_MOVED,
-                                                        tissue_collision.B_STALE,
-                                                        tissue_collision.B_OVERSIZE]]
+        moved, stale, oversize = self.broad.to_numpy()[
+            [tissue_collision.B_MOVED, tissue_collision.B_STALE, tissue_collision.B_OVERSIZE]
+        ]
         if moved:
             self._list_pairs(bool(stale))
         return int(oversize)
@@ -407,10 +473,15 @@ class TissueCollision:
             radius = self.broad_sphere.to_numpy()[:f, 3]
             organ = self.tri_organ.to_numpy()[:f][radius > self.reach_bound]
             organs = sorted({self.model.data.organs[k].name for k in np.unique(organ)})
-            log.warning("tissue collision: %d triangles of %s are stretched or move beyond %.2f mm "
-                        "in a substep (the largest %.2f mm); their tissue contacts may be missed "
-                        "(more substeps per frame help where they move)", count, ", ".join(organs),
-                        self.reach_bound * 1e3, radius.max() * 1e3)
+            log.warning(
+                "tissue collision: %d triangles of %s are stretched or move beyond %.2f mm "
+                "in a substep (the largest %.2f mm); their tissue contacts may be missed "
+                "(more substeps per frame help where they move)",
+                count,
+                ", ".join(organs),
+                self.reach_bound * 1e3,
+                radius.max() * 1e3,
+            )
         self.oversize_steps += 1
 
     def _list_pairs(self, stale: bool):

@@ -17,7 +17,15 @@ import taichi as ti
 from taichi_lap.kernels.contact import MAX_TOOLS
 from taichi_lap.sim.fields import FieldGroup
 
-__all__ = ["Control", "MAX_TOOLS", "JAW_KINDS", "JAW_LENGTH", "JAW_RADIUS", "JAW_REACH", "frame_towards"]
+__all__ = [
+    "Control",
+    "MAX_TOOLS",
+    "JAW_KINDS",
+    "JAW_LENGTH",
+    "JAW_RADIUS",
+    "JAW_REACH",
+    "frame_towards",
+]
 
 JAW_KINDS = ("grasper", "scissors")
 """Instruments with two closed jaws ahead of the tip, a second capsule (seed 002 §3.4)."""
@@ -69,8 +77,17 @@ class Control:
         self.grasp = [False] * MAX_TOOLS
         self.jaw_length = [0.0] * MAX_TOOLS
 
-    def set_tool(self, index: int, tip, tail, radius: float, active: bool = True, *,
-                 grasp: bool = False, jaw_length: float = 0.0):
+    def set_tool(
+        self,
+        index: int,
+        tip,
+        tail,
+        radius: float,
+        active: bool = True,
+        *,
+        grasp: bool = False,
+        jaw_length: float = 0.0,
+    ):
         """Place tool ``index`` as a capsule from ``tip`` to ``tail`` [m]; its frame is
         the previous one turned onto the new axis (the roll follows from the path of
         the axis alone, so a replayed run rebuilds it). Jaws of ``jaw_length`` [m] (0:

@@ -23,8 +23,15 @@ class FieldGroup:
         self._uploads: list = []
         self.tree = None
 
-    def field(self, dtype, n: int | None, *, vector: int = 0, matrix: tuple[int, int] | None = None,
-              values=None):
+    def field(
+        self,
+        dtype,
+        n: int | None,
+        *,
+        vector: int = 0,
+        matrix: tuple[int, int] | None = None,
+        values=None,
+    ):
         """A field of ``n`` entries (at least one; ``n=None`` for a 0-D field) of
         scalars, ``vector``-vectors, ``matrix`` matrices or structs (``dtype`` a
         ``ti.types.struct``), filled with ``values`` (padded with zeros) when the group
@@ -54,6 +61,6 @@ class FieldGroup:
         for f, values in self._uploads:
             if len(values):
                 padded = np.zeros(f.shape + values.shape[1:], dtype=to_numpy_type(f.dtype))
-                padded[:len(values)] = values
+                padded[: len(values)] = values
                 f.from_numpy(padded)
         self._uploads = []

@@ -47,8 +47,10 @@ def _strided(keys: np.ndarray, stride: int) -> np.ndarray:
     out = np.full((len(keys), 2), -1, dtype=np.int64)
     if stride > 1:
         for i, (group, column) in enumerate(keys.tolist()):
-            out[i] = [lookup.get((group, column - stride), -1),
-                      lookup.get((group, column + stride), -1)]
+            out[i] = [
+                lookup.get((group, column - stride), -1),
+                lookup.get((group, column + stride), -1),
+            ]
     return out
 
 
@@ -60,22 +62,30 @@ def _organ_elements(data, local: np.ndarray, organ: int, record) -> dict:
     radius = 0.5 * (data.radius[row[:-1]] + data.radius[row[1:]])
     stride = max(1, int(round(float(radius.mean()) / (s[-1] / (length - 1)))))
     k = np.arange(length - 1)
-    adjacent = np.stack([np.where(k > 0, k - 1, -1), np.where(k < length - 2, k + 1, -1),
-                         np.full(length - 1, -1)], 1)
+    adjacent = np.stack(
+        [np.where(k > 0, k - 1, -1), np.where(k < length - 2, k + 1, -1), np.full(length - 1, -1)],
+        1,
+    )
     far = _strided(np.stack([0 * k, k], 1), stride)
-    segments = dict(vertex=np.stack([local[row[:-1]], local[row[1:]], np.full(length - 1, -1)], 1),
-                    neighbour=np.concatenate([adjacent, far], 1), radius=radius,
-                    arc=np.stack([s[:-1], s[1:]], 1), organ=np.full(length - 1, organ))
+    segments = dict(
+        vertex=np.stack([local[row[:-1]], local[row[1:]], np.full(length - 1, -1)], 1),
+        neighbour=np.concatenate([adjacent, far], 1),
+        radius=radius,
+        arc=np.stack([s[:-1], s[1:]], 1),
+        organ=np.full(length - 1, organ),
+    )
     corners = data.surface_index[data.surface_triangles[slice(*record.triangles)], 0]
     row_of, column = (corners - first) // length, (corners - first) % length
     apex_below = (row_of == row_of.min(axis=1, keepdims=True)).sum(axis=1) == 2
     group = np.stack([row_of.min(axis=1) * 2 + apex_below, column.min(axis=1)], 1)
     far = _strided(group, stride)
-    triangles = dict(vertex=local[corners],
-                     neighbour=np.concatenate([_edge_neighbours(corners), far], 1),
-                     radius=data.radius[corners].min(axis=1),
-                     arc=np.stack([s[column.min(axis=1)], s[column.max(axis=1)]], 1),
-                     organ=np.full(len(corners), organ))
+    triangles = dict(
+        vertex=local[corners],
+        neighbour=np.concatenate([_edge_neighbours(corners), far], 1),
+        radius=data.radius[corners].min(axis=1),
+        arc=np.stack([s[column.min(axis=1)], s[column.max(axis=1)]], 1),
+        organ=np.full(len(corners), organ),
+    )
     return dict(stride=stride, segments=segments, triangles=triangles)
 
 
@@ -89,8 +99,11 @@ def collision_elements(model: Model) -> dict[str, np.ndarray]:
     along the organ's intestine); organ (E,); ``particles`` (local -> global)."""
     data = model.data
     records = [r for r in data.organs if r.row_length > 0]
-    particles = np.concatenate([np.arange(*r.particles) for r in records]) if records \
+    particles = (
+        np.concatenate([np.arange(*r.particles) for r in records])
+        if records
         else np.zeros(0, dtype=np.int64)
+    )
     local = np.full(data.particle_count, -1, dtype=np.int64)
     local[particles] = np.arange(len(particles))
     tables = [_organ_elements(data, local, organ, r) for organ, r in enumerate(records)]
@@ -163,10 +176,20 @@ class IntestineCollision:
     :meth:`colliding_pairs` (NumPy copies).
     """
 
-    def __init__(self, model: Model, *, threshold: float = 0.02, random_pairs: int | None = None,
-                 passes: int = 8, seed: int = 0, capacity: int | None = None,
-                 contact_capacity: int | None = None, contact_rings: int = 1,
-                 climb_steps: int = 8, skin: float = 0.001):
+    def __init__(
+        self,
+        model: Model,
+        *,
+        threshold: float = 0.02,
+        random_pairs: int | None = None,
+        passes: int = 8,
+        seed: int = 0,
+        capacity: int | None = None,
+        contact_capacity: int | None = None,
+        contact_rings: int = 1,
+        climb_steps: int = 8,
+        skin: float = 0.001,
+    ):
         elements = collision_elements(model)
         if elements["segment_count"] < 1:
             raise ValueError("the model has no organ with spring rows (row_length > 0)")
@@ -175,8 +198,9 @@ class IntestineCollision:
         self.element_count = len(elements["radius"])
         self.particle_count = len(elements["particles"])
         self.threshold, self.skin = float(threshold), float(skin)
-        self.random_pairs = self.draw_capacity = \
-            int(random_pairs if random_pairs is not None else max(64, self.segment_count // 2))
+        self.random_pairs = self.draw_capacity = int(
+            random_pairs if random_pairs is not None else max(64, self.segment_count // 2)
+        )
         self.passes, self.seed = int(passes), int(seed)
         self.capacity = int(capacity or max(1024, 8 * self.segment_count))
         self.contact_capacity = int(contact_capacity or 4 * self.capacity)
@@ -186,10 +210,12 @@ class IntestineCollision:
 
         group = FieldGroup()
         i32, f32 = ti.i32, ti.f32
-        self.element_vertex = group.field(i32, self.element_count, vector=3,
-                                          values=elements["vertex"])
-        self.element_neighbour = group.field(i32, self.element_count, vector=5,
-                                             values=elements["neighbour"])
+        self.element_vertex = group.field(
+            i32, self.element_count, vector=3, values=elements["vertex"]
+        )
+        self.element_neighbour = group.field(
+            i32, self.element_count, vector=5, values=elements["neighbour"]
+        )
         self.element_radius = group.field(f32, self.element_count, values=elements["radius"])
         self.element_arc = group.field(f32, self.element_count, vector=2, values=elements["arc"])
         self.element_organ = group.field(i32, self.element_count, values=elements["organ"])
@@ -198,8 +224,12 @@ class IntestineCollision:
         # candidates, contacts
         candidates = self.capacity + self.draw_capacity
         areas = kernels.GROWTH * self.contact_capacity + self.capacity
-        for name, n in (("pair", self.capacity), ("candidate", candidates), ("area", areas),
-                        ("contact", self.contact_capacity)):
+        for name, n in (
+            ("pair", self.capacity),
+            ("candidate", candidates),
+            ("area", areas),
+            ("contact", self.contact_capacity),
+        ):
             setattr(self, f"{name}_a", group.field(i32, n))
             setattr(self, f"{name}_b", group.field(i32, n))
             setattr(self, f"{name}_gap", group.field(f32, n))
@@ -228,17 +258,46 @@ class IntestineCollision:
         active pairs, add random ones, update the contact areas."""
         if not 0 <= self.random_pairs <= self.draw_capacity:
             raise ValueError(f"random_pairs must be in [0, {self.draw_capacity}]")
-        kernels.track_pairs(self, state.p, self.seed & 0xFFFFFFFF, self.step_count & 0xFFFFFFFF,
-                            self.random_pairs, self.threshold, self.climb_steps)
+        kernels.track_pairs(
+            self,
+            state.p,
+            self.seed & 0xFFFFFFFF,
+            self.step_count & 0xFFFFFFFF,
+            self.random_pairs,
+            self.threshold,
+            self.climb_steps,
+        )
         self.step_count += 1
-        kernels.compact(self, self.candidate_a, self.candidate_b, self.candidate_gap,
-                        self.candidate_count, self.pair_a, self.pair_b, self.pair_gap,
-                        self.pair_count, self.pair_start, self.pair_dropped, self.capacity)
+        kernels.compact(
+            self,
+            self.candidate_a,
+            self.candidate_b,
+            self.candidate_gap,
+            self.candidate_count,
+            self.pair_a,
+            self.pair_b,
+            self.pair_gap,
+            self.pair_count,
+            self.pair_start,
+            self.pair_dropped,
+            self.capacity,
+        )
         for ring in range(self.contact_rings):
             kernels.grow_contacts(self, state.p, int(ring == 0), self.skin)
-            kernels.compact(self, self.area_a, self.area_b, self.area_gap, self.area_count,
-                            self.contact_a, self.contact_b, self.contact_gap, self.contact_count,
-                            self.contact_start, self.contact_dropped, self.contact_capacity)
+            kernels.compact(
+                self,
+                self.area_a,
+                self.area_b,
+                self.area_gap,
+                self.area_count,
+                self.contact_a,
+                self.contact_b,
+                self.contact_gap,
+                self.contact_count,
+                self.contact_start,
+                self.contact_dropped,
+                self.contact_capacity,
+            )
 
     def respond(self, state, h: float):
         """§4.2, Eq. 2-9: ``passes`` passes over the contacts of the last
@@ -296,8 +355,7 @@ class ExactDetector:
     """Every non-neighbouring (segment, element) pair with gap < ``skin`` [m] (0:
     the colliding pairs), O(n²): ground truth for the stochastic detector."""
 
-    def __init__(self, collision: IntestineCollision, capacity: int = 1 << 18,
-                 skin: float = 0.0):
+    def __init__(self, collision: IntestineCollision, capacity: int = 1 << 18, skin: float = 0.0):
         self.collision = collision
         self.capacity, self.skin = int(capacity), float(skin)
         group = FieldGroup()

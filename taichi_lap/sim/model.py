@@ -49,8 +49,9 @@ class Model:
     Per-particle material channels are fields named as in ``PARTICLE_MATERIAL``.
     """
 
-    def __init__(self, data: ModelData, *, planes=(), iterations: int = 10,
-                 constraint_solver: str = "jacobi"):
+    def __init__(
+        self, data: ModelData, *, planes=(), iterations: int = 10, constraint_solver: str = "jacobi"
+    ):
         self.data = data
         self._group = FieldGroup()
         n = data.particle_count
@@ -93,8 +94,13 @@ class Model:
         m = data.mass[member]
         cmass = np.bincount(owner, weights=m, minlength=c)
         rest = data.rest_position
-        center = np.stack([np.bincount(owner, weights=m * rest[member, a], minlength=c)
-                           for a in range(3)], axis=1) / np.maximum(cmass, 1e-12)[:, None]
+        center = (
+            np.stack(
+                [np.bincount(owner, weights=m * rest[member, a], minlength=c) for a in range(3)],
+                axis=1,
+            )
+            / np.maximum(cmass, 1e-12)[:, None]
+        )
         offset = rest[member] - center[owner]
         mstart, mrows = incidence(member, n)
 
@@ -137,8 +143,11 @@ class Model:
         self.distance_rest = self._floats(data.distance_rest[edge])
         self.distance_stiffness = self._floats(stiff[edge])
 
-        colors = greedy_colors(pairs, n) if self.constraint_solver == "gauss_seidel" \
+        colors = (
+            greedy_colors(pairs, n)
+            if self.constraint_solver == "gauss_seidel"
             else np.zeros(len(pairs), dtype=np.int64)
+        )
         order = np.argsort(colors, kind="stable")
         bounds = np.searchsorted(colors[order], np.arange(colors.max() + 2)) if len(pairs) else [0]
         self.color_ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
@@ -178,6 +187,7 @@ class Model:
         normal = np.array([p[1] for p in planes], dtype=np.float64).reshape(-1, 3)
         self.plane_count = len(planes)
         self.plane_point = self._floats(np.reshape([p[0] for p in planes], (-1, 3)), vector=3)
-        self.plane_normal = self._floats(normal / np.linalg.norm(normal, axis=1, keepdims=True),
-                                         vector=3)
+        self.plane_normal = self._floats(
+            normal / np.linalg.norm(normal, axis=1, keepdims=True), vector=3
+        )
         self.plane_friction = self._floats([p[2] for p in planes])

@@ -22,12 +22,15 @@ class ReferenceShapeMatching:
     ``(tip, tail, radius)``. Springs, distance constraints and LRAs are not part of
     the reference (they have their own tests)."""
 
-    def __init__(self, data: ModelData, *, substeps: int, shape_iterations: int,
-                 gravity, planes=(), tools=()):
+    def __init__(
+        self, data: ModelData, *, substeps: int, shape_iterations: int, gravity, planes=(), tools=()
+    ):
         self.substeps, self.iterations = substeps, shape_iterations
         self.gravity = np.asarray(gravity, dtype=np.float64)
-        self.planes = [(np.asarray(p, float), np.asarray(n, float) / np.linalg.norm(n), float(f))
-                       for p, n, f in planes]
+        self.planes = [
+            (np.asarray(p, float), np.asarray(n, float) / np.linalg.norm(n), float(f))
+            for p, n, f in planes
+        ]
         self.tools = [(np.asarray(a, float), np.asarray(b, float), float(r)) for a, b, r in tools]
         self.mass = data.mass.astype(np.float64)
         self.free = ~data.pinned
@@ -41,8 +44,9 @@ class ReferenceShapeMatching:
         m = self.mass[member]
         self.cluster_mass = np.add.reduceat(m, self.start)
         rest = data.rest_position.astype(np.float64)
-        self.rest_center = np.add.reduceat(m[:, None] * rest[member], self.start) / \
-            self.cluster_mass[:, None]
+        self.rest_center = (
+            np.add.reduceat(m[:, None] * rest[member], self.start) / self.cluster_mass[:, None]
+        )
         self.offset = rest[member] - self.rest_center[self.owner]
         self.count = np.bincount(member, minlength=len(rest))
         self.x, self.v = rest.copy(), np.zeros_like(rest)
@@ -60,8 +64,11 @@ class ReferenceShapeMatching:
             dist = np.linalg.norm(d, axis=1)
             reach = r + self.radius
             inside = dist < reach
-            normal = np.where(dist[:, None] > 1e-9, d / np.maximum(dist, 1e-30)[:, None],
-                              np.array([0.0, 1.0, 0.0]))
+            normal = np.where(
+                dist[:, None] > 1e-9,
+                d / np.maximum(dist, 1e-30)[:, None],
+                np.array([0.0, 1.0, 0.0]),
+            )
             p[inside] = closest[inside] + normal[inside] * reach[inside, None]
             hit |= inside
         for point, n, friction in self.planes:
@@ -80,10 +87,13 @@ class ReferenceShapeMatching:
         """Cluster mass centres and rotations (Alg. 1 lines 7-11)."""
         m = self.mass[self.member]
         d = p[self.member] - self.rest_center[self.owner]
-        center = self.rest_center + np.add.reduceat(m[:, None] * d, self.start) / \
-            self.cluster_mass[:, None]
-        moment = np.add.reduceat(m[:, None, None] * d[:, :, None] * self.offset[:, None, :],
-                                 self.start)
+        center = (
+            self.rest_center
+            + np.add.reduceat(m[:, None] * d, self.start) / self.cluster_mass[:, None]
+        )
+        moment = np.add.reduceat(
+            m[:, None, None] * d[:, :, None] * self.offset[:, None, :], self.start
+        )
         u, _, vt = np.linalg.svd(moment)
         sign = np.sign(np.linalg.det(u @ vt))
         u[:, :, 2] *= sign[:, None]

@@ -92,15 +92,19 @@ class Solver:
         self._has_springs = model.spring_count > 0
         self.collision = None
         if settings.collision != "off" and len(model.data.surface_triangles):
-            self.collision = TissueCollision(model, method=settings.collision,
-                                             scale_phi=settings.collision_scale_phi)
+            self.collision = TissueCollision(
+                model, method=settings.collision, scale_phi=settings.collision_scale_phi
+            )
         self.self_collision = None
         if settings.self_collision and any(o.row_length for o in model.data.organs):
             self.self_collision = IntestineCollision(
-                model, threshold=settings.collision_threshold,
+                model,
+                threshold=settings.collision_threshold,
                 random_pairs=settings.collision_random_pairs or None,
-                passes=settings.collision_passes, skin=settings.collision_skin,
-                seed=settings.seed)
+                passes=settings.collision_passes,
+                skin=settings.collision_skin,
+                seed=settings.seed,
+            )
         self.events: list[dict] = []
 
     def step(self, state: State, control: Control, dt: float):
@@ -112,8 +116,7 @@ class Solver:
         if self.collision is not None:
             self.collision.begin_frame(control)
         for k in range(self.settings.substeps):
-            self.substep(state, control, h, first=k == 0,
-                         last=k == self.settings.substeps - 1)
+            self.substep(state, control, h, first=k == 0, last=k == self.settings.substeps - 1)
         skinning.skin_surface(self.model, state)
         state.time += dt
         state.frame += 1
@@ -127,16 +130,31 @@ class Solver:
             if closed == state.jaws_closed[tool]:
                 continue
             if closed:
-                count = grasp.capture(self.model, state, control, tool, control.jaw_length[tool],
-                                      JAW_REACH * float(control.tool_radius[tool]))
+                count = grasp.capture(
+                    self.model,
+                    state,
+                    control,
+                    tool,
+                    control.jaw_length[tool],
+                    JAW_REACH * float(control.tool_radius[tool]),
+                )
             else:
                 count = grasp.release(self.model, state, tool)
             state.jaws_closed[tool] = closed
-            self.events.append({"kind": "grasp" if closed else "release", "tool": tool,
-                                "particles": count})
+            self.events.append(
+                {"kind": "grasp" if closed else "release", "tool": tool, "particles": count}
+            )
 
-    def substep(self, state: State, control: Control, h: float, *, first: bool = True,
-                last: bool = True, collision_control: Control | None = None):
+    def substep(
+        self,
+        state: State,
+        control: Control,
+        h: float,
+        *,
+        first: bool = True,
+        last: bool = True,
+        collision_control: Control | None = None,
+    ):
         """One substep: predict, constraints, shape matching, update goals. Within a
         frame the update of one substep also predicts the next (``first``/``last``
         say where this substep lies), except for particles with springs.
@@ -158,8 +176,9 @@ class Solver:
         self._collide(state, collision_control)
         if self.self_collision is not None:
             self.self_collision.step(state, h)
-        shape_matching.update_goals(model, state, control, h, settings.speed_limit,
-                                    settings.gravity, int(not last))
+        shape_matching.update_goals(
+            model, state, control, h, settings.speed_limit, settings.gravity, int(not last)
+        )
 
     def _collide(self, state: State, control: Control, tissue: bool = True):
         """Tissue collision (seed 000 §4), the last move of p before the goal update;
@@ -178,8 +197,14 @@ class Solver:
             return
         buffers = (state.p, state.p_next)
         for it in range(settings.iterations):
-            distance.jacobi_sweep(model, state, control, buffers[it % 2], buffers[(it + 1) % 2],
-                                  settings.over_relaxation)
+            distance.jacobi_sweep(
+                model,
+                state,
+                control,
+                buffers[it % 2],
+                buffers[(it + 1) % 2],
+                settings.over_relaxation,
+            )
         if settings.iterations % 2:
             distance.copy_positions(state.p_next, state.p)
 
@@ -192,6 +217,8 @@ class Solver:
         for record in self.model.data.organs:
             if record.particles[0] <= particle < record.particles[1]:
                 organ = record.name
-        raise SimulationFault(f"simulation fault at frame {state.frame}: particle {particle} of "
-                              f"organ {organ!r} has a non-finite position or a speed above "
-                              f"{self.settings.speed_limit:g} m/s")
+        raise SimulationFault(
+            f"simulation fault at frame {state.frame}: particle {particle} of "
+            f"organ {organ!r} has a non-finite position or a speed above "
+            f"{self.settings.speed_limit:g} m/s"
+        )

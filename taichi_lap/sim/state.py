@@ -13,21 +13,31 @@ from taichi_lap.sim.fields import FieldGroup
 from taichi_lap.sim.model import Model
 
 
-SNAPSHOT_FIELDS = ("x", "v", "goal", "eta", "collided", "grasp_tool", "grasp_local",
-                   "cluster_rotation", "cluster_quaternion", "cluster_center")
+SNAPSHOT_FIELDS = (
+    "x",
+    "v",
+    "goal",
+    "eta",
+    "collided",
+    "grasp_tool",
+    "grasp_local",
+    "cluster_rotation",
+    "cluster_quaternion",
+    "cluster_center",
+)
 """State fields carried from one frame to the next (the rest is scratch of a step)."""
 
 
 @ti.data_oriented
 class State:
     """Per-particle ``x`` [m], ``v`` [m/s], predicted ``p`` [m] (and a second buffer
-    for Jacobi sweeps), shape-matching ``goal`` [m], recovery factor ``eta`` and
-    ``collided`` flag (seed 000 Alg. 1); per-cluster rotation and mass centre; the
-    skinned surface vertices; ``fault`` (non-zero after a non-finite or exploding
-    particle, the first such particle in ``fault_particle``); the grasp: per particle
-the holding tool (``grasp_tool``, -1 for none) and its place in that tool's frame
-(``grasp_local`` [m]); per tool on the Python side whether its jaws are closed
-(``jaws_closed``)."""
+        for Jacobi sweeps), shape-matching ``goal`` [m], recovery factor ``eta`` and
+        ``collided`` flag (seed 000 Alg. 1); per-cluster rotation and mass centre; the
+        skinned surface vertices; ``fault`` (non-zero after a non-finite or exploding
+        particle, the first such particle in ``fault_particle``); the grasp: per particle
+    the holding tool (``grasp_tool``, -1 for none) and its place in that tool's frame
+    (``grasp_local`` [m]); per tool on the Python side whether its jaws are closed
+    (``jaws_closed``)."""
 
     def __init__(self, model: Model):
         n = model.particle_count
@@ -64,10 +74,13 @@ the holding tool (``grasp_tool``, -1 for none) and its place in that tool's fram
         self.v.fill(0.0)
         self.eta.fill(0.0)
         self.collided.fill(0)
-        identity = np.broadcast_to(np.eye(3, dtype=np.float32), self.cluster_rotation.shape + (3, 3))
+        identity = np.broadcast_to(
+            np.eye(3, dtype=np.float32), self.cluster_rotation.shape + (3, 3)
+        )
         self.cluster_rotation.from_numpy(np.ascontiguousarray(identity))
         self.cluster_quaternion.from_numpy(
-            np.tile(np.float32([1.0, 0.0, 0.0, 0.0]), (self.cluster_quaternion.shape[0], 1)))
+            np.tile(np.float32([1.0, 0.0, 0.0, 0.0]), (self.cluster_quaternion.shape[0], 1))
+        )
         self.cluster_center.copy_from(model.cluster_rest_center)
         self.fault[None] = 0
         self.fault_particle[None] = 2**31 - 1

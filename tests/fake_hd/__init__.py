@@ -72,7 +72,7 @@ class FakeHD:
         """The output forces [N] of the latest ``last`` frames, oldest first, (n, 3)."""
         buf = (c_double * (3 * last))()
         n = self.lib.fakehd_forces(handle, buf, last)
-        return np.array(buf[:3 * n]).reshape(n, 3)
+        return np.array(buf[: 3 * n]).reshape(n, 3)
 
     def frame_count(self, handle: int) -> int:
         return self.lib.fakehd_frame_count(handle)
