@@ -182,12 +182,12 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
     last = recording.frames[-1].poses
     assert np.allclose(last["grasper"].tip, [-0.04, 0.07, 0.0], atol=1e-6)
     assert np.allclose(last["probe"].tip, second["tip"], atol=1e-6)
-    # every servo tick of both devices is in the record, each device's in clock order
+    # every servo tick of both devices is in the record, each device's in clock order (the
+    # servo's rate is checked in the realtime group, tests/test_servo.py)
     for name in ("grasper", "probe"):
         ticks = [t for t in recording.ticks if name in t.poses]
         clocks = np.array([t.clock for t in ticks])
         assert len(ticks) > 10 and np.all(np.diff(clocks) > 0)
-        assert np.median(np.diff(clocks)) < 0.002  # about 1 kHz
 
 
 def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, tmp_path, capsys):

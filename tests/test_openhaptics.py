@@ -92,6 +92,7 @@ def test_named_device_opens_and_unknown_name_is_reported(fake):
     assert fake.error_count() == 0 and not fake.scheduler_running()
 
 
+@pytest.mark.realtime
 def test_servo_callback_runs_at_about_1khz(fake):
     with OpenHapticsDevice(library=fake.path) as dev:
         assert wait_for(lambda: fake.frame_count(dev.handle) > 20)

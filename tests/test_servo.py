@@ -91,6 +91,7 @@ def servo_for(publisher: Publisher, keyframes, **device) -> ServoProcess:
 wait_for = functools.partial(helpers.wait_for, timeout=5.0)
 
 
+@pytest.mark.realtime
 def test_servo_ticks_at_about_1khz_in_a_child_process(snapshot):
     with servo_for(snapshot, [(0.0, ABOVE), (0.3, PRESSED)]) as servo:
         start = servo.feedback.tick_history()["count"]
@@ -124,6 +125,7 @@ def test_servo_forces_respect_the_safety_clamp(snapshot):
     assert tool.max_force_sent > 0.99 * MAX_FORCE  # clamped, not cut
 
 
+@pytest.mark.realtime
 def test_stale_snapshot_fades_the_force_to_zero(snapshot):
     with servo_for(snapshot, [(0.0, ABOVE), (0.2, PRESSED)]) as servo:
         assert wait_for(lambda: np.linalg.norm(servo.feedback.read().force) > 0.99 * MAX_FORCE)

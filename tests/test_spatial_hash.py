@@ -189,35 +189,3 @@ def test_vulkan_matches_cpu():
         assert np.array_equal(gpu[key], cpu[key]), key
     assert int(cpu["total"]) > 1000
 
-
-if __name__ == "__main__":  # build time for 200k points on the CPU backend
-    import time
-
-    from taichi_lap import runtime
-
-    runtime.init("cpu")
-    n = 200_000
-    x = (
-        np.random.default_rng(0).uniform(0.0, 0.2, (n, 3)).astype(np.float32)
-    )  # ~1.6 points per 4 mm cell
-    grid, points = SpatialHash(n, 1 << 19, 0.004), make_points(x)
-    times = []
-    for k in range(25):
-        t0 = time.perf_counter()
-        grid.build(points, n)
-        ti.sync()
-        times.append(time.perf_counter() - t0)
-    print(
-        f"build, {n} points, table {1 << 19}: median {1e3 * np.median(times[5:]):.2f} ms over 20 builds"
-    )
-    t0 = time.perf_counter()
-    total = grid.find_pairs(points, 0.004)
-    print(
-        f"find_pairs (r = 4 mm, {total} pairs, first call incl. compile): {1e3 * (time.perf_counter() - t0):.1f} ms"
-    )
-    times = []
-    for k in range(10):
-        t0 = time.perf_counter()
-        grid.find_pairs(points, 0.004)
-        times.append(time.perf_counter() - t0)
-    print(f"find_pairs median: {1e3 * np.median(times):.2f} ms")

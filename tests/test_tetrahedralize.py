@@ -1,7 +1,5 @@
 """BCC lattice tetrahedralizer (seed 002 §3.2): volumes, quality, skin, binding."""
 
-import time
-
 import numpy as np
 import pytest
 import trimesh
@@ -149,14 +147,3 @@ def test_no_tet_inside_is_an_error():
     with pytest.raises(ValueError, match="no tetrahedron"):
         tetrahedralize(sphere_solid(radius=0.001), 0.01)
 
-
-def test_timing_100k_particle_sphere():
-    radius = 0.05
-    start = time.perf_counter()
-    mesh = tetrahedralize(sphere_solid(radius), radius / 23)
-    elapsed = time.perf_counter() - start
-    print(
-        f"\n100k-particle sphere: {len(mesh.particles)} particles, {len(mesh.tets)} tets, "
-        f"{len(mesh.surface.vertices)} skin vertices in {elapsed:.2f} s"
-    )
-    assert len(mesh.particles) > 90_000
