@@ -12,8 +12,7 @@ frame last, whatever pushed it.
 
 import taichi as ti
 
-MAX_TOOLS = 4
-"""Tool capsules a Control holds (the tool loop is unrolled over them)."""
+from taichi_lap.core.instruments import MAX_TOOLS
 
 FREE = -1
 """``State.grasp_tool`` of a particle no tool holds."""

@@ -42,7 +42,7 @@ A tube is a range [start, end) of ``points`` [m] with a ``radius`` [m] per point
    PLANE_MARGIN of the ring centres' clearance: the inner side of a kink pinches
    instead of folding. Normals keep the unpinched value.
 
-Output (see taichi_lap.tubes.TubeMesh): ``sides`` vertices per ring, rings of all tubes
+Output (see taichi_lap.render.tubes.TubeMesh): ``sides`` vertices per ring, rings of all tubes
 packed in order; two triangles per side and band between consecutive rings of a tube,
 counter-clockwise seen from outside. No float atomics: results are deterministic.
 """

@@ -34,7 +34,7 @@ from taichi_lap.kernels.brdf import (
     smith_visibility,
     specular_f0,
 )
-from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup
 
 SH_ROWS, SH_COLUMNS = 128, 256  # latitude-longitude quadrature grid of the SH projection
 DFG_SIZE, DFG_SAMPLES = 32, 256

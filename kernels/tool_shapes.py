@@ -23,7 +23,8 @@ that of the nearest shape (pointing out of the tool).
 
 import taichi as ti
 
-from taichi_lap.kernels.contact import MAX_TOOLS, closest_on_segment
+from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.kernels.contact import closest_on_segment
 
 MAX_TOOL_SHAPES = 4
 """Shape slots per tool."""

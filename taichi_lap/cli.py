@@ -16,7 +16,7 @@ import sys
 # Taichi prints a banner to stdout on import; keep stdout for our output (check --json)
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")
 
-from taichi_lap.errors import InputError, SimulationFault
+from taichi_lap.core.errors import InputError, SimulationFault
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -99,7 +99,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_check(args) -> int:
-    from taichi_lap.builder import build_model
+    from taichi_lap.preprocess.cache import build_model
     from taichi_lap.stats import format_table, model_statistics
 
     scene = _load_scene(args)

@@ -30,18 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from taichi_lap.errors import InputError
-from taichi_lap.schema import REQUIRED, check_table
-from taichi_lap.scenes.anatomy.params import Param
-from taichi_lap.sim.control import JAW_KINDS, JAW_LENGTH, MAX_TOOLS, Control
+from taichi_lap.core.errors import InputError
+from taichi_lap.core.params import REQUIRED, check_table
+from taichi_lap.core.params import Param
+from taichi_lap.core.instruments import JAW_KINDS, JAW_LENGTH, MAX_TOOLS
+from taichi_lap.scene.keyframes import read_keyframes, unit
+from taichi_lap.sim.control import Control
 
-KEYFRAME_PARAMS = {
-    "time": Param("float", REQUIRED, "time of the keyframe", lo=0.0, hi=1e6, unit="s"),
-    "tool": Param("str", REQUIRED, "name of a tool of the scene"),
-    "tip": Param("vec3", REQUIRED, "tip position", lo=-100, hi=100, unit="m"),
-    "direction": Param("vec3", None, "from the tip towards the handle", lo=-1e3, hi=1e3),
-    "grasp": Param("bool", None, "a grasper's jaws closed from this keyframe on"),
-}
 GRASP_BUTTON = 1
 """Bitmask of the button that closes a grasper's jaws (button 1, as on a stylus)."""
 
@@ -52,12 +47,6 @@ class Pose:
 
     tip: np.ndarray
     direction: np.ndarray
-
-
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    n = np.linalg.norm(v)
-    return v / n if n > 1e-12 else np.array([0.0, 1.0, 0.0])
 
 
 class ScriptedDevice:
@@ -97,35 +86,8 @@ class ScriptedDevice:
 
     @classmethod
     def from_tables(cls, source: str, frames: list, tools: list[dict]) -> "ScriptedDevice":
-        names = {t["name"]: t for t in tools}
-        keyframes: dict[str, list] = {}
-        for k, table in enumerate(frames):
-            key = f"keyframe[{k}]"
-            frame = check_table(source, key, table, KEYFRAME_PARAMS)
-            if frame["tool"] not in names:
-                raise InputError(
-                    source,
-                    f"{key}.tool",
-                    f"one of the scene's tools "
-                    f"({', '.join(names) or 'none'}) was "
-                    f"expected, found {frame['tool']!r}",
-                )
-            track = keyframes.setdefault(frame["tool"], [])
-            if track and frame["time"] < track[-1][0]:
-                raise InputError(
-                    source,
-                    f"{key}.time",
-                    f"times in increasing order were expected, "
-                    f"found {frame['time']} after {track[-1][0]}",
-                )
-            direction = frame["direction"] or (
-                track[-1][2] if track else names[frame["tool"]]["direction"]
-            )
-            closed = (
-                frame["grasp"] if frame["grasp"] is not None else (track[-1][3] if track else False)
-            )
-            track.append((frame["time"], np.asarray(frame["tip"], float), _unit(direction), closed))
-        return cls(keyframes, source)
+        """A device from keyframe tables (:func:`~taichi_lap.scene.keyframes.read_keyframes`)."""
+        return cls(read_keyframes(source, frames, tools), source)
 
     def _after(self, track, time: float) -> int:
         """How many keyframes of ``track`` lie at or before ``time``."""
@@ -149,7 +111,7 @@ class ScriptedDevice:
             else:
                 (t0, a0, d0, _), (t1, a1, d1, _) = track[k - 1], track[k]
                 s = (time - t0) / (t1 - t0) if t1 > t0 else 1.0
-                tip, direction = a0 + s * (a1 - a0), _unit(d0 + s * (d1 - d0))
+                tip, direction = a0 + s * (a1 - a0), unit(d0 + s * (d1 - d0))
             out[name] = Pose(tip=tip, direction=direction)
         return out
 
@@ -161,7 +123,7 @@ class MouseDevice:
 
     def __init__(self, tool: dict, speed: float = 0.1):
         self.name = tool["name"]
-        self.pose = Pose(tip=np.asarray(tool["tip"], float), direction=_unit(tool["direction"]))
+        self.pose = Pose(tip=np.asarray(tool["tip"], float), direction=unit(tool["direction"]))
         self.speed = speed  # [m/s] along the view axis
         self.grasp = False
         self._last_cursor = None
@@ -172,8 +134,8 @@ class MouseDevice:
         import taichi as ti
 
         eye, target = np.asarray(camera_position, float), np.asarray(camera_target, float)
-        forward = _unit(target - eye)
-        right = _unit(np.cross(forward, [0.0, 1.0, 0.0]))
+        forward = unit(target - eye)
+        right = unit(np.cross(forward, [0.0, 1.0, 0.0]))
         up = np.cross(right, forward)
         depth = float(np.dot(self.pose.tip - eye, forward))
         cursor = np.asarray(window.get_cursor_pos(), float)
@@ -207,7 +169,7 @@ def applied_poses(tools: list[dict], poses: dict[str, Pose]) -> dict[str, Pose]:
     tool no device drives."""
     return {
         tool["name"]: poses.get(tool["name"])
-        or Pose(np.asarray(tool["tip"], float), _unit(tool["direction"]))
+        or Pose(np.asarray(tool["tip"], float), unit(tool["direction"]))
         for tool in tools[:MAX_TOOLS]
     }
 

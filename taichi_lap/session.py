@@ -8,7 +8,7 @@ import time
 
 import taichi as ti
 
-from taichi_lap.builder import build_model
+from taichi_lap.preprocess.cache import build_model
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.scene import Scene

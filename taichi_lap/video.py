@@ -14,7 +14,7 @@ from pathlib import Path
 import imageio.v2 as imageio
 import numpy as np
 
-from taichi_lap.errors import InputError
+from taichi_lap.core.errors import InputError
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 

@@ -13,7 +13,7 @@ import taichi as ti
 from taichi_lap.kernels.shading import VIEWS
 from taichi_lap.render.renderer import Renderer
 from taichi_lap.session import Session
-from taichi_lap.tubes import TessellationController
+from taichi_lap.render.tubes import TessellationController
 
 FRAME_TARGET_MS = 1000.0 / 30.0
 """Frame time the tube tessellation controller holds in the window (≥ 30 Hz)."""

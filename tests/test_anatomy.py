@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from taichi_lap.build.geometry import Solid, SpringSheet, TriangleMesh
+from taichi_lap.core.geometry import Solid, SpringSheet, TriangleMesh
 from taichi_lap.scenes.anatomy import GENERATORS, defaults, sdf, tubes
 from taichi_lap.scenes.anatomy import liver as liver_mod
-from taichi_lap.scenes.anatomy.params import KINDS
+from taichi_lap.core.params import KINDS
 
 RNG = np.random.default_rng(1234)
 

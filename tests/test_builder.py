@@ -5,10 +5,11 @@ from pathlib import Path
 
 import numpy as np
 
-from taichi_lap import builder
 from taichi_lap import scene as scene_mod
-from taichi_lap.build import clusters as clustering
-from taichi_lap.scene_schema import MATERIAL_PARAMS
+from taichi_lap.preprocess import cache
+from taichi_lap.preprocess.assemble import assemble
+from taichi_lap.preprocess import clusters as clustering
+from taichi_lap.scene.schema import MATERIAL_PARAMS
 from taichi_lap.session import Session
 
 SMALL = {"scene.detail": 0.03}
@@ -50,7 +51,7 @@ def test_auto_radius_gives_fifty_particles_per_cluster_count():
 
 
 def test_joined_organs_share_clusters():
-    data = builder.assemble(scene_mod.load("liver", SMALL), progress=False)
+    data = assemble(scene_mod.load("liver", SMALL), progress=False)
     liver, vein = data.organs[0], data.organs[1]
     shared = 0
     for c in range(*vein.clusters):
@@ -64,10 +65,10 @@ def test_surface_binding_reproduces_the_rest_surface():
     """Vessels are bound barycentrically in their tets (seed 002 §3.2): skinning the
     rest particles gives back the generator's tube mesh; the liver capsule is made of
     tet vertices (direct binding)."""
-    from taichi_lap.build.organs import make_geometry
+    from taichi_lap.preprocess.organs import make_geometry
 
     scene = scene_mod.load("liver", SMALL)
-    data = builder.assemble(scene, progress=False)
+    data = assemble(scene, progress=False)
     skinned = np.einsum("vk,vkd->vd", data.surface_weight, data.rest_position[data.surface_index])
     vein = data.organs[1]
     a, b = vein.surface_vertices
@@ -81,12 +82,12 @@ def test_surface_binding_reproduces_the_rest_surface():
 def test_second_start_loads_the_cached_model(tmp_path, monkeypatch):
     monkeypatch.setenv("TAICHI_LAP_CACHE", str(tmp_path))
     scene = scene_mod.load("rectum", SMALL)
-    first = builder.build_model(scene, progress=False)
+    first = cache.build_model(scene, progress=False)
     files = list(tmp_path.glob("*.npz"))
     assert len(files) == 1
     called = []
-    monkeypatch.setattr(builder, "assemble", lambda *a, **k: called.append(1))
-    second = builder.build_model(scene, progress=False)
+    monkeypatch.setattr(cache, "assemble", lambda *a, **k: called.append(1))
+    second = cache.build_model(scene, progress=False)
     assert not called
     for key, value in first.arrays().items():
         assert np.array_equal(value, second.arrays()[key]), key
@@ -97,36 +98,36 @@ def test_changed_scene_misses_the_cache_and_corrupt_cache_is_rebuilt(tmp_path, m
     monkeypatch.setenv("TAICHI_LAP_CACHE", str(tmp_path))
     a = scene_mod.load("rectum", SMALL)
     b = scene_mod.load("rectum", {**SMALL, "organs.rectum.material.stiffness": 0.3})
-    assert builder.scene_digest(a) != builder.scene_digest(b)
-    builder.build_model(a, progress=False)
+    assert cache.scene_digest(a) != cache.scene_digest(b)
+    cache.build_model(a, progress=False)
     path = next(tmp_path.glob("*.npz"))
     path.write_bytes(b"not a model")
-    rebuilt = builder.build_model(a, progress=False)
+    rebuilt = cache.build_model(a, progress=False)
     assert rebuilt.particle_count > 0
-    assert builder.load_model(path).particle_count == rebuilt.particle_count
+    assert cache.load_model(path).particle_count == rebuilt.particle_count
 
 
 def test_a_changed_schema_default_misses_the_cache(monkeypatch):
-    before = builder.scene_digest(scene_mod.load("rectum", SMALL))
+    before = cache.scene_digest(scene_mod.load("rectum", SMALL))
     shape = MATERIAL_PARAMS["shape_matching"]
     monkeypatch.setitem(shape, "organ_cluster", replace(shape["organ_cluster"], default=False))
-    assert builder.scene_digest(scene_mod.load("rectum", SMALL)) != before
+    assert cache.scene_digest(scene_mod.load("rectum", SMALL)) != before
 
 
 def test_a_changed_builder_function_misses_the_cache(monkeypatch):
     scene = scene_mod.load("rectum", SMALL)
-    before = builder.scene_digest(scene)
-    sources = builder.build_sources()
+    before = cache.scene_digest(scene)
+    sources = cache.build_sources()
     changed = next(p for p in sources if p.name == "clusters.py")
     read_bytes = Path.read_bytes
     monkeypatch.setattr(
         Path, "read_bytes", lambda self: read_bytes(self) + b"#" * (self == changed)
     )
-    assert builder.scene_digest(scene) != before
+    assert cache.scene_digest(scene) != before
 
 
 def test_the_cache_key_covers_every_module_a_build_reads():
-    names = {path.name for path in builder.build_sources()}
+    names = {path.name for path in cache.build_sources()}
     assert {
         "organs.py",
         "clusters.py",

@@ -57,7 +57,7 @@ def test_check_json_follows_the_contract(capsys):
 def test_full_liver_matches_table_1():
     """Seed 002 Table 1: 170 854 particles and 3 892 clusters in all; the liver
     146 090 particles in 2 994 clusters of radius 0.84 cm (builds ~170k particles)."""
-    from taichi_lap.builder import build_model
+    from taichi_lap.preprocess.cache import build_model
     from taichi_lap.stats import model_statistics
 
     stats = model_statistics(build_model(scene_mod.load("liver"), progress=False))

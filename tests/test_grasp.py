@@ -8,7 +8,7 @@ from taichi_lap.devices import GRASP_BUTTON, ScriptedDevice
 from taichi_lap.kernels.contact import FREE
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
-from taichi_lap.sim.control import JAW_LENGTH, JAW_RADIUS
+from taichi_lap.core.instruments import JAW_LENGTH, JAW_RADIUS
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX
 

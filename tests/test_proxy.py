@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from taichi_lap.builder import build_model
+from taichi_lap.preprocess.cache import build_model
 from taichi_lap.haptics import (
     HapticProxy,
     HapticScene,

@@ -16,7 +16,7 @@ import trimesh
 
 from taichi_lap.kernels.shading import srgb_encode
 from taichi_lap.render.camera import EndoscopeCamera
-from taichi_lap.render.materials import PRESETS
+from taichi_lap.scene.materials import PRESETS
 from taichi_lap.render.renderer import Renderer
 from taichi_lap.render.scene_mesh import ArrayMesh, SceneMesh
 from taichi_lap.session import Session

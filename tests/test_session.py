@@ -53,7 +53,7 @@ def test_settled_start_is_at_rest_on_the_floor_and_reset_returns_to_it():
 def test_solver_settings_take_every_default_from_the_scene_schema():
     from dataclasses import fields
 
-    from taichi_lap.scene_schema import SCENE_PARAMS
+    from taichi_lap.scene.schema import SCENE_PARAMS
     from taichi_lap.sim import SolverSettings
 
     defaults = SolverSettings()

@@ -188,4 +188,3 @@ def test_vulkan_matches_cpu():
     for key in ("points", "sorted_index", "bucket_start", "neighbour_count", "pairs", "total"):
         assert np.array_equal(gpu[key], cpu[key]), key
     assert int(cpu["total"]) > 1000
-

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from taichi_lap.build.geometry import Solid, TriangleMesh
-from taichi_lap.build.tetrahedralize import (
+from taichi_lap.core.geometry import Solid, TriangleMesh
+from taichi_lap.preprocess.tetrahedralize import (
     TetMesh,
     min_dihedral_angle,
     points_inside,
@@ -146,4 +146,3 @@ def test_given_surface_is_bound_barycentrically(icosphere):
 def test_no_tet_inside_is_an_error():
     with pytest.raises(ValueError, match="no tetrahedron"):
         tetrahedralize(sphere_solid(radius=0.001), 0.01)
-

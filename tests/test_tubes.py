@@ -1,4 +1,4 @@
-"""Generalized-cylinder tubes (kernels/generalized_cylinder.py, taichi_lap/tubes.py; seed 001
+"""Generalized-cylinder tubes (kernels/generalized_cylinder.py, taichi_lap/render/tubes.py; seed 001
 §5): spline, Eq. 10-11 sampling, Eq. 12 frames, Eq. 1/13 skinning, §5.3 controller."""
 
 import functools
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_lap.sim.fields import FieldGroup
-from taichi_lap.tubes import TessellationController, TubeMesh
+from taichi_lap.core.fields import FieldGroup
+from taichi_lap.render.tubes import TessellationController, TubeMesh
 from tests.archrun import assert_vulkan_matches_cpu
 
 CAPACITY, TUBES, SIDES, MAX_LEVEL = 128, 3, 16, 3

@@ -1,6 +1,6 @@
 """Procedural anatomy: the registry of geometry generators scenes refer to by name.
 
-``GENERATORS[name].build(params)`` returns a :mod:`taichi_lap.build.geometry`
+``GENERATORS[name].build(params)`` returns a :mod:`taichi_lap.core.geometry`
 record; ``params`` holds every parameter of ``GENERATORS[name].params`` (the scene
 loader fills in defaults and checks ranges). Units are metres, y is up.
 """
@@ -8,7 +8,9 @@ loader fills in defaults and checks ranges). Units are metres, y is up.
 from __future__ import annotations
 
 from . import intestine, liver, primitives, rectum
-from .params import Generator, Param
+from taichi_lap.core.params import Param
+
+from .generator import Generator
 
 GENERATORS: dict[str, Generator] = {
     g.name: g for module in (liver, intestine, rectum, primitives) for g in module.GENERATORS

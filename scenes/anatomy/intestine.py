@@ -25,10 +25,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-from taichi_lap.build.geometry import SpringSheet
+from taichi_lap.core.geometry import SpringSheet
 
 from . import tubes
-from .params import Generator, Param
+from taichi_lap.core.params import Param
+
+from .generator import Generator
 
 
 def fold_curve(amplitude: float, folds: int, radius: float, n: int) -> np.ndarray:

@@ -19,11 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from taichi_lap.build.geometry import Solid
+from taichi_lap.core.geometry import Solid
 
 from . import sdf as S
 from . import tubes
-from .params import Generator, Param
+from taichi_lap.core.params import Param
+
+from .generator import Generator
 
 _CAL = 0.9869  # brings the scale-1 volume to 1.78 L (measured on a 0.8 mm grid)
 CLEARANCE = 0.002  # [m] at scale 1: centreline points stay (r + CLEARANCE) inside

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from taichi_lap.build.geometry import Solid, TriangleMesh
+from taichi_lap.core.geometry import Solid, TriangleMesh
 
 from . import sdf as S
 from . import tubes
-from .params import Generator, Param
+from taichi_lap.core.params import Param
+
+from .generator import Generator
 
 
 def icosphere(subdivisions: int = 2, keep_volume: bool = True) -> TriangleMesh:

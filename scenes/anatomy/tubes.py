@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from taichi_lap.build.geometry import TriangleMesh
+from taichi_lap.core.geometry import TriangleMesh
 
 from . import sdf as _sdf
 

@@ -18,10 +18,10 @@ import logging
 import numpy as np
 
 from taichi_lap.devices import Pose
-from taichi_lap.errors import InputError
+from taichi_lap.core.errors import InputError
 from taichi_lap.haptics.device import WorkspaceMapping
 from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, ToolCapsule, grasp_edges
-from taichi_lap.sim.control import JAW_KINDS, JAW_LENGTH, JAW_RADIUS
+from taichi_lap.core.instruments import JAW_KINDS, JAW_LENGTH, JAW_RADIUS
 from taichi_lap.haptics.servo import ServoProcess, ServoSettings
 from taichi_lap.haptics.snapshot import SceneSnapshot
 

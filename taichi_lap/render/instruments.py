@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from taichi_lap.sim.control import JAW_KINDS, JAW_LENGTH
+from taichi_lap.core.instruments import JAW_KINDS, JAW_LENGTH
 
 SHAFT_SECTIONS = 16
 

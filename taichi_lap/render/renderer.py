@@ -17,7 +17,7 @@ from taichi_lap.kernels.raster import GBuffer, camera_matrices
 from taichi_lap.kernels.shading import VIEWS, shade
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
-from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup
 
 BACKGROUND = (0.02, 0.008, 0.006)
 

@@ -21,7 +21,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.kernels import circumsphere, tissue_collision
-from taichi_lap.kernels.contact import MAX_TOOLS
+from taichi_lap.core.instruments import MAX_TOOLS
 from taichi_lap.kernels.spatial_hash import SpatialHash
 from taichi_lap.kernels.tool_shapes import (
     MAX_TOOL_SHAPES,
@@ -31,8 +31,8 @@ from taichi_lap.kernels.tool_shapes import (
     ToolPose,
     push_particles_out_of_tools,
 )
-from taichi_lap.sim.csr import incidence
-from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.core.csr import incidence
+from taichi_lap.core.fields import FieldGroup
 
 log = logging.getLogger("taichi_lap")
 

@@ -14,27 +14,8 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.kernels.contact import MAX_TOOLS
-from taichi_lap.sim.fields import FieldGroup
-
-__all__ = [
-    "Control",
-    "MAX_TOOLS",
-    "JAW_KINDS",
-    "JAW_LENGTH",
-    "JAW_RADIUS",
-    "JAW_REACH",
-    "frame_towards",
-]
-
-JAW_KINDS = ("grasper", "scissors")
-"""Instruments with two closed jaws ahead of the tip, a second capsule (seed 002 §3.4)."""
-JAW_LENGTH = 4.0
-"""Length of a grasper's jaws ahead of its tip, in shaft radii (drawn and grasping)."""
-JAW_REACH = 1.5
-"""How far from their axis the open jaws take tissue, in shaft radii."""
-JAW_RADIUS = 0.7
-"""Radius of the closed jaws' capsule, in shaft radii (half the drawn jaws' width)."""
+from taichi_lap.core.instruments import JAW_RADIUS, MAX_TOOLS
+from taichi_lap.core.fields import FieldGroup
 
 
 def frame_towards(frame: np.ndarray, direction) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.kernels import intestine_collision as kernels
-from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup
 from taichi_lap.sim.model import Model
 
 

@@ -1,7 +1,7 @@
 """The static model on the device: rest shape, masses, materials, clusters,
 constraints, surfaces and environment colliders (the Warp/Newton ``Model``).
 
-Built once from :class:`taichi_lap.build.model_data.ModelData`; kernels receive it
+Built once from :class:`taichi_lap.preprocess.model_data.ModelData`; kernels receive it
 as a ``ti.template()`` argument and only read it.
 """
 
@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.build.model_data import ModelData
-from taichi_lap.sim.csr import both_ends, incidence
-from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.preprocess.model_data import ModelData
+from taichi_lap.core.csr import both_ends, incidence
+from taichi_lap.core.fields import FieldGroup
 
 
 CHUNK = 128

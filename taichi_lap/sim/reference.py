@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from taichi_lap.build.model_data import ModelData
+from taichi_lap.preprocess.model_data import ModelData
 
 
 class ReferenceShapeMatching:

@@ -29,11 +29,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-from taichi_lap.errors import SimulationFault
-from taichi_lap.scene_schema import SCENE_PARAMS
+from taichi_lap.core.errors import SimulationFault
+from taichi_lap.scene.schema import SCENE_PARAMS
 from taichi_lap.kernels import distance, grasp, shape_matching, skinning
 from taichi_lap.sim.collision import TissueCollision
-from taichi_lap.sim.control import JAW_REACH, MAX_TOOLS, Control
+from taichi_lap.core.instruments import JAW_REACH, MAX_TOOLS
+from taichi_lap.sim.control import Control
 from taichi_lap.sim.intestine_collision import IntestineCollision
 from taichi_lap.sim.model import Model
 from taichi_lap.sim.state import State
@@ -55,7 +56,7 @@ def _default(key: str):
 class SolverSettings:
     """Scene-wide solver parameters: the ``[scene]`` keys of the same names, whose
     defaults, units and meanings are those of
-    :data:`taichi_lap.scene_schema.SCENE_PARAMS` (one default per key)."""
+    :data:`taichi_lap.scene.schema.SCENE_PARAMS` (one default per key)."""
 
     substeps: int = _default("substeps")
     shape_iterations: int = _default("shape_iterations")

@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.kernels.contact import FREE, MAX_TOOLS
-from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.kernels.contact import FREE
+from taichi_lap.core.fields import FieldGroup
 from taichi_lap.sim.model import Model
 
 

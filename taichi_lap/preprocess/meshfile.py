@@ -2,7 +2,7 @@
 
 Seed 002 §3.2 reconstructs the liver capsule and vessels as triangle meshes from
 CT; this module reads such a file, checks it and returns a
-:class:`~taichi_lap.build.geometry.TriangleMesh` in metres. Every problem is an
+:class:`~taichi_lap.core.geometry.TriangleMesh` in metres. Every problem is an
 :class:`~taichi_lap.errors.InputError` saying what was expected and what was found.
 """
 
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..errors import InputError
-from .geometry import TriangleMesh
+from taichi_lap.core.errors import InputError
+from taichi_lap.core.geometry import TriangleMesh
 
 MESH_EXTENSIONS = (".obj", ".stl", ".ply")
 _DEGENERATE_AREA = 1e-12  # of the squared bounding-box diagonal

@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import SignedDistance, Solid, TriangleMesh
+from taichi_lap.core.geometry import SignedDistance, Solid, TriangleMesh
 
 # Outward faces of a positively oriented tet, face k opposite vertex k.
 _FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])

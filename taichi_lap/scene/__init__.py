@@ -1,7 +1,7 @@
 """Scene files: TOML (read with the standard library's ``tomllib``; nothing in a
 scene file is ever executed), validated into :class:`Scene`.
 
-The schema is the tables of :mod:`taichi_lap.scene_schema`; the README's
+The schema is the tables of :mod:`taichi_lap.scene.schema`; the README's
 scene-file reference is written from them. Bad input raises :class:`InputError`
 (``error: FILE: KEY: what was expected, what was found``).
 """
@@ -15,8 +15,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from taichi_lap.errors import InputError
-from taichi_lap.scene_schema import (
+from taichi_lap.core.errors import InputError
+from taichi_lap.scene.schema import (
     ATTACHMENT_PARAMS,
     CAMERA_PARAMS,
     CLUSTER_MODELS,
@@ -29,8 +29,10 @@ from taichi_lap.scene_schema import (
     TOOL_PARAMS,
     UNITS,
 )
-from taichi_lap.schema import REQUIRED, check_table, check_value, describe
-from taichi_lap.scenes.anatomy.params import Param
+from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.core.params import REQUIRED, Param, check_table, check_value, describe
+from taichi_lap.scene.keyframes import read_keyframes
+from taichi_lap.scenes.anatomy import GENERATORS
 
 _PRODUCES_FOR_MODEL = {
     "tet_clusters": ("solid", "surface"),
@@ -235,9 +237,6 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
 def _tools(source: str, tables: list[dict]) -> list[dict]:
     """Tool tables; an inline ``script`` (keyframes, as in a script file) drives the
     tool in headless runs."""
-    from taichi_lap.devices import ScriptedDevice
-    from taichi_lap.sim.control import MAX_TOOLS
-
     if len(tables) > MAX_TOOLS:
         raise InputError(
             source, "tools", f"at most {MAX_TOOLS} tools were expected, found {len(tables)}"
@@ -250,7 +249,7 @@ def _tools(source: str, tables: list[dict]) -> list[dict]:
     for k, tool in enumerate(tools):
         frames = [dict(frame, tool=tool["name"]) for frame in tool["script"]]
         if frames:
-            ScriptedDevice.from_tables(f"{source} (tools[{k}].script)", frames, tools)
+            read_keyframes(f"{source} (tools[{k}].script)", frames, tools)
     return tools
 
 
@@ -283,8 +282,6 @@ def _organ(source: str, directory: Path, key: str, table: dict) -> OrganSpec:
 
 
 def _geometry(source: str, directory: Path, key: str, table: Any, model: str) -> GeometrySpec:
-    from taichi_lap.scenes.anatomy import GENERATORS
-
     if not isinstance(table, dict):
         raise InputError(source, key, f"a table was expected, found {describe(table)}")
     if ("generator" in table) == ("mesh" in table):

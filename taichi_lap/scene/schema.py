@@ -4,14 +4,13 @@ tables and a test keeps the two in step."""
 
 import math
 
-from taichi_lap.render.materials import PRESETS
-from taichi_lap.schema import REQUIRED
-from taichi_lap.scenes.anatomy.params import Param
+from taichi_lap.core.instruments import TOOL_KINDS
+from taichi_lap.core.params import REQUIRED, Param
+from taichi_lap.scene.materials import PRESETS
 
 MODELS = ("shape_matching", "tet_clusters", "fascia_lra", "truss", "mass_spring")
 CLUSTER_MODELS = ("shape_matching", "tet_clusters")
 ATTACHMENTS = ("fixed", "lra_anchor", "join")
-TOOL_KINDS = ("probe", "grasper", "scissors", "hook")
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 SCENE_PARAMS = {

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from taichi_lap.build.geometry import SpringSheet, TriangleMesh
+from taichi_lap.core.geometry import SpringSheet, TriangleMesh
 
 
 def mesh_edges(triangles: np.ndarray) -> np.ndarray:

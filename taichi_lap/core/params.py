@@ -1,22 +1,39 @@
-"""Checking values read from scene files against typed parameters.
+"""Typed parameters and the checking of values read from files against them.
 
-Every value a scene file may hold is described by a
-:class:`~taichi_lap.scenes.anatomy.params.Param` (kind, default, range, choices).
-:func:`check_table` validates one TOML table against such a description: unknown
-keys, wrong types and out-of-range values raise :class:`InputError` naming the file
-and the dotted key, and saying what was expected and what was found.
+Every value a scene file, a script or a generator takes is described by a
+:class:`Param` (kind, default, range, choices). :func:`check_table` validates one
+TOML table against such a description: unknown keys, wrong types and out-of-range
+values raise :class:`InputError` naming the file and the dotted key, and saying what
+was expected and what was found.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
-from taichi_lap.errors import InputError
-from taichi_lap.scenes.anatomy.params import Param
+from taichi_lap.core.errors import InputError
+
+KINDS = ("float", "int", "bool", "str", "vec3", "vec3list", "intlist")
 
 REQUIRED = object()
 """Marks a :class:`Param` default that must be given in the file."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: ``kind`` is one of :data:`KINDS`; ``lo``/``hi`` bound numbers
+    (and every component of vectors) inclusively; ``choices`` lists the allowed
+    strings; ``unit`` is shown in the docs (``m``, ``rad``, ...)."""
+
+    kind: str
+    default: Any
+    doc: str
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[str, ...] | None = None
+    unit: str = ""
 
 
 def describe(value: Any) -> str:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from taichi_lap.build.geometry import Geometry, Solid, SpringSheet, TriangleMesh
+from taichi_lap.core.geometry import Geometry, Solid, SpringSheet, TriangleMesh
 
 
 def rotation_matrix(degrees_xyz) -> np.ndarray:

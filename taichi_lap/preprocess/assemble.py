@@ -1,40 +1,24 @@
 """Scene -> :class:`ModelData`: builds every organ, applies attachments, joins
-organs, concatenates, and caches the result on disk keyed by the scene's content.
-
-A second start with the same scene (same values, same mesh files, same builder
-code) loads the cached arrays instead of rebuilding. Builds that take more than a
-second show a progress bar.
+organs and concatenates them. Builds that take more than a second show a progress
+bar (the model cache, :mod:`taichi_lap.preprocess.cache`, calls this on a miss).
 """
 
 from __future__ import annotations
 
-import ast
-import hashlib
-import importlib.util
-import json
-import logging
-import os
-import tempfile
-from dataclasses import asdict
-from pathlib import Path
-
 import numpy as np
 from tqdm import tqdm
 
-import taichi_lap
-from taichi_lap.build import clusters as clustering
-from taichi_lap.build.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
-from taichi_lap.build.organs import (
+from taichi_lap.core.errors import InputError
+from taichi_lap.preprocess import clusters as clustering
+from taichi_lap.preprocess.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
+from taichi_lap.preprocess.organs import (
     OrganParts,
     add_long_range_attachments,
     build_organ,
     select_region,
 )
-from taichi_lap.errors import InputError
 from taichi_lap.scene import Scene
-from taichi_lap.scene_schema import CLUSTER_MODELS
-
-log = logging.getLogger("taichi_lap")
+from taichi_lap.scene.schema import CLUSTER_MODELS
 
 _MATERIAL_FOR_MODEL = {
     "stiffness": CLUSTER_MODELS,
@@ -42,94 +26,6 @@ _MATERIAL_FOR_MODEL = {
     "eta_on_contact": CLUSTER_MODELS,
     "lra_relaxation": ("fascia_lra",),
 }
-
-
-def cache_dir() -> Path:
-    """``$TAICHI_LAP_CACHE``, else ``$XDG_CACHE_HOME/taichi-lap``, else ``~/.cache/taichi-lap``."""
-    if os.environ.get("TAICHI_LAP_CACHE"):
-        return Path(os.environ["TAICHI_LAP_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "taichi-lap"
-
-
-BUILD_ROOTS = ("taichi_lap.builder",)
-"""Modules whose code, with everything they import from the package, builds a model."""
-
-
-def build_sources(roots: tuple[str, ...] = BUILD_ROOTS) -> list[Path]:
-    """Source files of ``roots`` and of every package module they import, directly or
-    through others, at module level or inside a function (read from the files, so an
-    import that has not run yet counts too)."""
-    seen: dict[str, Path] = {}
-    pending = list(roots)
-    while pending:
-        name = pending.pop()
-        if name in seen:
-            continue
-        try:
-            spec = importlib.util.find_spec(name)
-        except ModuleNotFoundError:  # a name imported from a module, not a module
-            continue
-        if spec is None or not spec.origin or not spec.origin.endswith(".py"):
-            continue
-        path = Path(spec.origin)
-        seen[name] = path
-        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-        pending += [package] + _imported_modules(ast.parse(path.read_bytes()), package)
-    return sorted(seen.values())
-
-
-def _imported_modules(tree: ast.AST, package: str) -> list[str]:
-    """Package modules an AST imports: ``import a.b``, ``from a import b`` (b a module
-    or a name in a), relative imports resolved against ``package``."""
-    names = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            names += [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
-                base = f"{parent}.{base}" if base else parent
-            names += [base] + [f"{base}.{alias.name}" for alias in node.names]
-    return [n for n in names if n == "taichi_lap" or n.startswith("taichi_lap.")]
-
-
-def _code_digest() -> str:
-    """Digest of the package version and of every source file a build reads, so a
-    change of any of them misses the cache."""
-    h = hashlib.sha256(taichi_lap.__version__.encode())
-    for path in build_sources():
-        h.update(path.read_bytes())
-    return h.hexdigest()
-
-
-def scene_digest(scene: Scene) -> str:
-    """Content key of a scene's model: the validated organs (defaults filled in), the
-    detail, the mesh files and the code that builds it."""
-    content = {"detail": scene.settings["detail"], "organs": [asdict(o) for o in scene.organs]}
-    h = hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode())
-    for organ in scene.organs:
-        if organ.geometry.mesh is not None:
-            h.update(Path(organ.geometry.mesh).read_bytes())
-    h.update(_code_digest().encode())
-    return h.hexdigest()[:32]
-
-
-def build_model(scene: Scene, *, use_cache: bool = True, progress: bool = True) -> ModelData:
-    """The scene's model, from the cache when possible."""
-    path = cache_dir() / f"{scene_digest(scene)}.npz"
-    if use_cache and path.is_file():
-        try:
-            data = load_model(path)
-            log.info("model loaded from cache %s", path)
-            return data
-        except (OSError, ValueError, KeyError) as exc:
-            log.warning("ignoring unreadable model cache %s: %s", path, exc)
-    data = assemble(scene, progress=progress)
-    if use_cache:
-        save_model(data, path)
-    return data
 
 
 def assemble(scene: Scene, *, progress: bool = True) -> ModelData:
@@ -283,32 +179,3 @@ def _join(scene: Scene, parts, offsets, organ, att, index) -> clustering.Cluster
             f"do not touch",
         )
     return joined
-
-
-def save_model(data: ModelData, path: Path):
-    """Write the model atomically (temporary file, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = data.arrays()
-    arrays["organs_json"] = np.array(json.dumps([asdict(r) for r in data.organs]))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def load_model(path: Path) -> ModelData:
-    """Read a model written by :func:`save_model`."""
-    with np.load(path, allow_pickle=False) as archive:
-        arrays = {k: archive[k] for k in archive.files}
-    organs = [
-        OrganRecord(**{k: tuple(v) if isinstance(v, list) else v for k, v in r.items()})
-        for r in json.loads(str(arrays.pop("organs_json")))
-    ]
-    material = {
-        k.split(".", 1)[1]: arrays.pop(k) for k in list(arrays) if k.startswith("material.")
-    }
-    return ModelData(material=material, organs=organs, **arrays)

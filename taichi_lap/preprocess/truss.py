@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from taichi_lap.build.geometry import TriangleMesh
+from taichi_lap.core.geometry import TriangleMesh
 
 
 @dataclass

@@ -29,7 +29,7 @@ import math
 import taichi as ti
 
 from taichi_lap.kernels import generalized_cylinder as gc
-from taichi_lap.sim.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup
 
 
 class TubeMesh:

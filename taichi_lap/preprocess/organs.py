@@ -17,21 +17,22 @@ from typing import Callable
 
 import numpy as np
 
-from taichi_lap.build import clusters as clustering
-from taichi_lap.build.geometry import Geometry, Solid, SpringSheet, TriangleMesh
-from taichi_lap.build.meshfile import load_surface_mesh
-from taichi_lap.build.sheets import (
+from taichi_lap.preprocess import clusters as clustering
+from taichi_lap.core.geometry import Geometry, Solid, SpringSheet, TriangleMesh
+from taichi_lap.preprocess.meshfile import load_surface_mesh
+from taichi_lap.preprocess.sheets import (
     bending_pairs,
     long_range_attachments,
     mesh_edges,
     sheet_springs,
     sheet_triangles,
 )
-from taichi_lap.build.tetrahedralize import tetrahedralize
-from taichi_lap.build.transform import place
-from taichi_lap.build.truss import generate_truss
-from taichi_lap.errors import InputError
+from taichi_lap.preprocess.tetrahedralize import tetrahedralize
+from taichi_lap.preprocess.transform import place
+from taichi_lap.preprocess.truss import generate_truss
+from taichi_lap.core.errors import InputError
 from taichi_lap.scene import OrganSpec
+from taichi_lap.scenes.anatomy import GENERATORS
 
 SURFACE_CLUSTER_EDGES = 4.0
 """Default cluster radius of a surface organ, in mean edge lengths."""
@@ -71,8 +72,6 @@ class OrganParts:
 
 def make_geometry(organ: OrganSpec, source: str) -> Geometry:
     """The organ's geometry in scene coordinates (generator or mesh file, placed)."""
-    from taichi_lap.scenes.anatomy import GENERATORS
-
     spec = organ.geometry
     if spec.mesh is not None:
         closed = organ.model in ("tet_clusters", "truss")

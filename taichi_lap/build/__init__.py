@@ -1,1 +1,0 @@
-"""Model building: geometry, tetrahedralization, clusters, struts, anchors (NumPy, run once)."""

@@ -1,0 +1,65 @@
+"""Tool keyframes, as a scene's inline ``script`` or a script file holds them.
+
+Each keyframe gives a tool's tip [m] at a time [s], optionally its direction from the
+tip towards the handle (kept from the previous keyframe, first from the tool) and
+whether a grasper's jaws are closed from then on (kept; open at first).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from taichi_lap.core.errors import InputError
+from taichi_lap.core.params import REQUIRED, Param, check_table
+
+KEYFRAME_PARAMS = {
+    "time": Param("float", REQUIRED, "time of the keyframe", lo=0.0, hi=1e6, unit="s"),
+    "tool": Param("str", REQUIRED, "name of a tool of the scene"),
+    "tip": Param("vec3", REQUIRED, "tip position", lo=-100, hi=100, unit="m"),
+    "direction": Param("vec3", None, "from the tip towards the handle", lo=-1e3, hi=1e3),
+    "grasp": Param("bool", None, "a grasper's jaws closed from this keyframe on"),
+}
+
+Keyframe = tuple[float, np.ndarray, np.ndarray, bool]
+"""(time [s], tip [m], unit direction, jaws closed)."""
+
+
+def unit(v) -> np.ndarray:
+    """``v`` scaled to length 1 (the y axis for a zero vector)."""
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v)
+    return v / n if n > 1e-12 else np.array([0.0, 1.0, 0.0])
+
+
+def read_keyframes(source: str, frames: list, tools: list[dict]) -> dict[str, list[Keyframe]]:
+    """Keyframe tables ``frames`` of the scene's ``tools``, checked (every error names
+    ``source`` and the key), per tool name in time order."""
+    names = {t["name"]: t for t in tools}
+    keyframes: dict[str, list[Keyframe]] = {}
+    for k, table in enumerate(frames):
+        key = f"keyframe[{k}]"
+        frame = check_table(source, key, table, KEYFRAME_PARAMS)
+        if frame["tool"] not in names:
+            raise InputError(
+                source,
+                f"{key}.tool",
+                f"one of the scene's tools "
+                f"({', '.join(names) or 'none'}) was "
+                f"expected, found {frame['tool']!r}",
+            )
+        track = keyframes.setdefault(frame["tool"], [])
+        if track and frame["time"] < track[-1][0]:
+            raise InputError(
+                source,
+                f"{key}.time",
+                f"times in increasing order were expected, "
+                f"found {frame['time']} after {track[-1][0]}",
+            )
+        direction = frame["direction"] or (
+            track[-1][2] if track else names[frame["tool"]]["direction"]
+        )
+        closed = (
+            frame["grasp"] if frame["grasp"] is not None else (track[-1][3] if track else False)
+        )
+        track.append((frame["time"], np.asarray(frame["tip"], float), unit(direction), closed))
+    return keyframes
