@@ -14,8 +14,7 @@ Both then apply the relaxed LRA (seed 000 Eq. 3) and the contacts.
 """
 
 import taichi as ti
-
-from taichi_lap.kernels.contact import resolve_contacts
+from taichi_lap.kernels.collision.particle_contact import resolve_contacts
 from taichi_lap.kernels.lra import lra_correction
 
 

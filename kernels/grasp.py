@@ -5,14 +5,14 @@ position constraints. When the jaws close, :func:`capture` takes every free
 particle within reach of the jaw segment (from the tip ``length`` ahead, away from
 the handle) and stores its position in the tool frame; from then on every
 projection of the step (prediction, constraint sweeps, shape-matching passes, the
-goal update) puts it at ``tip + R local`` (:func:`~taichi_lap.kernels.contact.hold_grasped`)
+goal update) puts it at ``tip + R local`` (:func:`~taichi_lap.kernels.collision.particle_contact.hold_grasped`)
 and flags it collided, so its goal follows (Alg. 1, lines 13-14). :func:`release`
 frees them.
 """
 
 import taichi as ti
-
-from taichi_lap.kernels.contact import FREE, closest_on_segment
+from taichi_lap.kernels.collision.closest_points import point_segment
+from taichi_lap.kernels.collision.particle_contact import FREE
 
 
 @ti.kernel
@@ -33,7 +33,7 @@ def capture(
     for i in range(model.particle_count):
         if model.inv_mass[i] > 0.0 and state.grasp_tool[i] == FREE:
             x = state.x[i]
-            if (x - closest_on_segment(tip, end, x)).norm() < reach + model.radius[i]:
+            if (x - point_segment(tip, end, x)).norm() < reach + model.radius[i]:
                 state.grasp_tool[i] = tool
                 state.grasp_local[i] = frame.transpose() @ (x - tip)
                 count += 1

@@ -7,6 +7,8 @@ code generation (the default in Taichi) may fold away.
 import taichi as ti
 
 EXPONENT_MASK = 0x7F800000
+NO_FAULT = 2**31 - 1
+"""``fault_particle`` while no particle faulted (faults keep the lowest index)."""
 
 
 @ti.func

@@ -20,7 +20,6 @@ sums in a fixed order (no float atomics), so it is deterministic on every backen
 import math
 
 import taichi as ti
-
 from taichi_lap.kernels.brdf import (
     ALPHA_MIN,
     INV_PI,
@@ -34,6 +33,7 @@ from taichi_lap.kernels.brdf import (
     smith_visibility,
     specular_f0,
 )
+
 from taichi_lap.core.fields import FieldGroup
 
 SH_ROWS, SH_COLUMNS = 128, 256  # latitude-longitude quadrature grid of the SH projection

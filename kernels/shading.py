@@ -8,7 +8,6 @@ channel instead of the shaded colour.
 """
 
 import taichi as ti
-
 from taichi_lap.kernels.brdf import surface_brdf_cos
 from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
 

@@ -30,8 +30,7 @@ vertex exactly). Both are the ``eta_on_contact`` material parameter.
 """
 
 import taichi as ti
-
-from taichi_lap.kernels.contact import hold_grasped, resolve_contacts
+from taichi_lap.kernels.collision.particle_contact import hold_grasped, resolve_contacts
 from taichi_lap.kernels.health import report_fault
 from taichi_lap.kernels.mass_spring import spring_force
 from taichi_lap.kernels.rotation import extract_rotation, quaternion_to_matrix

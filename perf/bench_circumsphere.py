@@ -8,7 +8,7 @@ spacing 2 mm, 4 mm with ``--quick``; bottom face fixed; stiffness 0.5, η on con
 method (``circumsphere``, ``bounding_sphere``, ``polygon``) and per solver iteration
 count 1-10 (24 frames and 1, 2, 5 with ``--quick``). An iteration is one
 shape-matching pass (seed 000 Alg. 1 lines 7-23, :mod:`kernels.shape_matching`)
-followed by one collision step (:class:`taichi_lap.sim.collision.TissueCollision`), as
+followed by one collision step (:class:`taichi_lap.collision.TissueCollision`), as
 the solver runs it (:meth:`Solver.substep`; tissue pairs after the last pass).
 The cylinder reaches the tissue only through the collision pipeline (the solver's
 particle contacts get no tools).
@@ -250,8 +250,8 @@ def main():
     from taichi_lap import runtime
 
     runtime.init(args.arch)
+    from taichi_lap.collision.tissue import TissueCollision
     from taichi_lap.sim import Control
-    from taichi_lap.sim.collision import TissueCollision
 
     controls = (Control(), Control())
     quick = args.quick

@@ -90,6 +90,7 @@ def rows(case: str, params: dict, samples: dict) -> list[dict]:
 
 
 def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
+    from taichi_lap.core.instruments import tool_geometry
     from taichi_lap.devices import Pose
     from taichi_lap.haptics import (
         ProxySettings,
@@ -98,7 +99,6 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
         ServoSettings,
         SurfaceClusters,
     )
-    from taichi_lap.haptics.bridge import tool_capsule
     from taichi_lap.haptics.servo import scripted_device
 
     tool = session.scene.tools[0]
@@ -111,11 +111,12 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     direction = np.asarray(tool["direction"], dtype=np.float64)
     rotation = rotation_towards(direction)
     device = scripted_device(press_path(x[surface.particles]), rotation=rotation, loop=True)
-    capsule = tool_capsule(tool)
     settings = ServoSettings(ticks=int(duration * 1000 * 1.5) + 10_000)
     frame_ms, publish_ms, contact_ticks = [], [], 0
     try:
-        with ServoProcess(snapshot.name, device, ProxySettings(capsule), settings) as servo:
+        with ServoProcess(
+            snapshot.name, device, ProxySettings(tool_geometry(tool)), settings
+        ) as servo:
             start_count = servo.feedback.tick_history()["count"]
             end = time.monotonic() + duration
             while time.monotonic() < end:
@@ -163,8 +164,9 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
 
 def main():
     args = arguments("haptics")
-    from taichi_lap import runtime
     from bench_deform import liver_session
+
+    from taichi_lap import runtime
 
     runtime.init(args.arch)
     detail = 0.1 if args.quick else 1.0

@@ -59,7 +59,7 @@ def found_fraction(
 ):
     """(found regions, colliding regions, pair recall) of the stochastic colliding
     pairs against the exact pairs in contact and their gaps [m]."""
-    from taichi_lap.sim.intestine_collision import region_labels
+    from taichi_lap.collision.intestine_reference import region_labels
 
     colliding = exact_gap < 0.0
     if not colliding.any():
@@ -76,12 +76,13 @@ def found_fraction(
 
 def run_case(case: str, points: int, substeps: int, frames: int) -> list[dict]:
     import taichi as ti
+    from taichi_lap.kernels import shape_matching
 
     from taichi_lap import scene as scene_mod
+    from taichi_lap.collision.intestine import IntestineCollision
+    from taichi_lap.collision.intestine_reference import ExactDetector
     from taichi_lap.devices import apply_poses
-    from taichi_lap.kernels import shape_matching
     from taichi_lap.session import Session, scene_script
-    from taichi_lap.sim.intestine_collision import ExactDetector, IntestineCollision
 
     scene = scene_mod.load(
         "intestine",

@@ -52,9 +52,9 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
     import taichi as ti
 
     from taichi_lap.render.camera import EndoscopeCamera
-    from taichi_lap.scene.materials import PRESETS
     from taichi_lap.render.renderer import Renderer
     from taichi_lap.render.scene_mesh import ArrayMesh
+    from taichi_lap.scene.materials import PRESETS
 
     rest, faces = uv_sphere(triangles)
     mesh = ArrayMesh(

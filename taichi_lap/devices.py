@@ -31,9 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from taichi_lap.core.errors import InputError
-from taichi_lap.core.params import REQUIRED, check_table
-from taichi_lap.core.params import Param
-from taichi_lap.core.instruments import JAW_KINDS, JAW_LENGTH, MAX_TOOLS
+from taichi_lap.core.instruments import MAX_TOOLS, tool_geometry
+from taichi_lap.core.params import REQUIRED, Param, check_table
 from taichi_lap.scene.keyframes import read_keyframes, unit
 from taichi_lap.sim.control import Control
 
@@ -187,14 +186,13 @@ def apply_poses(
     buttons = buttons or {}
     for index, tool in enumerate(tools[:MAX_TOOLS]):
         pose = placed[tool["name"]]
-        jaws = tool["kind"] in JAW_KINDS
         control.set_tool(
             index,
             pose.tip,
             pose.tip + tool["length"] * pose.direction,
             tool["radius"],
             grasp=tool["kind"] == "grasper" and bool(buttons.get(tool["name"], 0) & GRASP_BUTTON),
-            jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0,
+            jaw_length=tool_geometry(tool).jaw_length,
         )
 
 

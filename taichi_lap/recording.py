@@ -62,8 +62,8 @@ from time import monotonic
 import numpy as np
 import taichi as ti
 
-from taichi_lap.devices import Pose, applied_poses
 from taichi_lap.core.errors import InputError, SimulationFault
+from taichi_lap.devices import Pose, applied_poses
 from taichi_lap.runtime import current_arch
 
 MAGIC = b"\x89TLAP\r\n\x1a"

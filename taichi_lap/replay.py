@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from taichi_lap.devices import Pose
 from taichi_lap.core.errors import InputError
+from taichi_lap.devices import Pose
 from taichi_lap.recording import (
     CRC,
     FRAME_HEAD,

@@ -8,9 +8,10 @@ import time
 
 import taichi as ti
 
-from taichi_lap.preprocess.cache import build_model
+from taichi_lap.core.instruments import tool_geometry
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.kernels.skinning import skin_surface
+from taichi_lap.preprocess.cache import build_model
 from taichi_lap.scene import Scene
 from taichi_lap.sim import Control, Model, Solver, SolverSettings, State
 
@@ -55,6 +56,8 @@ class Session:
         self.model = model_for(scene, self.data)
         self.state = State(self.model)
         self.control = Control()
+        for index, tool in enumerate(scene.tools):
+            self.control.set_tool_shapes(index, tool_geometry(tool).shapes)
         self.solver = Solver(self.model, SolverSettings.from_scene(scene.settings))
         self.dt = scene.settings["dt"]
         self.timings: dict[str, float] = {}

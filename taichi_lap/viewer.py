@@ -12,8 +12,8 @@ import taichi as ti
 
 from taichi_lap.kernels.shading import VIEWS
 from taichi_lap.render.renderer import Renderer
-from taichi_lap.session import Session
 from taichi_lap.render.tubes import TessellationController
+from taichi_lap.session import Session
 
 FRAME_TARGET_MS = 1000.0 / 30.0
 """Frame time the tube tessellation controller holds in the window (≥ 30 Hz)."""

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-
-from taichi_lap.core.geometry import Solid, SpringSheet, TriangleMesh
 from taichi_lap.scenes.anatomy import GENERATORS, defaults, sdf, tubes
 from taichi_lap.scenes.anatomy import liver as liver_mod
+
+from taichi_lap.core.geometry import Solid, SpringSheet, TriangleMesh, arc_length
 from taichi_lap.core.params import KINDS
 
 RNG = np.random.default_rng(1234)
@@ -111,7 +111,7 @@ def test_intestine_rest_geometry():
     )  # chords shorten at fold tips
     assert np.abs(np.hypot(gut[:, 0], gut[:, 1]) - 0.15).max() < 1e-3
     # folds do not intersect: points >= 0.25 m apart along the gut stay >= 2 r apart
-    s = tubes.arc_length(gut)
+    s = arc_length(gut)
     far = np.abs(s[:, None] - s[None, :]) >= 0.25
     dist = np.linalg.norm(gut[:, None] - gut[None, :], axis=2)
     assert dist[far].min() >= 2 * p["intestine_radius"]
@@ -128,7 +128,7 @@ def test_intestine_rest_geometry():
 def test_intestine_other_parameters():
     sheet = build("intestine", folds=8, rows=3, points_per_row=60, length=3.0)
     assert sheet.rows.shape == (3, 60, 3)
-    assert abs(tubes.arc_length(sheet.rows[0])[-1] - 3.0) < 0.03
+    assert abs(arc_length(sheet.rows[0])[-1] - 3.0) < 0.03
 
 
 # ------------------------------------------------------------------ closed meshes
@@ -171,7 +171,7 @@ def test_vessel_tube_follows_spline():
     t = assert_closed(mesh)
     pts = np.asarray(defaults("vessel")["points"])
     centre = tubes.catmull_rom(pts, 64)
-    length = tubes.arc_length(centre)[-1]
+    length = arc_length(centre)[-1]
     assert 0.11 < length < 0.13
     exact = np.pi * 0.003**2 * length + 4 / 3 * np.pi * 0.003**3
     assert abs(t.volume - exact) < 0.06 * exact

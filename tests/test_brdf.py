@@ -11,7 +11,6 @@ import math
 
 import numpy as np
 import taichi as ti
-
 from taichi_lap.kernels.brdf import (
     fresnel,
     fresnel_weight,

@@ -7,8 +7,8 @@ import numpy as np
 
 from taichi_lap import scene as scene_mod
 from taichi_lap.preprocess import cache
-from taichi_lap.preprocess.assemble import assemble
 from taichi_lap.preprocess import clusters as clustering
+from taichi_lap.preprocess.assemble import assemble
 from taichi_lap.scene.schema import MATERIAL_PARAMS
 from taichi_lap.session import Session
 

@@ -7,10 +7,12 @@ import math
 import numpy as np
 import pytest
 import taichi as ti
+from taichi_lap.kernels import shape_matching
+from taichi_lap.kernels.collision import response, spheres
 
-from taichi_lap.kernels import circumsphere, tissue_collision
+from taichi_lap.collision.tissue import TissueCollision, broad_spheres
+from taichi_lap.core.instruments import ToolShape
 from taichi_lap.sim import Control
-from taichi_lap.sim.collision import TissueCollision, broad_spheres
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX, simulation
 
@@ -95,7 +97,7 @@ def test_circumsphere_centre_lies_on_the_normal_at_the_stated_depth_through_the_
 @ti.kernel
 def evaluate_hermite(table: ti.template(), curvature: ti.types.ndarray(), out: ti.types.ndarray()):
     for i in range(curvature.shape[0]):
-        out[i] = circumsphere.curvature_factor(table, curvature[i], 1.0)
+        out[i] = spheres.curvature_factor(table, curvature[i], 1.0)
 
 
 def test_hermite_factor_is_one_when_flat_zero_when_sharp_with_zero_end_slopes(box):
@@ -188,9 +190,7 @@ def exchange(
     out_u: ti.types.ndarray(dtype=ti.math.vec3),
 ):
     for i in range(v_t.shape[0]):
-        out_t[i], out_u[i] = tissue_collision.exchange_impulse(
-            v_t[i], v_u[i], normal[i], w_t[i], w_u[i]
-        )
+        out_t[i], out_u[i] = response.exchange_impulse(v_t[i], v_u[i], normal[i], w_t[i], w_u[i])
 
 
 @ti.kernel
@@ -204,10 +204,10 @@ def pair_translation(
     for i in range(c.shape[0] // 2):
         a, b = 2 * i, 2 * i + 1
         up = ti.Vector([0.0, 1.0, 0.0])
-        _, out[a] = tissue_collision.sphere_pair_translation(
+        _, out[a] = response.sphere_pair_translation(
             c[a], r[a], disp[a], w[a], c[b], r[b], disp[b], w[b], up
         )
-        _, out[b] = tissue_collision.sphere_pair_translation(
+        _, out[b] = response.sphere_pair_translation(
             c[b], r[b], disp[b], w[b], c[a], r[a], disp[a], w[a], up
         )
 
@@ -356,11 +356,11 @@ def test_triangles_moving_beyond_the_hash_bound_in_a_substep_are_reported(blocks
 
 
 UNION = [
-    ("control",),
-    ("sphere", [0.0, -0.004, 0.015], 0.004),
-    ("box", [0.006, -0.002, 0.03], [0.003, 0.003, 0.004]),
+    ToolShape("shaft"),
+    ToolShape.sphere([0.0, -0.004, 0.015], 0.004),
+    ToolShape.box([0.006, -0.002, 0.03], [0.003, 0.003, 0.004]),
 ]
-"""A tool as a union: the Control capsule, a sphere and a box in the tool frame [m]."""
+"""A tool as a union: its shaft, a sphere and a box in the tool frame [m]."""
 
 
 def capsule_distances(x, a, b, r):
@@ -374,24 +374,24 @@ def union_distances(x, tip, tail, radius, frame):
     in the tool ``frame`` (columns, Control.tool_frame), shape (3, n)."""
     capsule = lambda a, b, r: capsule_distances(x, a, b, r)
 
-    sphere = tip + frame @ np.asarray(UNION[1][1])
-    q = np.abs((x - tip - frame @ np.asarray(UNION[2][1])) @ frame) - np.asarray(UNION[2][2])
+    sphere = tip + frame @ np.asarray(UNION[1].a)
+    q = np.abs((x - tip - frame @ np.asarray(UNION[2].a)) @ frame) - np.asarray(UNION[2].size)
     box = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
-    return np.stack([capsule(tip, tail, radius), capsule(sphere, sphere, UNION[1][2]), box])
+    return np.stack([capsule(tip, tail, radius), capsule(sphere, sphere, UNION[1].size[0]), box])
 
 
 def compute_collision_case(method: str = "circumsphere") -> dict:
-    """A union-of-shapes tool pressed into the test block (particles and triangles
-    pushed out), and two blocks pressed together, a few collision steps each (also run
-    on Vulkan)."""
-    _, data, model, state, _, _ = simulation([BOX], gravity=[0, 0, 0])
-    collision = TissueCollision(model, method=method, tool_particles=True)
-    collision.set_tool_shapes(0, UNION)
-    tools = Control()
+    """A union-of-shapes tool pressed into the test block (particles pushed out by the
+    prediction's contacts, triangles by the collision), and two blocks pressed
+    together, a few steps each (also run on Vulkan)."""
+    _, data, model, state, tools, _ = simulation([BOX], gravity=[0, 0, 0])
+    collision = TissueCollision(model, method=method)
+    tools.set_tool_shapes(0, UNION)
     for k in range(3):
         y = 0.012 + 0.004 - 0.001 * k
         tools.set_tool(0, [-0.03, y, 0.0], [0.03, y, 0.0], 0.005)
         collision.begin_frame(tools)
+        shape_matching.predict(model, state, tools, (0.0, 0.0, 0.0), 1.0 / 60.0, 0)
         collision.step(state, tools)
     p2, _ = pressed_blocks(*two_blocks(), method, 2)
     return {
@@ -450,7 +450,7 @@ def test_vulkan_matches_cpu():
 
 
 def numpy_broad_spheres(data, x, p):
-    """(F, 4) broad spheres of kernels.tissue_collision.update_bounds: centroid of the
+    """(F, 4) broad spheres of kernels.collision.broad_phase.update_bounds: centroid of the
     skinned p, farthest corner + the centroid's motion from x [m]."""
     sphere = broad_spheres(skinned(data, p)[data.surface_triangles])
     start = skinned(data, x)[data.surface_triangles].mean(axis=1)
@@ -494,7 +494,7 @@ def listed_pairs(collision) -> np.ndarray:
 
 
 def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
-    """Broad phase (kernels.tissue_collision): at every step of a motion in which some
+    """Broad phase (kernels.collision.broad_phase): at every step of a motion in which some
     triangles drift past the rescan threshold and others do not, the pair rows hold
     every pair whose broad spheres overlap unless the rest exclusion skips it, and no
     skipped pair. A nodule joined into the lower block is one body with it."""

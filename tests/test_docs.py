@@ -3,9 +3,9 @@
 from pathlib import Path
 
 import pytest
+from taichi_lap.scenes.anatomy import GENERATORS
 
 from taichi_lap.scene import schema as scene_mod
-from taichi_lap.scenes.anatomy import GENERATORS
 
 README = (Path(__file__).resolve().parent.parent / "README.md").read_text()
 

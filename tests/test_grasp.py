@@ -3,12 +3,12 @@ the tool frame as hard position constraints, and freed when the jaws open."""
 
 import numpy as np
 import pytest
+from taichi_lap.kernels.collision.particle_contact import FREE
 
+from taichi_lap.core.instruments import JAW_LENGTH, JAW_RADIUS
 from taichi_lap.devices import GRASP_BUTTON, ScriptedDevice
-from taichi_lap.kernels.contact import FREE
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
-from taichi_lap.core.instruments import JAW_LENGTH, JAW_RADIUS
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX
 

@@ -134,6 +134,7 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
     from pathlib import Path
 
     import taichi_lap.scenes
+
     from taichi_lap.replay import read_recording
 
     second = {

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 import taichi as ti
-
 from taichi_lap.kernels.brdf import fresnel_weight, surface_brdf_cos
 from taichi_lap.kernels.ibl import (
     FRESNEL_WEIGHT_MEAN,
@@ -20,6 +19,7 @@ from taichi_lap.kernels.ibl import (
     sh9_irradiance,
     tangent_frame,
 )
+
 from tests.archrun import assert_vulkan_matches_cpu
 
 GREY = (0.6, 0.3, 0.25)

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-
 from taichi_lap.kernels import distance
+
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation, state_after
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from taichi_lap.preprocess.meshfile import load_surface_mesh, signed_volume
 from taichi_lap.core.errors import InputError
+from taichi_lap.preprocess.meshfile import load_surface_mesh, signed_volume
 
 SCENE = "scene.toml"
 KEY = "organs.liver.mesh"

@@ -13,8 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from taichi_lap.haptics import OpenHapticsDevice, OpenHapticsError, WorkspaceMapping
-from taichi_lap.haptics import openhaptics
+from taichi_lap.haptics import OpenHapticsDevice, OpenHapticsError, WorkspaceMapping, openhaptics
 from tests import fake_hd, helpers
 
 HD_FORCE_OUTPUT = 0x4000

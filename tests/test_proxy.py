@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from taichi_lap.preprocess.cache import build_model
+from taichi_lap.core.instruments import ToolGeometry, ToolShape
 from taichi_lap.haptics import (
     HapticProxy,
     HapticScene,
@@ -15,15 +15,14 @@ from taichi_lap.haptics import (
     ProxyStatus,
     SceneSnapshot,
     SurfaceClusters,
-    ToolCapsule,
     grasp_edges,
     pull_force,
 )
-from taichi_lap.haptics.proxy import capsule_distance_sq
+from taichi_lap.preprocess.cache import build_model
 from taichi_lap.scene import from_tables
 from tests.helpers import BOX
 
-TOOL = ToolCapsule(length=0.05, radius=0.003)
+TOOL = ToolGeometry((ToolShape("shaft"),), length=0.05, radius=0.003)
 PARTICLE_RADIUS = 0.001
 R = TOOL.radius + PARTICLE_RADIUS  # closest allowed tool-axis to particle-centre distance [m]
 GAIN = 300.0  # [N/m]
@@ -81,11 +80,17 @@ def descend(proxy, scene, x, z, y_from, y_to, axis=UP, steps=200):
     return result
 
 
+def axis_distances(points, q, axis, length: float = TOOL.length) -> np.ndarray:
+    """Distances [m] of ``points`` from the segment from ``q`` ``length`` along ``axis``
+    (the test's own reference of the shaft's axis)."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    w = np.asarray(points, np.float64) - q
+    s = np.clip(w @ axis, 0.0, length)
+    return np.linalg.norm(w - s[:, None] * axis, axis=1)
+
+
 def min_distance(points, q, axis) -> float:
-    d2, _ = capsule_distance_sq(
-        np.asarray(points, np.float64), q, np.asarray(axis, float), TOOL.length
-    )
-    return float(np.sqrt(d2.min()))
+    return float(axis_distances(points, q, axis).min())
 
 
 @pytest.mark.parametrize("axis", [UP, ALONG_X, (1.0, 1.0, 0.0)], ids=["tip", "side", "tilted"])
@@ -229,15 +234,15 @@ def test_surface_clusters_bound_their_particles_and_the_proxy_touches_them(box_d
         surface.publish(snapshot, box_data.rest_position)
         reader = snapshot.reader()
         assert reader.poll()
-        proxy = HapticProxy(ProxySettings(ToolCapsule(0.05, 0.003), gain=GAIN))
+        proxy = HapticProxy(ProxySettings(TOOL, gain=GAIN))
         top = box_data.rest_position[:, 1].max()
         result = descend(proxy, reader.scene, 0.001, 0.001, top + 0.01, top, steps=100)
         assert result.status == ProxyStatus.CONTACT and result.contact_force[1] > 0.0
         r = 0.003 + box_data.radius[surface.particles]
-        d2, _ = capsule_distance_sq(
-            box_data.rest_position[surface.particles], result.graphic_position, UP, 0.05
+        distance = axis_distances(
+            box_data.rest_position[surface.particles], result.graphic_position, UP
         )
-        assert np.all(np.sqrt(d2) >= r - 1e-6)
+        assert np.all(distance >= r - 1e-6)
     finally:
         snapshot.close()
 
@@ -245,7 +250,7 @@ def test_surface_clusters_bound_their_particles_and_the_proxy_touches_them(box_d
 def test_jaws_keep_the_graphical_tool_off_particles_ahead_of_the_tip():
     """A grasper's jaws reach ahead of its tip: pushed down onto the plane, the proxy
     stops where the jaws' capsule touches, not where the shaft's tip would."""
-    jaws = ToolCapsule(length=0.05, radius=0.003, jaw_length=0.012, jaw_radius=0.002)
+    jaws = ToolGeometry((ToolShape("jaws"), ToolShape("shaft")), 0.05, 0.003, 0.012, 0.002)
     proxy = HapticProxy(ProxySettings(jaws, gain=GAIN))
     result = descend(proxy, scene_of(plane()), 0.0, 0.0, 0.03, 0.005)  # the shaft's tip
     jaw_end = result.graphic_position[1] - jaws.jaw_length  # stays 5 mm up

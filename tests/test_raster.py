@@ -7,8 +7,8 @@ import functools
 import numpy as np
 import pytest
 import taichi as ti
-
 from taichi_lap.kernels.raster import BACKGROUND_DEPTH, GBuffer, camera_matrices
+
 from tests.archrun import assert_vulkan_matches_cpu
 
 WIDTH, HEIGHT = 64, 48

@@ -14,8 +14,8 @@ import pytest
 
 from taichi_lap import scene as scene_mod
 from taichi_lap.cli import main
-from taichi_lap.devices import Pose
 from taichi_lap.core.errors import InputError
+from taichi_lap.devices import Pose
 from taichi_lap.recording import (
     CRC,
     HEADER,

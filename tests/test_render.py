@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import taichi as ti
 import trimesh
-
 from taichi_lap.kernels.shading import srgb_encode
+
 from taichi_lap.render.camera import EndoscopeCamera
-from taichi_lap.scene.materials import PRESETS
 from taichi_lap.render.renderer import Renderer
 from taichi_lap.render.scene_mesh import ArrayMesh, SceneMesh
+from taichi_lap.scene.materials import PRESETS
 from taichi_lap.session import Session
 from tests.archrun import run_on_arch
 

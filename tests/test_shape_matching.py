@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-
 from taichi_lap.kernels import shape_matching
+
 from taichi_lap.sim.reference import ReferenceShapeMatching
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX, simulation, state_after

@@ -4,8 +4,8 @@ the Teschner 2003 counting sort, results are deterministic and identical on Vulk
 import numpy as np
 import pytest
 import taichi as ti
+from taichi_lap.kernels.collision.spatial_hash import SpatialHash
 
-from taichi_lap.kernels.spatial_hash import SpatialHash
 from tests.archrun import run_on_arch
 
 CELL = 0.01  # [m]

@@ -5,11 +5,11 @@ import pytest
 import trimesh
 
 from taichi_lap.core.geometry import Solid, TriangleMesh
+from taichi_lap.core.mesh import unique_edges
 from taichi_lap.preprocess.tetrahedralize import (
     TetMesh,
     min_dihedral_angle,
     points_inside,
-    tet_edges,
     tet_volumes,
     tetrahedralize,
 )
@@ -52,7 +52,7 @@ def test_helpers_on_a_regular_tet():
     assert tet_volumes(particles, tets[:, [1, 0, 2, 3]])[0] == pytest.approx(-8 / 3)
     assert min_dihedral_angle(particles, tets)[0] == pytest.approx(np.degrees(np.arccos(1 / 3)))
     np.testing.assert_array_equal(
-        tet_edges(np.array([[3, 1, 2, 0], [0, 1, 2, 4]])),
+        unique_edges(np.array([[3, 1, 2, 0], [0, 1, 2, 4]])),
         [[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [1, 3], [1, 4], [2, 3], [2, 4]],
     )
 
@@ -98,7 +98,7 @@ def test_direct_binding_reproduces_the_skin(sphere):
 
 
 def test_particles_are_ordered_spatially(sphere):
-    edges = tet_edges(sphere.tets)
+    edges = unique_edges(sphere.tets)
     assert np.abs(edges[:, 0] - edges[:, 1]).mean() < 0.1 * len(sphere.particles)
 
 

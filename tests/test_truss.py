@@ -4,10 +4,10 @@ import math
 
 import numpy as np
 import pytest
+from taichi_lap.scenes.anatomy import GENERATORS
 
 from taichi_lap.core.geometry import TriangleMesh
 from taichi_lap.preprocess.truss import generate_truss, vertex_normals
-from taichi_lap.scenes.anatomy import GENERATORS
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import simulation, state_after
 

@@ -7,9 +7,9 @@ loader fills in defaults and checks ranges). Units are metres, y is up.
 
 from __future__ import annotations
 
-from . import intestine, liver, primitives, rectum
 from taichi_lap.core.params import Param
 
+from . import intestine, liver, primitives, rectum
 from .generator import Generator
 
 GENERATORS: dict[str, Generator] = {

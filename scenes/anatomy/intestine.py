@@ -25,9 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-from taichi_lap.core.geometry import SpringSheet
-
-from . import tubes
+from taichi_lap.core.geometry import SpringSheet, arc_length
 from taichi_lap.core.params import Param
 
 from .generator import Generator
@@ -51,13 +49,13 @@ def fold_curve(amplitude: float, folds: int, radius: float, n: int) -> np.ndarra
 def _sample(amplitude, folds, radius, count):
     """``count`` points at equal arc length along the (densely sampled) curve."""
     dense = fold_curve(amplitude, folds, radius, max(4000, 400 * folds))
-    s = tubes.arc_length(dense)
+    s = arc_length(dense)
     t = np.linspace(0.0, s[-1], count)
     return np.stack([np.interp(t, s, dense[:, k]) for k in range(3)], axis=1)
 
 
 def _polyline_length(p):
-    return float(tubes.arc_length(p)[-1])
+    return float(arc_length(p)[-1])
 
 
 def solve_amplitude(length: float, folds: int, radius: float, count: int) -> float:

@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from taichi_lap.core.geometry import Solid
+from taichi_lap.core.geometry import Solid, arc_length
+from taichi_lap.core.params import Param
 
 from . import sdf as S
 from . import tubes
-from taichi_lap.core.params import Param
-
 from .generator import Generator
 
 _CAL = 0.9869  # brings the scale-1 volume to 1.78 L (measured on a 0.8 mm grid)
@@ -181,7 +180,7 @@ def _grow(spec, f, margin):
         r1 = min(r1 * 1e-3, r0)
         ctrl = [s, s + 0.5 * L * d0, s + 0.5 * L * d0 + 0.5 * L * d1]
         pts = tubes.catmull_rom(ctrl, 24)
-        acc = tubes.arc_length(pts)
+        acc = arc_length(pts)
         rad = r0 + (r1 - r0) * acc / acc[-1]
         ok = -f(pts) >= margin(rad)
         n = len(pts) if ok.all() else int(np.argmin(ok))
@@ -218,7 +217,7 @@ def _offset_tree(portal, kind, f):
             if np.linalg.norm(target) > 1e-9:
                 target = _unit(target) * np.sign(target @ N[-1] or 1.0)
                 theta = np.arctan2(np.cross(N[-1], target) @ T[-1], N[-1] @ target)
-                phi = theta * (tubes.arc_length(pts) / tubes.arc_length(pts)[-1])[:, None]
+                phi = theta * (arc_length(pts) / arc_length(pts)[-1])[:, None]
                 N = np.cos(phi) * N + np.sin(phi) * B
         r = _triad_radius(r_p, kind)
         q = pts + sign * (r_p + r + _GAP)[:, None] * N

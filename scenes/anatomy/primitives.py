@@ -10,11 +10,11 @@ from __future__ import annotations
 import numpy as np
 
 from taichi_lap.core.geometry import Solid, TriangleMesh
+from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.params import Param
 
 from . import sdf as S
 from . import tubes
-from taichi_lap.core.params import Param
-
 from .generator import Generator
 
 
@@ -68,11 +68,10 @@ def icosphere(subdivisions: int = 2, keep_volume: bool = True) -> TriangleMesh:
     )
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     for _ in range(int(subdivisions)):
-        edges = np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-        uniq, inv = np.unique(edges, axis=0, return_inverse=True)
+        uniq, inv = unique_edges(f, return_inverse=True)
         mid = v[uniq].mean(axis=1)
         mid /= np.linalg.norm(mid, axis=1, keepdims=True)
-        m = inv.reshape(3, -1) + len(v)  # midpoints of edges 01, 12, 20 per face
+        m = inv.reshape(-1, 3).T + len(v)  # midpoints of edges 01, 12, 20 per face
         a, b, c = f.T
         f = np.vstack(
             [

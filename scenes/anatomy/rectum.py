@@ -9,11 +9,10 @@ from __future__ import annotations
 import numpy as np
 
 from taichi_lap.core.geometry import Solid, TriangleMesh
+from taichi_lap.core.params import Param
 
 from . import sdf as S
 from . import tubes
-from taichi_lap.core.params import Param
-
 from .generator import Generator
 
 

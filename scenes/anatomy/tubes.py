@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from taichi_lap.core.geometry import TriangleMesh
+from taichi_lap.core.geometry import TriangleMesh, arc_length
 
 from . import sdf as _sdf
 
@@ -42,12 +42,6 @@ def catmull_rom(points, samples_per_segment: int = 16, alpha: float = 0.5) -> np
         out.append(((t2 - t) * b1 + (t - t1) * b2) / (t2 - t1))
     out.append(p[-1:])
     return np.vstack(out)
-
-
-def arc_length(points) -> np.ndarray:
-    """Cumulative arc length ``(n,)`` of a polyline, starting at 0."""
-    seg = np.linalg.norm(np.diff(np.asarray(points, float), axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(seg)])
 
 
 def resample(points, radii, spacing_factor: float = 1.0, min_spacing: float = 1e-4):

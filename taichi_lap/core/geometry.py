@@ -72,3 +72,9 @@ class SpringSheet:
 
 
 Geometry = TriangleMesh | Solid | SpringSheet
+
+
+def arc_length(points) -> np.ndarray:
+    """Cumulative arc length ``(n,)`` [m] of a polyline ``(n, 3)`` [m], starting at 0."""
+    seg = np.linalg.norm(np.diff(np.asarray(points, float), axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(seg)])

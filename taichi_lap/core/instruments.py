@@ -1,8 +1,37 @@
-"""The instruments every layer shares: how many tools a scene may hold, the kinds of
-instrument, and the jaws of graspers and scissors (lengths in shaft radii)."""
+"""Instruments: the one definition of a tool's shape that particle contacts, tissue
+collision, the haptic proxy and the drawn instrument meshes all use.
+
+Seed 000 §5.1 represents the working part of an instrument by "a combination of
+implicit shapes" (column, sphere, polyhedron). A tool here is a union of at most
+:data:`MAX_TOOL_SHAPES` shapes in its tool frame (origin at the tip, columns x, y and
+z, z from the tip towards the handle):
+
+* ``shaft`` — the capsule from the tip ``length`` [m] towards the handle, of the
+  tool's ``radius`` [m] (placed by the device's tip and tail every frame);
+* ``jaws`` — the closed jaws of graspers and scissors, the capsule from
+  :data:`JAW_LENGTH` shaft radii ahead of the tip to the tip, of :data:`JAW_RADIUS`
+  shaft radii (nothing for other instruments);
+* ``sphere`` — centre ``a``, radius ``size[0]``;
+* ``capsule`` — segment ``a``-``b``, radius ``size[0]``;
+* ``box`` — centre ``a``, half extents ``size``, along the frame's axes.
+
+The distance of a union is the minimum over its shapes; its gradient is the nearest
+shape's, pointing out of the tool. Kernels evaluate the table a
+:class:`~taichi_lap.sim.control.Control` holds
+(:mod:`taichi_lap.kernels.collision.tool_shapes`); :func:`tool_distance` is the same
+evaluation in NumPy. All lengths in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
 
 MAX_TOOLS = 4
 """Tools a scene and a Control hold (kernels unroll their tool loop over them)."""
+MAX_TOOL_SHAPES = 4
+"""Shapes one tool's union holds."""
 
 TOOL_KINDS = ("probe", "grasper", "scissors", "hook")
 JAW_KINDS = ("grasper", "scissors")
@@ -12,4 +41,155 @@ JAW_LENGTH = 4.0
 JAW_REACH = 1.5
 """How far from their axis the open jaws take tissue, in shaft radii."""
 JAW_RADIUS = 0.7
-"""Radius of the closed jaws' capsule, in shaft radii (half the drawn jaws' width)."""
+"""Radius of the closed jaws' capsule, in shaft radii."""
+
+SHAPE_NONE, SHAPE_SHAFT, SHAPE_SPHERE, SHAPE_CAPSULE, SHAPE_BOX, SHAPE_JAWS = range(6)
+SHAPE_KINDS = {
+    "shaft": SHAPE_SHAFT,
+    "jaws": SHAPE_JAWS,
+    "sphere": SHAPE_SPHERE,
+    "capsule": SHAPE_CAPSULE,
+    "box": SHAPE_BOX,
+}
+FAR = 1e9
+"""A distance beyond anything in a scene [m] (an empty shape slot's distance)."""
+
+
+@dataclass(frozen=True)
+class ToolShape:
+    """One shape of a tool's union (module docstring): ``kind`` a key of
+    :data:`SHAPE_KINDS`; ``a``, ``b``, ``size`` in the tool frame [m] (unused for
+    ``shaft`` and ``jaws``, which the tool's dimensions place)."""
+
+    kind: str
+    a: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    b: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    size: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        if self.kind not in SHAPE_KINDS:
+            raise ValueError(
+                f"ToolShape.kind: one of {', '.join(SHAPE_KINDS)} was expected, found {self.kind!r}"
+            )
+
+    @classmethod
+    def sphere(cls, center, radius: float) -> ToolShape:
+        return cls("sphere", tuple(center), tuple(center), (radius, 0.0, 0.0))
+
+    @classmethod
+    def capsule(cls, a, b, radius: float) -> ToolShape:
+        return cls("capsule", tuple(a), tuple(b), (radius, 0.0, 0.0))
+
+    @classmethod
+    def box(cls, center, half_extents) -> ToolShape:
+        return cls("box", tuple(center), tuple(center), tuple(np.broadcast_to(half_extents, 3)))
+
+
+@dataclass(frozen=True)
+class ToolGeometry:
+    """A tool's union of shapes and the dimensions that place ``shaft`` and ``jaws``:
+    shaft ``length`` and ``radius`` [m], jaws ``jaw_length`` ahead of the tip and
+    ``jaw_radius`` [m] (both 0 without jaws)."""
+
+    shapes: tuple[ToolShape, ...]
+    length: float
+    radius: float
+    jaw_length: float = 0.0
+    jaw_radius: float = 0.0
+
+    def __post_init__(self):
+        if not 1 <= len(self.shapes) <= MAX_TOOL_SHAPES:
+            raise ValueError(f"a tool has 1 to {MAX_TOOL_SHAPES} shapes, found {len(self.shapes)}")
+        for name in ("length", "radius", "jaw_length", "jaw_radius"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(
+                    f"ToolGeometry.{name}: a non-negative length [m] was expected, found {value!r}"
+                )
+
+    def round_shapes(self) -> list[tuple[np.ndarray, np.ndarray, float]]:
+        """Every shaft, jaws, sphere and capsule as a segment (a, b) and radius, in the
+        tool frame (jaws of length 0 are left out)."""
+        out = []
+        for shape in self.shapes:
+            if shape.kind == "shaft":
+                out.append((np.zeros(3), np.array([0.0, 0.0, self.length]), self.radius))
+            elif shape.kind == "jaws" and self.jaw_length > 0.0:
+                out.append((np.array([0.0, 0.0, -self.jaw_length]), np.zeros(3), self.jaw_radius))
+            elif shape.kind in ("sphere", "capsule"):
+                out.append((np.asarray(shape.a, float), np.asarray(shape.b, float), shape.size[0]))
+        return out
+
+    def boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Every box as (centre, half extents) in the tool frame."""
+        return [
+            (np.asarray(s.a, float), np.asarray(s.size, float))
+            for s in self.shapes
+            if s.kind == "box"
+        ]
+
+    def reach(self) -> float:
+        """How far [m] from the tip any shape but the shaft reaches (the tool's extent
+        ahead of and around the tip, beyond the shaft's capsule)."""
+        reach = 0.0
+        for shape in self.shapes:
+            a, b, size = (np.linalg.norm(v) for v in (shape.a, shape.b, shape.size))
+            if shape.kind == "jaws" and self.jaw_length > 0.0:
+                reach = max(reach, self.jaw_length + self.jaw_radius)
+            elif shape.kind in ("sphere", "capsule"):
+                reach = max(reach, max(a, b) + shape.size[0])
+            elif shape.kind == "box":
+                reach = max(reach, a + size)
+        return reach
+
+
+def tool_geometry(tool) -> ToolGeometry:
+    """The shapes of a scene tool (a ``[[tools]]`` table: ``kind``, shaft ``radius``
+    and ``length`` [m]): the jaws of graspers and scissors, then the shaft."""
+    kind, radius, length = tool["kind"], float(tool["radius"]), float(tool["length"])
+    if kind in JAW_KINDS:
+        return ToolGeometry(
+            (ToolShape("jaws"), ToolShape("shaft")),
+            length,
+            radius,
+            JAW_LENGTH * radius,
+            JAW_RADIUS * radius,
+        )
+    return ToolGeometry((ToolShape("shaft"),), length, radius)
+
+
+def tool_distance(geometry: ToolGeometry, points: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Signed distances [m] of ``points`` (n, 3), in the tool frame, from the union of
+    ``geometry``'s shapes; the unit gradients (n, 3) of the nearest shape (out of the
+    tool); and a flag per point that lies on a round shape's axis, where the gradient
+    is undefined (zero there)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    dist = np.full(len(points), FAR)
+    grad = np.zeros((len(points), 3))
+    on_axis = np.zeros(len(points), dtype=bool)
+    for a, b, r in geometry.round_shapes():
+        ab = b - a
+        t = (points - a) @ ab / max(ab @ ab, 1e-30)
+        offset = points - (a + np.clip(t, 0.0, 1.0)[:, None] * ab)
+        length = np.linalg.norm(offset, axis=1)
+        d = length - r
+        nearer = d < dist
+        dist[nearer] = d[nearer]
+        axial = length < 1e-9
+        grad[nearer] = offset[nearer] / np.maximum(length[nearer], 1e-30)[:, None]
+        grad[nearer & axial] = 0.0
+        on_axis[nearer] = axial[nearer]
+    for center, half in geometry.boxes():
+        local = points - center
+        q = np.abs(local) - half
+        outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+        d = outside + np.minimum(q.max(axis=1), 0.0)
+        side = np.where(local >= 0.0, 1.0, -1.0)
+        g = side * np.maximum(q, 0.0) / np.maximum(outside, 1e-30)[:, None]
+        inside = outside <= 0.0
+        face = np.argmax(q, axis=1)
+        g[inside] = 0.0
+        g[inside, face[inside]] = side[inside, face[inside]]
+        nearer = d < dist
+        dist[nearer], grad[nearer], on_axis[nearer] = d[nearer], g[nearer], False
+    return dist, grad, on_axis

@@ -18,17 +18,16 @@ __all__ = [
     "OpenHapticsError",
     "WorkspaceMapping",
 ]
+from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
 from taichi_lap.haptics.proxy import (
     HapticProxy,
     ProxySettings,
     ProxyStatus,
     SurfaceClusters,
-    ToolCapsule,
     grasp_edges,
     pull_force,
 )
 from taichi_lap.haptics.servo import ScriptedHapticDevice, ServoProcess, ServoSettings
-from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
 from taichi_lap.haptics.snapshot import HapticScene, SceneSnapshot, SnapshotCapacityError
 
 __all__ += [
@@ -44,7 +43,6 @@ __all__ += [
     "ServoState",
     "SnapshotCapacityError",
     "SurfaceClusters",
-    "ToolCapsule",
     "ToolFeedback",
     "grasp_edges",
     "pull_force",

@@ -17,31 +17,18 @@ import logging
 
 import numpy as np
 
-from taichi_lap.devices import Pose
 from taichi_lap.core.errors import InputError
+from taichi_lap.core.instruments import tool_geometry
+from taichi_lap.devices import Pose
 from taichi_lap.haptics.device import WorkspaceMapping
-from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, ToolCapsule, grasp_edges
-from taichi_lap.core.instruments import JAW_KINDS, JAW_LENGTH, JAW_RADIUS
+from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, grasp_edges
 from taichi_lap.haptics.servo import ServoProcess, ServoSettings
 from taichi_lap.haptics.snapshot import SceneSnapshot
-
 
 log = logging.getLogger("taichi_lap.haptics")
 
 GRASP_EDGE_CAPACITY = 4096
 """Grasp edges one snapshot carries to the servo."""
-
-
-def tool_capsule(tool: dict) -> ToolCapsule:
-    """The proxy's shape of a scene tool: its shaft, and its jaws when it has them (as
-    the simulation's contacts, :class:`~taichi_lap.sim.control.Control`)."""
-    jaws = tool["kind"] in JAW_KINDS
-    return ToolCapsule(
-        length=tool["length"],
-        radius=tool["radius"],
-        jaw_length=JAW_LENGTH * tool["radius"] if jaws else 0.0,
-        jaw_radius=JAW_RADIUS * tool["radius"] if jaws else 0.0,
-    )
 
 
 class HapticBridge:
@@ -58,7 +45,7 @@ class HapticBridge:
     ):
         self.name, self.device_label = tool["name"], label
         self.source = label  # what the session record names
-        self.capsule = tool_capsule(tool)
+        self.geometry = tool_geometry(tool)
         self.grasp_stiffness = tool["grasp_stiffness"]
         self._factory, self._settings = device_factory, settings
         self.session = self.surface = self.snapshot = self.servo = self.feedback = None
@@ -80,7 +67,7 @@ class HapticBridge:
         )
         self.surface.publish(self.snapshot, session.state.x.to_numpy())
         try:
-            proxy = ProxySettings(self.capsule, grasp_stiffness=self.grasp_stiffness)
+            proxy = ProxySettings(self.geometry, grasp_stiffness=self.grasp_stiffness)
             self.servo = ServoProcess(
                 self.snapshot.name, self._factory, proxy, self._settings
             ).start()
@@ -100,7 +87,7 @@ class HapticBridge:
         if self.feedback is None:
             return {}
         pose = self.feedback.graphic_pose
-        direction = pose[:3, :3] @ np.asarray(self.capsule.axis)
+        direction = pose[:3, :3][:, 2]  # the tool frame's z, from the tip to the handle
         return {self.name: Pose(tip=pose[:3, 3].copy(), direction=direction)}
 
     def buttons(self, time: float) -> dict[str, int]:

@@ -5,17 +5,18 @@ q_g (the proxy that never penetrates) and the physical tool
 
     q_p(t) = ω q_g(t-1) + (1 - ω) q_h(t),   ω = 0.95,
 
-which finds the contacts: the tool capsule is tested against the surface cluster
-spheres, then against the particles of the clusters it hits (squared distances).
+which finds the contacts: the tool (its union of implicit shapes, the same the
+simulation's contacts use: :mod:`taichi_lap.core.instruments`) is tested against the
+surface cluster spheres, then against the particles of the clusters it hits.
 The proxy then solves, over the three translational variables,
 
     min_q  ½ (q - q_h)ᵀ K (q - q_h)   s.t.  C_i(q) ≥ 0 for every contact i,
 
 with C_i the non-penetration constraint of particle i linearised at q_g(t-1). The
-capsule's distance to a particle, D_i(q), is a convex function of the translation
-(distance to a segment), so its first-order expansion underestimates it and a
-solution of the linearised QP keeps every contact at least R_i = tool radius +
-particle radius away. The gradient is the paper's ∇(D²) = 2 D n_i; the offset is
+distance of a particle from one of the tool's convex shapes, D_i(q), is a convex
+function of the translation (distance to a segment or a box), so its first-order
+expansion underestimates it and a solution of the linearised QP keeps every contact
+at least the particle radius R_i off the tool's surface. The gradient is the paper's ∇(D²) = 2 D n_i; the offset is
 written in distances, n_iᵀ(q - q_g(t-1)) ≥ R_i - D_i, which agrees with the
 squared form near contact and does not overshoot deep penetrations. The contact
 force is h_c = g (q_h - q_g) on the tissue; the device gets -h_c, plus the pull of
@@ -41,6 +42,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+
+from taichi_lap.core.instruments import ToolGeometry, tool_distance
+from taichi_lap.core.mesh import element_edges
 
 log = logging.getLogger("taichi_lap.haptics")
 
@@ -73,39 +77,13 @@ def _positive(owner: str, name: str, value, allow_zero: bool = False) -> float:
 
 
 @dataclass(frozen=True)
-class ToolCapsule:
-    """The tool shaft: a segment from the tip (the pose's origin) ``length`` [m] along
-    ``axis`` (tool frame, tip towards handle; the stylus +z in OpenHaptics), swept by
-    a sphere of ``radius`` [m]; graspers and scissors add their closed jaws, a segment
-    ``jaw_length`` [m] ahead of the tip swept by ``jaw_radius`` [m]."""
-
-    length: float
-    radius: float
-    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    jaw_length: float = 0.0
-    jaw_radius: float = 0.0
-
-    def __post_init__(self):
-        _positive("ToolCapsule", "length", self.length, allow_zero=True)
-        _positive("ToolCapsule", "radius", self.radius)
-        _positive("ToolCapsule", "jaw_length", self.jaw_length, allow_zero=True)
-        _positive("ToolCapsule", "jaw_radius", self.jaw_radius, allow_zero=True)
-        axis = np.asarray(self.axis, dtype=np.float64)
-        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9:
-            raise ValueError(
-                f"ToolCapsule.axis: a non-zero 3-vector was expected, found {self.axis!r}"
-            )
-        object.__setattr__(self, "axis", tuple(float(v) for v in axis / np.linalg.norm(axis)))
-
-
-@dataclass(frozen=True)
 class ProxySettings:
     """``stiffness``: the diagonal of K [N/m]; ``gain``: g [N/m] of h_c = g (q_h - q_g);
     ``omega``: ω of q_p; ``contact_margin`` [m]: particles this much beyond contact
     with q_p are constrained too; ``max_contacts``: the deepest ones kept;
     ``grasp_stiffness``: k of the pull force [N/m] (seed 002 uses 0.001)."""
 
-    tool: ToolCapsule
+    tool: ToolGeometry
     stiffness: tuple[float, float, float] = (1.0, 1.0, 1.0)
     gain: float = 300.0
     omega: float = OMEGA
@@ -149,36 +127,16 @@ class ProxyResult:
     qp_seconds: float
 
 
-def capsule_distance_sq(
-    points: np.ndarray, tip: np.ndarray, axis: np.ndarray, length: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Squared distances [m²] of ``points`` (n, 3) to the segment from ``tip`` along the
-    unit ``axis`` for ``length`` [m], and the vectors from each point to its closest
-    point on the segment (n, 3) [m]."""
-    w = points - tip
-    s = w @ axis
-    np.minimum(np.maximum(s, 0.0, out=s), length, out=s)
-    offset = np.multiply.outer(s, axis)
-    offset -= w
-    return np.einsum("ij,ij->i", offset, offset), offset
-
-
 def tool_gap(
-    tool: ToolCapsule, points: np.ndarray, tip: np.ndarray, axis: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Distances [m] of ``points`` (n, 3) from the surface of ``tool`` at ``tip`` with the
-    unit shaft ``axis`` (the nearer of shaft and jaws; negative inside), and the vectors
-    from each point to the closest axis point of that part (n, 3) [m]."""
-    d2, offset = capsule_distance_sq(points, tip, axis, tool.length)
-    gap = np.sqrt(d2) - tool.radius
-    if tool.jaw_length > 0.0:
-        jaw_d2, jaw_offset = capsule_distance_sq(
-            points, tip - tool.jaw_length * axis, axis, tool.jaw_length
-        )
-        jaw_gap = np.sqrt(jaw_d2) - tool.jaw_radius
-        nearer = jaw_gap < gap
-        gap[nearer], offset[nearer] = jaw_gap[nearer], jaw_offset[nearer]
-    return gap, offset
+    tool: ToolGeometry, points: np.ndarray, tip: np.ndarray, rotation: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distances [m] of ``points`` (n, 3) from the surface of ``tool`` placed at ``tip``
+    with the tool frame ``rotation`` (3×3, columns; negative inside), the unit
+    directions (n, 3) from each point into the tool (the nearest shape's, minus its
+    gradient) and a flag per point on a round shape's axis (no direction there)."""
+    local = (np.asarray(points, dtype=np.float64) - tip) @ rotation
+    gap, gradient, on_axis = tool_distance(tool, local)
+    return gap, -gradient @ rotation.T, on_axis
 
 
 def ranges(start: np.ndarray, which: np.ndarray) -> np.ndarray:
@@ -212,13 +170,9 @@ def grasp_edges(
     """Unique edges (E, 2) from a grasped particle (column 0) to a neighbour that is
     not grasped (column 1): the edges of ``tets`` (T, 4) and the ``pairs`` (P, 2) of
     organs without tets (struts, sheet edges); all are particle indices."""
-    tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
     pairs = np.concatenate(
         [
-            tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]]
-            .reshape(-1, 2, 6)
-            .transpose(0, 2, 1)
-            .reshape(-1, 2),
+            element_edges(np.asarray(tets, dtype=np.int64).reshape(-1, 4)),
             np.asarray(pairs if pairs is not None else np.zeros((0, 2)), dtype=np.int64).reshape(
                 -1, 2
             ),
@@ -237,7 +191,6 @@ class HapticProxy:
 
     def __init__(self, settings: ProxySettings):
         self.settings = settings
-        self._axis = np.asarray(settings.tool.axis)
         k = np.asarray(settings.stiffness, dtype=np.float64)
         self._hessian = np.diag(k / k.max())  # the solution depends on K's ratios only
         try:
@@ -258,16 +211,16 @@ class HapticProxy:
         """Advance one tick from the device pose (4×4 [m]) against ``scene`` (a
         :class:`~taichi_lap.haptics.snapshot.HapticScene`, or None before the first)."""
         q_h = np.array(haptic_pose[:3, 3], dtype=np.float64)
-        axis = np.asarray(haptic_pose[:3, :3], dtype=np.float64) @ self._axis
+        rotation = np.asarray(haptic_pose[:3, :3], dtype=np.float64)
         q_prev = q_h if self._graphic is None else self._graphic
         status, contacts, qp_seconds, q_g = ProxyStatus.FREE, 0, 0.0, q_h
         omega = self.settings.omega
         q_p = omega * q_prev + (1.0 - omega) * q_h
         pull = np.zeros(3)
         if scene is not None:
-            found = self.contacts(q_p, axis, scene)
+            found = self.contacts(q_p, rotation, scene)
             if len(found):
-                q_g, status, contacts, qp_seconds = self._solve(q_h, q_prev, axis, scene, found)
+                q_g, status, contacts, qp_seconds = self._solve(q_h, q_prev, rotation, scene, found)
             if len(scene.grasp_rest):
                 world = scene.grasp_local @ np.asarray(haptic_pose[:3, :3]).T + q_h
                 pull = pull_force(
@@ -278,27 +231,24 @@ class HapticProxy:
             q_g.copy(), q_p, self.settings.gain * (q_g - q_h), pull, contacts, status, qp_seconds
         )
 
-    def contacts(self, q_p: np.ndarray, axis: np.ndarray, scene) -> np.ndarray:
-        """Indices of the particles within contact (plus the margin) of the capsule at
-        ``q_p``: capsule-sphere tests on the clusters, then capsule-particle tests on
-        the particles of the clusters hit."""
+    def contacts(self, q_p: np.ndarray, rotation: np.ndarray, scene) -> np.ndarray:
+        """Indices of the particles within contact (plus the margin) of the tool at
+        ``q_p`` turned by ``rotation``: tool-sphere tests on the clusters, then
+        tool-particle tests on the particles of the clusters hit."""
         tool, margin = self.settings.tool, self.settings.contact_margin
-        gap, _ = tool_gap(tool, scene.cluster_center, q_p, axis)
+        gap, _, _ = tool_gap(tool, scene.cluster_center, q_p, rotation)
         hit = np.flatnonzero(gap < scene.cluster_radius + margin)
         if not len(hit):
             return hit
         candidates = ranges(scene.cluster_start, hit)
         points = scene.particle_position[candidates].astype(np.float64)
-        gap, _ = tool_gap(tool, points, q_p, axis)
+        gap, _, _ = tool_gap(tool, points, q_p, rotation)
         return candidates[gap < scene.particle_radius[candidates] + margin]
 
-    def _solve(self, q_h, q_prev, axis, scene, found):
+    def _solve(self, q_h, q_prev, rotation, scene, found):
         """The QP in Δ = q - q_g(t-1): min ½ (Δ - e)ᵀ K (Δ - e), nᵢᵀ Δ ≥ bᵢ."""
         points = scene.particle_position[found].astype(np.float64)
-        gap, offset = tool_gap(self.settings.tool, points, q_prev, axis)
-        distance = np.linalg.norm(offset, axis=1)
-        normal = offset / np.maximum(distance, 1e-12)[:, None]
-        on_axis = distance < 1e-9
+        gap, normal, on_axis = tool_gap(self.settings.tool, points, q_prev, rotation)
         if np.any(on_axis):  # no normal: push back towards where q_h came from
             back = q_prev - q_h
             if np.linalg.norm(back) > 1e-12:

@@ -37,9 +37,9 @@ from typing import Callable
 import numpy as np
 
 from taichi_lap.haptics.device import HapticDevice
+from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
 from taichi_lap.haptics.proxy import HapticProxy, ProxySettings, ProxyStatus
 from taichi_lap.haptics.safety import ForceSafety
-from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
 from taichi_lap.haptics.snapshot import SceneSnapshot
 
 log = logging.getLogger("taichi_lap.haptics")
@@ -185,7 +185,6 @@ class _Servo:
         self.max_sent = 0.0
         self.haptic = np.eye(4)  # the last device pose [m]
         self.force = np.zeros(3)  # the last force sent [N]
-        self.axis = np.asarray(proxy.tool.axis, dtype=np.float64)
         self.terminated = False  # set by SIGTERM
 
     def on_signal(self, signum, _frame):
@@ -215,7 +214,7 @@ class _Servo:
                     qp,
                     clock=start,
                     tip=self.haptic[:3, 3],
-                    direction=self.haptic[:3, :3] @ self.axis,
+                    direction=self.haptic[:3, 2],  # the tool frame's z: tip to handle
                     buttons=self.buttons,
                     force=self.force,
                 )

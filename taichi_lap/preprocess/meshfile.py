@@ -15,6 +15,7 @@ import trimesh
 
 from taichi_lap.core.errors import InputError
 from taichi_lap.core.geometry import TriangleMesh
+from taichi_lap.core.mesh import unique_edges
 
 MESH_EXTENSIONS = (".obj", ".stl", ".ply")
 _DEGENERATE_AREA = 1e-12  # of the squared bounding-box diagonal
@@ -155,8 +156,7 @@ def _count_degenerate(vertices: np.ndarray, triangles: np.ndarray) -> int:
 
 def _edge_defects(triangles: np.ndarray) -> tuple[int, int]:
     """Counts of open edges (in one face) and non-manifold edges (in three or more)."""
-    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, uses = np.unique(edges, axis=0, return_counts=True)
+    _, uses = unique_edges(triangles, return_counts=True)
     return int(np.count_nonzero(uses == 1)), int(np.count_nonzero(uses > 2))
 
 

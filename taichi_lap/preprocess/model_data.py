@@ -74,6 +74,10 @@ class ModelData:
     def cluster_count(self) -> int:
         return len(self.cluster_start) - 1
 
+    def inverse_mass(self) -> np.ndarray:
+        """(N,) 1 / mass [1/kg], 0 for pinned particles (they do not move)."""
+        return np.where(self.pinned, 0.0, 1.0 / np.maximum(self.mass, 1e-12))
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Flat name -> array mapping (for the cache)."""
         out = {}

@@ -17,20 +17,20 @@ from typing import Callable
 
 import numpy as np
 
-from taichi_lap.preprocess import clusters as clustering
+from taichi_lap.core.errors import InputError
 from taichi_lap.core.geometry import Geometry, Solid, SpringSheet, TriangleMesh
+from taichi_lap.core.mesh import unique_edges
+from taichi_lap.preprocess import clusters as clustering
 from taichi_lap.preprocess.meshfile import load_surface_mesh
 from taichi_lap.preprocess.sheets import (
     bending_pairs,
     long_range_attachments,
-    mesh_edges,
     sheet_springs,
     sheet_triangles,
 )
 from taichi_lap.preprocess.tetrahedralize import tetrahedralize
 from taichi_lap.preprocess.transform import place
 from taichi_lap.preprocess.truss import generate_truss
-from taichi_lap.core.errors import InputError
 from taichi_lap.scene import OrganSpec
 from taichi_lap.scenes.anatomy import GENERATORS
 
@@ -99,7 +99,7 @@ def _uniform(count: int, total: float) -> np.ndarray:
 
 
 def _mean_edge(mesh: TriangleMesh) -> float:
-    e = mesh_edges(mesh.triangles)
+    e = unique_edges(mesh.triangles)
     return float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean())
 
 
@@ -180,7 +180,7 @@ def build_fascia(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
     the anchors are known (:func:`add_long_range_attachments`)."""
     material = organ.material
     parts = _surface_parts(mesh, material["mass"])
-    _edge_constraints(parts, mesh_edges(mesh.triangles), material["edge_stiffness"])
+    _edge_constraints(parts, unique_edges(mesh.triangles), material["edge_stiffness"])
     _edge_constraints(parts, bending_pairs(mesh.triangles), material["bending_stiffness"])
     return parts
 
@@ -196,7 +196,7 @@ def build_truss(organ: OrganSpec, mesh: TriangleMesh, progress: Progress | None)
     """Seed 000 §3.3: surface edges plus Alg. 2 struts, all distance constraints."""
     material = organ.material
     parts = _surface_parts(mesh, material["mass"])
-    _edge_constraints(parts, mesh_edges(mesh.triangles), material["edge_stiffness"])
+    _edge_constraints(parts, unique_edges(mesh.triangles), material["edge_stiffness"])
     truss = generate_truss(
         mesh,
         cone_angle=material["cone_angle"],

@@ -10,12 +10,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from taichi_lap.core.geometry import SpringSheet, TriangleMesh
-
-
-def mesh_edges(triangles: np.ndarray) -> np.ndarray:
-    """Unique undirected edges (E, 2) of a triangle mesh, each sorted."""
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
+from taichi_lap.core.mesh import unique_edges
 
 
 def bending_pairs(triangles: np.ndarray) -> np.ndarray:
@@ -47,7 +42,7 @@ def long_range_attachments(mesh: TriangleMesh, anchors: np.ndarray, per_vertex: 
     (seed 000 §3.2: "it may be constrained by different attached vertices")."""
     anchors = np.unique(np.asarray(anchors, dtype=np.int64))
     n = len(mesh.vertices)
-    edges = mesh_edges(mesh.triangles)
+    edges = unique_edges(mesh.triangles)
     length = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
     graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
     distance = dijkstra(graph, directed=False, indices=anchors)  # (A, n)

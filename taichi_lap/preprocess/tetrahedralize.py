@@ -22,10 +22,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from taichi_lap.core.geometry import SignedDistance, Solid, TriangleMesh
+from taichi_lap.core.mesh import TET_EDGES, unique_edges
 
 # Outward faces of a positively oriented tet, face k opposite vertex k.
 _FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
-_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
 # Deterministic ray shift (times the mesh diagonal) so rays miss vertices and edges.
 _RAY_SHIFT = np.array([0.7548776662466927e-9, 0.5698402909980532e-9])
 _SDF_CHUNK = 1 << 20  # points per sdf call
@@ -204,17 +204,10 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
     return faces[np.sort(first[count == 1])]
 
 
-def _edge_keys(pairs: np.ndarray, n: int) -> np.ndarray:
-    ordered = np.sort(pairs, axis=1)
-    return ordered[:, 0] * np.int64(n) + ordered[:, 1]
-
-
 def _repair_ids(lattice: _Lattice, doubled: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Candidate tets around the boundary edges used by more than two faces."""
-    keys, count = np.unique(
-        _edge_keys(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), len(doubled)), return_counts=True
-    )
-    edges = np.stack(np.divmod(keys[count > 2], len(doubled)), axis=1)
+    edges, count = unique_edges(faces, return_counts=True)
+    edges = edges[count > 2]
     around = np.concatenate(
         [lattice.star(doubled[edges[:, 0]]), lattice.star(doubled[edges[:, 1]])], axis=1
     )
@@ -251,7 +244,7 @@ def _classify_by_warp(lattice: _Lattice, distance: np.ndarray, ids: np.ndarray):
     corners = lattice.tet_vertices(ids)
     inside, outside = distance < 0, distance > 0
     straddling = inside[corners].any(axis=1) & outside[corners].any(axis=1)
-    edges = tet_edges(corners[straddling])
+    edges = unique_edges(corners[straddling])
     edges = edges[inside[edges].any(axis=1) & outside[edges].any(axis=1)]
     f = distance[edges]
     along = f[:, 0] / (f[:, 0] - f[:, 1])  # cut, from end 0
@@ -384,22 +377,13 @@ def tet_volumes(particles: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", np.cross(d[:, 0], d[:, 1]), d[:, 2]) / 6.0
 
 
-def tet_edges(tets: np.ndarray) -> np.ndarray:
-    """Unique edges ``(E, 2)`` int64 of the tets, each sorted ``i < j``."""
-    if len(tets) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    n = int(tets.max()) + 1
-    keys = np.unique(_edge_keys(tets[:, _EDGES].reshape(-1, 2).astype(np.int64), n))
-    return np.stack(np.divmod(keys, n), axis=1)
-
-
 def min_dihedral_angle(particles: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Smallest dihedral angle of each tet ``(T,)`` [degrees]; 60 for BCC tets."""
     x = particles[tets]
     faces = x[:, _FACES]  # (T, 4, 3, 3)
     normal = np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=2, keepdims=True), 1e-300)
-    cosine = -np.einsum("tei,tei->te", normal[:, _EDGES[:, 0]], normal[:, _EDGES[:, 1]])
+    cosine = -np.einsum("tei,tei->te", normal[:, TET_EDGES[:, 0]], normal[:, TET_EDGES[:, 1]])
     return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).min(axis=1)
 
 

@@ -1,39 +1,39 @@
-"""Instrument meshes in the tool frame of :class:`~taichi_lap.sim.control.Control`:
-the shaft as a capsule, and for graspers and scissors two jaws past the tip."""
+"""Instrument meshes in the tool frame of :class:`~taichi_lap.sim.control.Control`,
+made of the tool's own shapes: what is drawn is what collides."""
 
 from __future__ import annotations
 
 import numpy as np
 import trimesh
 
-from taichi_lap.core.instruments import JAW_KINDS, JAW_LENGTH
+from taichi_lap.core.instruments import tool_geometry
 
-SHAFT_SECTIONS = 16
+SECTIONS = 16
+"""Segments around a round shape's mesh."""
 
 
-def _jaws(radius: float) -> list[trimesh.Trimesh]:
-    """Two closed jaws: flat boxes ahead of the tip, one above the other; their
-    vertices are not shared, so their faces shade flat."""
-    jaws = []
-    for side in (-1.0, 1.0):
-        jaw = trimesh.creation.box(extents=(1.4 * radius, 0.8 * radius, JAW_LENGTH * radius))
-        jaw.apply_translation((0.0, side * 0.45 * radius, -0.5 * JAW_LENGTH * radius))
-        jaw.unmerge_vertices()
-        jaws.append(jaw)
-    return jaws
+def _capsule(a: np.ndarray, b: np.ndarray, radius: float) -> trimesh.Trimesh:
+    """A capsule mesh from ``a`` to ``b`` (a sphere when they meet) of ``radius`` [m]."""
+    axis = b - a
+    length = float(np.linalg.norm(axis))
+    mesh = trimesh.creation.capsule(height=length, radius=radius, count=[SECTIONS, SECTIONS])
+    if length > 0.0:  # trimesh's capsule runs along z, centred on the origin
+        mesh.apply_transform(trimesh.geometry.align_vectors([0.0, 0.0, 1.0], axis / length))
+    mesh.apply_translation(0.5 * (a + b))
+    return mesh
 
 
 def instrument_mesh(tool: dict) -> trimesh.Trimesh:
-    """The mesh of one scene tool (``kind``, ``radius``, ``length`` [m]) with the
-    tip at the origin and the shaft along +z."""
-    radius, length = float(tool["radius"]), float(tool["length"])
-    shaft = trimesh.creation.capsule(
-        height=length, radius=radius, count=[SHAFT_SECTIONS, SHAFT_SECTIONS]
-    )
-    shaft.apply_translation((0.0, 0.0, 0.5 * length))
-    parts = [shaft]
-    if tool["kind"] in JAW_KINDS:
-        parts += _jaws(radius)
+    """The mesh of one scene tool (``kind``, ``radius``, ``length`` [m]) in its tool
+    frame (tip at the origin, shaft along +z): exactly the shapes its contacts and
+    haptics use (:func:`~taichi_lap.core.instruments.tool_geometry`)."""
+    geometry = tool_geometry(tool)
+    parts = [_capsule(a, b, r) for a, b, r in geometry.round_shapes()]
+    for center, half in geometry.boxes():
+        box = trimesh.creation.box(extents=2.0 * half)
+        box.apply_translation(center)
+        box.unmerge_vertices()  # flat faces
+        parts.append(box)
     return trimesh.util.concatenate(parts)
 
 

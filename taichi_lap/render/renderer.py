@@ -12,12 +12,12 @@ import time
 import numpy as np
 import taichi as ti
 
+from taichi_lap.core.fields import FieldGroup
 from taichi_lap.kernels.ibl import ImageLighting
 from taichi_lap.kernels.raster import GBuffer, camera_matrices
 from taichi_lap.kernels.shading import VIEWS, shade
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
-from taichi_lap.core.fields import FieldGroup
 
 BACKGROUND = (0.02, 0.008, 0.006)
 

@@ -14,13 +14,13 @@ from dataclasses import replace
 import numpy as np
 import taichi as ti
 
+from taichi_lap.core.csr import incidence
+from taichi_lap.core.fields import FieldGroup
 from taichi_lap.kernels.draw_mesh import copy_surface, gather_points, place_instruments
 from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.render.instruments import instrument_arrays
-from taichi_lap.scene.materials import INSTRUMENT, PRESETS, Material, material_table
-from taichi_lap.core.csr import incidence
-from taichi_lap.core.fields import FieldGroup
 from taichi_lap.render.tubes import TubeMesh
+from taichi_lap.scene.materials import INSTRUMENT, PRESETS, Material, material_table
 
 
 def organ_material(organ) -> Material:

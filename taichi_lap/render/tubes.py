@@ -28,8 +28,8 @@ import math
 
 import taichi as ti
 
-from taichi_lap.kernels import generalized_cylinder as gc
 from taichi_lap.core.fields import FieldGroup
+from taichi_lap.kernels import generalized_cylinder as gc
 
 
 class TubeMesh:

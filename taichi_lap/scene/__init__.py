@@ -16,6 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from taichi_lap.core.errors import InputError
+from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.core.params import REQUIRED, Param, check_table, check_value, describe
+from taichi_lap.scene.keyframes import read_keyframes
 from taichi_lap.scene.schema import (
     ATTACHMENT_PARAMS,
     CAMERA_PARAMS,
@@ -29,9 +32,6 @@ from taichi_lap.scene.schema import (
     TOOL_PARAMS,
     UNITS,
 )
-from taichi_lap.core.instruments import MAX_TOOLS
-from taichi_lap.core.params import REQUIRED, Param, check_table, check_value, describe
-from taichi_lap.scene.keyframes import read_keyframes
 from taichi_lap.scenes.anatomy import GENERATORS
 
 _PRODUCES_FOR_MODEL = {

@@ -1,9 +1,11 @@
-"""Inputs to a step (the Warp/Newton ``Control``): kinematic tool capsules and
-grasp commands.
+"""Inputs to a step (the Warp/Newton ``Control``): kinematic tools and grasp
+commands.
 
-Each tool is a capsule from its tip ``a`` to ``b`` with radius [m], placed by a
-device (mouse, script, haptic) before every frame, with an orthonormal frame whose
-third column points from the tip towards the handle. A particle the tool pushes is
+Each tool is a union of implicit shapes (:mod:`taichi_lap.core.instruments`) placed by
+a device (mouse, script, haptic) before every frame: the shaft from its tip ``a`` to
+``b`` with radius [m], an orthonormal frame whose third column points from the tip
+towards the handle, and the jaws ahead of the tip. Particle contacts, tissue
+collision and the grasp all read the tools from here. A particle the tool pushes is
 flagged as collided, which holds its goal (seed 000 Alg. 1, lines 13-14). A grasper
 whose jaws are closed holds the particles between them in its frame (seed 002
 §3.4; :mod:`taichi_lap.kernels.grasp`).
@@ -14,8 +16,15 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.instruments import JAW_RADIUS, MAX_TOOLS
 from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.instruments import (
+    JAW_RADIUS,
+    MAX_TOOL_SHAPES,
+    MAX_TOOLS,
+    SHAPE_KINDS,
+    ToolGeometry,
+    ToolShape,
+)
 
 
 def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
@@ -37,12 +46,27 @@ def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
 
 
 @ti.data_oriented
+def shape_rows(shapes) -> tuple[np.ndarray, ...]:
+    """One tool's rows of the shape table: kinds (S,) and a, b, size (S, 3), the
+    slots after ``shapes`` empty."""
+    kind = np.zeros(MAX_TOOL_SHAPES, dtype=np.int32)
+    a, b, size = (np.zeros((MAX_TOOL_SHAPES, 3), dtype=np.float32) for _ in range(3))
+    for slot, shape in enumerate(shapes):
+        kind[slot] = SHAPE_KINDS[shape.kind]
+        a[slot], b[slot], size[slot] = shape.a, shape.b, shape.size
+    return kind, a, b, size
+
+
+@ti.data_oriented
 class Control:
-    """Tool capsules: the shaft from ``tool_a`` (tip) to ``tool_b`` [m] of ``tool_radius``
+    """Tools: the shaft from ``tool_a`` (tip) to ``tool_b`` [m] of ``tool_radius``
     [m], the jaws from ``tool_jaw`` [m] (ahead of the tip) to the tip of
     ``tool_jaw_radius`` [m] (0: no jaws), ``tool_active``, ``tool_frame`` (columns x, y,
-    tip-to-handle); per tool on the Python side ``grasp`` (jaws closed) and
-    ``jaw_length`` [m]."""
+    tip-to-handle); the shape table (``shape_kind``, ``shape_a``, ``shape_b``,
+    ``shape_size``, :data:`MAX_TOOL_SHAPES` rows per tool, in the tool frame) and
+    ``tool_reach`` [m], how far from the tip the shapes placed in the frame reach; per
+    tool on the Python side ``grasp`` (jaws closed) and ``jaw_length`` [m]. Every tool
+    starts as jaws and shaft (the jaws are nothing while ``tool_jaw_radius`` is 0)."""
 
     def __init__(self):
         group = FieldGroup()
@@ -53,7 +77,16 @@ class Control:
         self.tool_frame = group.field(ti.f32, MAX_TOOLS, matrix=(3, 3))
         self.tool_jaw = group.field(ti.f32, MAX_TOOLS, vector=3)
         self.tool_jaw_radius = group.field(ti.f32, MAX_TOOLS)
+        default = shape_rows((ToolShape("jaws"), ToolShape("shaft")))
+        for name, rows in zip(("kind", "a", "b", "size"), default):
+            table = np.tile(rows, (MAX_TOOLS,) + (1,) * (rows.ndim - 1))
+            dtype, vector = (ti.i32, 0) if rows.ndim == 1 else (ti.f32, 3)
+            setattr(
+                self, f"shape_{name}", group.field(dtype, len(table), vector=vector, values=table)
+            )
+        self.tool_reach = group.field(ti.f32, MAX_TOOLS)
         group.finalize()
+        self._group = group
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
         self.jaw_length = [0.0] * MAX_TOOLS
@@ -88,6 +121,23 @@ class Control:
         self.tool_jaw_radius[index] = JAW_RADIUS * float(radius) if jaw_length > 0.0 else 0.0
         self.grasp[index] = bool(grasp and active)
         self.jaw_length[index] = float(jaw_length)
+
+    def set_tool_shapes(self, index: int, shapes):
+        """Make tool ``index`` the union of ``shapes`` (at most :data:`MAX_TOOL_SHAPES`
+        :class:`~taichi_lap.core.instruments.ToolShape`, in its frame [m]); ``shaft``
+        and ``jaws`` follow :meth:`set_tool`."""
+        if not 0 <= index < MAX_TOOLS:
+            raise IndexError(f"tool index {index} outside 0..{MAX_TOOLS - 1}")
+        geometry = ToolGeometry(tuple(shapes), length=0.0, radius=0.0)
+        rows = slice(index * MAX_TOOL_SHAPES, (index + 1) * MAX_TOOL_SHAPES)
+        for field, values in zip(
+            (self.shape_kind, self.shape_a, self.shape_b, self.shape_size),
+            shape_rows(geometry.shapes),
+        ):
+            table = field.to_numpy()
+            table[rows] = values
+            field.from_numpy(table)
+        self.tool_reach[index] = geometry.reach()
 
     def reset(self):
         """Forget the tools' frames and open every grasper."""

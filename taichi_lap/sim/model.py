@@ -10,10 +10,9 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.preprocess.model_data import ModelData
 from taichi_lap.core.csr import both_ends, incidence
 from taichi_lap.core.fields import FieldGroup
-
+from taichi_lap.preprocess.model_data import ModelData
 
 CHUNK = 128
 """Cluster members summed by one thread in the cluster-matching reduction."""
@@ -61,7 +60,7 @@ class Model:
 
         self.rest_position = self._floats(data.rest_position, vector=3)
         self.mass = self._floats(data.mass)
-        self.inv_mass = self._floats(np.where(data.pinned, 0.0, 1.0 / np.maximum(data.mass, 1e-12)))
+        self.inv_mass = self._floats(data.inverse_mass())
         self.radius = self._floats(data.radius)
         for name, values in data.material.items():
             setattr(self, name, self._floats(values))

@@ -29,17 +29,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from taichi_lap.collision import IntestineCollision, TissueCollision
 from taichi_lap.core.errors import SimulationFault
-from taichi_lap.scene.schema import SCENE_PARAMS
-from taichi_lap.kernels import distance, grasp, shape_matching, skinning
-from taichi_lap.sim.collision import TissueCollision
 from taichi_lap.core.instruments import JAW_REACH, MAX_TOOLS
+from taichi_lap.kernels import distance, grasp, shape_matching, skinning
+from taichi_lap.kernels.health import NO_FAULT
+from taichi_lap.scene.schema import SCENE_PARAMS
 from taichi_lap.sim.control import Control
-from taichi_lap.sim.intestine_collision import IntestineCollision
 from taichi_lap.sim.model import Model
 from taichi_lap.sim.state import State
-
-NO_FAULT = 2**31 - 1
 
 
 def _frozen(value):

@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.instruments import MAX_TOOLS
-from taichi_lap.kernels.contact import FREE
 from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.kernels.collision.particle_contact import FREE
+from taichi_lap.kernels.health import NO_FAULT
 from taichi_lap.sim.model import Model
-
 
 SNAPSHOT_FIELDS = (
     "x",
@@ -84,7 +84,7 @@ class State:
         )
         self.cluster_center.copy_from(model.cluster_rest_center)
         self.fault[None] = 0
-        self.fault_particle[None] = 2**31 - 1
+        self.fault_particle[None] = NO_FAULT
         self.grasp_tool.fill(FREE)
         self.grasp_local.fill(0.0)
         self.time = 0.0
@@ -110,7 +110,7 @@ class State:
         self.p.copy_from(self.x)
         self.p_next.copy_from(self.x)
         self.fault[None] = 0
-        self.fault_particle[None] = 2**31 - 1
+        self.fault_particle[None] = NO_FAULT
         self.time = 0.0
         self.frame = 0
         self.jaws_closed = [False] * MAX_TOOLS

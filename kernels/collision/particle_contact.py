@@ -1,8 +1,9 @@
-"""Particle contact with kinematic tools (capsules) and environment planes.
+"""Particle contact with kinematic tools and environment planes.
 
 Position-level projection in the PBD manner (Müller et al. 2007, §3.4): a particle
-of radius r inside a tool capsule is moved to its surface and flagged as collided,
-which holds its shape-matching goal (seed 000 Alg. 1, lines 13-14). Planes (the
+of radius r inside one of a tool's shapes (:mod:`.tool_shapes`) is moved to its
+surface and flagged as collided, which holds its shape-matching goal (seed 000
+Alg. 1, lines 13-14). Planes (the
 abdominal wall, the table) push particles out with Coulomb friction on the
 displacement of the substep (Macklin et al. 2014, §6.1); they do not flag
 collisions, so tissue resting on them keeps recovering its shape. A particle a
@@ -11,58 +12,10 @@ frame last, whatever pushed it.
 """
 
 import taichi as ti
-
-from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.kernels.collision.tool_shapes import push_out_of_tools
 
 FREE = -1
 """``State.grasp_tool`` of a particle no tool holds."""
-
-
-@ti.func
-def closest_on_segment(a, b, q):
-    """Closest point to ``q`` on the segment ``a``-``b``."""
-    ab = b - a
-    t = 0.0
-    denom = ab.dot(ab)
-    if denom > 1e-12:
-        t = ti.math.clamp((q - a).dot(ab) / denom, 0.0, 1.0)
-    return a + t * ab
-
-
-@ti.func
-def push_out_of_capsule(a, b, reach, p):
-    """``p`` moved to distance ``reach`` from the segment ``a``-``b`` when closer, and 1
-    when it was moved."""
-    hit = 0
-    c = closest_on_segment(a, b, p)
-    d = p - c
-    dist = d.norm()
-    if dist < reach:
-        normal = ti.Vector([0.0, 1.0, 0.0])
-        if dist > 1e-9:
-            normal = d / dist
-        p = c + normal * reach
-        hit = 1
-    return p, hit
-
-
-@ti.func
-def push_out_of_tools(control: ti.template(), p, r):
-    """Move a particle at ``p`` [m] of radius ``r`` [m] out of every active tool: the
-    jaws' capsule ahead of the tip (graspers, scissors), then the shaft's. Returns the
-    new position and 1 when a tool touched it."""
-    hit = 0
-    for k in ti.static(range(MAX_TOOLS)):
-        if control.tool_active[k]:
-            a = control.tool_a[k]
-            if control.tool_jaw_radius[k] > 0.0:
-                p, jaws = push_out_of_capsule(
-                    control.tool_jaw[k], a, control.tool_jaw_radius[k] + r, p
-                )
-                hit |= jaws
-            p, shaft = push_out_of_capsule(a, control.tool_b[k], control.tool_radius[k] + r, p)
-            hit |= shaft
-    return p, hit
 
 
 @ti.func

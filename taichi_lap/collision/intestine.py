@@ -1,7 +1,7 @@
 """Self-collisions of the intestine and mesentery (seed 001 §4): element tables
 built from a :class:`Model`, the stochastic detector and displacement-velocity
-response of :mod:`taichi_lap.kernels.intestine_collision`, and an exact O(n²)
-detector used as ground truth by the tests and ``perf/bench_intestine_cd.py``.
+response of :mod:`taichi_lap.kernels.collision.intestine` (the exact O(n²) detector
+they are validated against is :mod:`.intestine_reference`).
 
 Call once per substep, after the constraints and before the velocity update
 (``update_goals``), on the predicted positions ``state.p``::
@@ -17,27 +17,10 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.kernels import intestine_collision as kernels
 from taichi_lap.core.fields import FieldGroup
-from taichi_lap.sim.model import Model
-
-
-def _arc_length(points: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-
-
-def _edge_neighbours(triangles: np.ndarray) -> np.ndarray:
-    """For each triangle, the triangle across each edge (v0v1, v1v2, v2v0), or -1."""
-    owners: dict[tuple[int, int], list[int]] = {}
-    for t, tri in enumerate(triangles.tolist()):
-        for k in range(3):
-            owners.setdefault(tuple(sorted((tri[k], tri[(k + 1) % 3]))), []).append(t)
-    out = np.full((len(triangles), 3), -1, dtype=np.int64)
-    for t, tri in enumerate(triangles.tolist()):
-        for k in range(3):
-            others = [o for o in owners[tuple(sorted((tri[k], tri[(k + 1) % 3])))] if o != t]
-            out[t, k] = others[0] if others else -1
-    return out
+from taichi_lap.core.geometry import arc_length
+from taichi_lap.core.mesh import edge_neighbours
+from taichi_lap.kernels.collision import intestine as kernels
 
 
 def _strided(keys: np.ndarray, stride: int) -> np.ndarray:
@@ -58,7 +41,7 @@ def _organ_elements(data, local: np.ndarray, organ: int, record) -> dict:
     """Segments and triangles of one organ with spring rows, indices local to it."""
     first, length = record.particles[0], record.row_length
     row = np.arange(first, first + length)
-    s = _arc_length(data.rest_position[row])
+    s = arc_length(data.rest_position[row])
     radius = 0.5 * (data.radius[row[:-1]] + data.radius[row[1:]])
     stride = max(1, int(round(float(radius.mean()) / (s[-1] / (length - 1)))))
     k = np.arange(length - 1)
@@ -81,7 +64,7 @@ def _organ_elements(data, local: np.ndarray, organ: int, record) -> dict:
     far = _strided(group, stride)
     triangles = dict(
         vertex=local[corners],
-        neighbour=np.concatenate([_edge_neighbours(corners), far], 1),
+        neighbour=np.concatenate([edge_neighbours(corners), far], 1),
         radius=data.radius[corners].min(axis=1),
         arc=np.stack([s[column.min(axis=1)], s[column.max(axis=1)]], 1),
         organ=np.full(len(corners), organ),
@@ -89,7 +72,7 @@ def _organ_elements(data, local: np.ndarray, organ: int, record) -> dict:
     return dict(stride=stride, segments=segments, triangles=triangles)
 
 
-def collision_elements(model: Model) -> dict[str, np.ndarray]:
+def collision_elements(model) -> dict[str, np.ndarray]:
     """Segments then triangles of every organ with spring rows (``row_length > 0``),
     in local particle numbering: vertex (E, 3) (-1 third vertex for segments);
     neighbour (E, 5): the adjacent elements (a segment's two, a triangle's three
@@ -123,32 +106,6 @@ def collision_elements(model: Model) -> dict[str, np.ndarray]:
     return out
 
 
-def region_labels(pairs: np.ndarray, neighbour: np.ndarray) -> np.ndarray:
-    """Connected groups of element pairs (n, 2): two pairs are connected when each
-    element of one is the same as or adjacent to (``neighbour`` (E, >= 3), the
-    first three columns) the corresponding element of the other. Returns a label
-    per pair (NumPy/SciPy, for tests and benchmarks)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    if len(pairs) == 0:
-        return np.zeros(0, dtype=np.int64)
-    size = len(neighbour) + 1
-    key = pairs[:, 0] * size + pairs[:, 1]
-    order = np.argsort(key)
-    around_a = np.concatenate([pairs[:, :1], neighbour[pairs[:, 0], :3]], axis=1)
-    around_b = np.concatenate([pairs[:, 1:], neighbour[pairs[:, 1], :3]], axis=1)
-    a2 = np.repeat(around_a, 4, axis=1)
-    b2 = np.tile(around_b, (1, 4))
-    wanted = np.minimum(a2, b2) * size + np.maximum(a2, b2)
-    slot = np.minimum(np.searchsorted(key[order], wanted), len(key) - 1)
-    hit = (a2 >= 0) & (b2 >= 0) & (key[order][slot] == wanted)
-    rows = np.nonzero(hit)[0]
-    graph = coo_matrix((np.ones(len(rows)), (rows, order[slot[hit]])), shape=(len(pairs),) * 2)
-    return connected_components(graph, directed=False)[1]
-
-
 @ti.data_oriented
 class IntestineCollision:
     """Stochastic self-collision detection (seed 001 §4.1) and response (§4.2) of
@@ -178,7 +135,7 @@ class IntestineCollision:
 
     def __init__(
         self,
-        model: Model,
+        model,
         *,
         threshold: float = 0.02,
         random_pairs: int | None = None,
@@ -348,41 +305,3 @@ class IntestineCollision:
         """Global particle indices (E, 3) of each element (-1: a segment's third)."""
         vertex = self.element_vertex.to_numpy()
         return np.where(vertex >= 0, self.particle_global.to_numpy()[np.maximum(vertex, 0)], -1)
-
-
-@ti.data_oriented
-class ExactDetector:
-    """Every non-neighbouring (segment, element) pair with gap < ``skin`` [m] (0:
-    the colliding pairs), O(n²): ground truth for the stochastic detector."""
-
-    def __init__(self, collision: IntestineCollision, capacity: int = 1 << 18, skin: float = 0.0):
-        self.collision = collision
-        self.capacity, self.skin = int(capacity), float(skin)
-        group = FieldGroup()
-        self.centre = group.field(ti.f32, collision.element_count, vector=3)
-        self.bound = group.field(ti.f32, collision.element_count)
-        self.pair_a = group.field(ti.i32, self.capacity)
-        self.pair_b = group.field(ti.i32, self.capacity)
-        self.pair_gap = group.field(ti.f32, self.capacity)
-        self.count = group.field(ti.i32, None)
-        group.finalize()
-        self._group = group
-
-    def run(self, positions):
-        """Launch the O(n²) test at ``positions`` (a particle field) [m]."""
-        kernels.exact_collisions(self.collision, self, positions)
-
-    def pairs(self) -> tuple[np.ndarray, np.ndarray]:
-        """Pairs (n, 2) of the last :meth:`run` in (a, b) order, and their gaps [m]."""
-        n = int(self.count[None])
-        if n > self.capacity:
-            raise RuntimeError(f"{n} pairs in contact exceed the capacity {self.capacity}")
-        pairs = np.stack([self.pair_a.to_numpy()[:n], self.pair_b.to_numpy()[:n]], axis=1)
-        order = np.lexsort((pairs[:, 1], pairs[:, 0]))
-        return pairs[order], self.pair_gap.to_numpy()[:n][order]
-
-    def detect(self, positions) -> np.ndarray:
-        """Colliding pairs (n, 2) at ``positions``, in (a, b) order."""
-        self.run(positions)
-        pairs, gaps = self.pairs()
-        return pairs[gaps < 0.0]

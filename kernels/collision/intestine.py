@@ -42,8 +42,7 @@ taken back, so contacts pushed by their neighbours do not bounce.
 """
 
 import taichi as ti
-
-from taichi_lap.kernels.closest_points import point_triangle, segment_segment
+from taichi_lap.kernels.collision.closest_points import segment_segment, segment_triangle
 
 HUGE = 1e30
 
@@ -59,49 +58,19 @@ def pcg_hash(v):
 @ti.func
 def closest(cd: ti.template(), x: ti.template(), a, b):
     """Closest points of segment ``a`` (pq) and element ``b`` at positions ``x`` [m]:
-    (distance d [m], s on pq, weights w on b's vertices, point on a, point on b).
-    Segment b: one edge-edge test. Triangle b: the least of three edge-edge tests,
-    two end-point-triangle tests and the point where pq crosses the triangle."""
+    (distance d [m], s on pq, weights w on b's vertices, point on a, point on b), by
+    the segment-segment or segment-triangle routine of
+    :mod:`~taichi_lap.kernels.collision.closest_points`."""
     va, vb = cd.element_vertex[a], cd.element_vertex[b]
     p, q = x[cd.particle_global[va[0]]], x[cd.particle_global[va[1]]]
-    corner = ti.Matrix.rows(
-        [
-            x[cd.particle_global[vb[0]]],
-            x[cd.particle_global[vb[1]]],
-            x[cd.particle_global[vb[ti.select(vb[2] >= 0, 2, 1)]]],
-        ]
-    )
-    triangle = vb[2] >= 0
-    best, best_s, best_w = HUGE, 0.0, ti.Vector([1.0, 0.0, 0.0])
-    for k in range(ti.select(triangle, 3, 1)):
-        x0 = ti.Vector([corner[k, 0], corner[k, 1], corner[k, 2]])
-        k1 = (k + 1) % 3
-        x1 = ti.Vector([corner[k1, 0], corner[k1, 1], corner[k1, 2]])
-        s, t, _, _ = segment_segment(p, q, x0, x1)
-        d2 = (p + s * (q - p) - x0 - t * (x1 - x0)).norm_sqr()
-        if d2 < best:
-            best, best_s, best_w = d2, s, ti.Vector([0.0, 0.0, 0.0])
-            best_w[k], best_w[k1] = 1.0 - t, t
-    if triangle:
-        c0 = ti.Vector([corner[0, 0], corner[0, 1], corner[0, 2]])
-        c1 = ti.Vector([corner[1, 0], corner[1, 1], corner[1, 2]])
-        c2 = ti.Vector([corner[2, 0], corner[2, 1], corner[2, 2]])
-        n = (c1 - c0).cross(c2 - c0)
-        denom = n.dot(q - p)
-        crossing = -1.0  # segment parameter where pq meets the triangle's plane
-        if ti.abs(denom) > 1e-30:
-            crossing = n.dot(c0 - p) / denom
-        for k in range(3):  # end p, end q, crossing point
-            s = ti.select(k == 2, crossing, ti.f32(k))
-            if s >= 0.0 and s <= 1.0:
-                y = p + s * (q - p)
-                w = point_triangle(y, c0, c1, c2)
-                d2 = (y - w[0] * c0 - w[1] * c1 - w[2] * c2).norm_sqr()
-                if d2 < best:
-                    best, best_s, best_w = d2, s, w
-    xa = p + best_s * (q - p)
-    xb = corner.transpose() @ best_w
-    return (xa - xb).norm(), best_s, best_w, xa, xb
+    b0, b1 = x[cd.particle_global[vb[0]]], x[cd.particle_global[vb[1]]]
+    s, w, xa, xb = 0.0, ti.Vector([1.0, 0.0, 0.0]), p, b0
+    if vb[2] >= 0:
+        s, w, xa, xb = segment_triangle(p, q, b0, b1, x[cd.particle_global[vb[2]]])
+    else:
+        s, t, on_pq, on_b = segment_segment(p, q, b0, b1)
+        s, w, xa, xb = s, ti.Vector([1.0 - t, t, 0.0]), on_pq, on_b
+    return (xa - xb).norm(), s, w, xa, xb
 
 
 @ti.func

@@ -1,6 +1,6 @@
 """Adaptive circumspheres of surface triangles: seed 000 §4.2 (Qian et al., VRST 2015,
 Eq. 4-6, lazy update of §4.2.3), and the bounding spheres of the baseline (Mendoza and
-O'Sullivan 2006), for :class:`taichi_lap.sim.collision.TissueCollision`:
+O'Sullivan 2006), for :class:`taichi_lap.collision.TissueCollision`:
 :mod:`kernels.tissue_collision` finds the triangles that need them and detects and
 responds with them.
 
@@ -48,7 +48,6 @@ import math
 
 import numpy as np
 import taichi as ti
-
 
 CIRCUMSPHERE, BOUNDING_SPHERE, POLYGON = 0, 1, 2
 HERMITE_SAMPLES = 256
@@ -197,7 +196,7 @@ def update_spheres(
     model: ti.template(), state: ti.template(), coll: ti.template(), every: ti.template()
 ):
     """The module docstring's spheres of the active triangles, after the skinning of
-    :func:`kernels.tissue_collision.update_bounds`, or of all triangles with ``every``
+    :func:`kernels.collision.broad_phase.update_bounds`, or of all triangles with ``every``
     (skinning first). Reads vertex_p, vertex_x and goal; writes bound_center,
     bound_radius, displacement, bound_reach = R_b + |displacement|, start_centroid,
     start_normal, normal, the spheres (sphere_center, sphere_radius, sphere_cone) and,
@@ -259,3 +258,17 @@ def update_spheres(
             coll.sphere_center[t] = center_b
             coll.sphere_radius[t] = radius_b
             coll.sphere_cone[t] = -1.0
+
+
+@ti.func
+def in_cone(coll: ti.template(), t, direction):
+    """The unit ``direction`` from t's sphere centre lies in its cap's cone."""
+    return direction.dot(coll.normal[t]) >= coll.sphere_cone[t]
+
+
+@ti.func
+def bounding_overlap(coll: ti.template(), t, u):
+    """Bounding-sphere phase (§4.1): the spheres grown by their motion overlap."""
+    reach = coll.bound_reach[t] + coll.bound_reach[u]
+    d = coll.bound_center[u] - coll.bound_center[t]
+    return d.dot(d) <= reach * reach

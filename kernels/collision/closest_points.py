@@ -1,8 +1,20 @@
-"""Closest points of Ericson 2004, "Real-Time Collision Detection", shared by the
-polygon baseline of seed 000 §4.4 (:mod:`kernels.polygon_collision`) and the intestine
-self-collision of seed 001 §4 (:mod:`kernels.intestine_collision`)."""
+"""Closest points of Ericson 2004, "Real-Time Collision Detection", written once for
+every collision kernel: the tools' capsules, the polygon baseline of seed 000 §4.4 and
+the intestine self-collision of seed 001 §4."""
 
 import taichi as ti
+
+
+@ti.func
+def point_segment(a, b, q):
+    """The point of segment ``a``-``b`` closest to ``q`` (§5.1.2; a degenerate segment
+    gives ``a``)."""
+    ab = b - a
+    t = 0.0
+    denom = ab.dot(ab)
+    if denom > 1e-12:
+        t = ti.math.clamp((q - a).dot(ab) / denom, 0.0, 1.0)
+    return a + t * ab
 
 
 @ti.func
@@ -61,3 +73,34 @@ def point_triangle(p, a, b, c):
         inv = 1.0 / ti.max(va + vb + vc, 1e-30)
         w = ti.Vector([1.0 - (vb + vc) * inv, vb * inv, vc * inv])
     return w
+
+
+@ti.func
+def segment_triangle(p, q, a, b, c):
+    """Closest points of segment pq and triangle abc: the nearest of pq against each
+    edge (§5.1.9), then each end of pq and the point where pq crosses the triangle's
+    plane against the triangle (§5.1.5; that point lies on the triangle when pq pierces
+    it). Returns (s, w, on_segment, on_triangle): the parameter on pq and the
+    barycentric weights on abc of the two points."""
+    corners = [a, b, c]
+    best, best_s, best_w = 1e30, 0.0, ti.Vector([1.0, 0.0, 0.0])
+    for k in ti.static(range(3)):
+        s, t, on_pq, on_edge = segment_segment(p, q, corners[k], corners[(k + 1) % 3])
+        d2 = (on_pq - on_edge).norm_sqr()
+        if d2 < best:
+            best, best_s, best_w = d2, s, ti.Vector([0.0, 0.0, 0.0])
+            best_w[k], best_w[(k + 1) % 3] = 1.0 - t, t
+    n = (b - a).cross(c - a)
+    denom = n.dot(q - p)
+    crossing = -1.0  # parameter on pq where it meets the triangle's plane
+    if ti.abs(denom) > 1e-30:
+        crossing = n.dot(a - p) / denom
+    for k in range(3):  # end p, end q, crossing point
+        s = ti.select(k == 2, crossing, ti.f32(k))
+        if 0.0 <= s <= 1.0:
+            y = p + s * (q - p)
+            w = point_triangle(y, a, b, c)
+            d2 = (y - w[0] * a - w[1] * b - w[2] * c).norm_sqr()
+            if d2 < best:
+                best, best_s, best_w = d2, s, w
+    return best_s, best_w, p + best_s * (q - p), best_w[0] * a + best_w[1] * b + best_w[2] * c

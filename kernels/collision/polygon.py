@@ -1,8 +1,8 @@
 """Polygon baseline of seed 000 §4.4: exact triangle features instead of spheres.
 
-Closest-point routines of Ericson 2004, "Real-Time Collision Detection": point-triangle
-(§5.1.5) and segment-segment (§5.1.9) from :mod:`kernels.closest_points`, barycentric
-coordinates (§3.4), segment-triangle. Responses are PBD
+Closest points of Ericson 2004, "Real-Time Collision Detection": segment-segment and
+segment-triangle from :mod:`~taichi_lap.kernels.collision.closest_points`, barycentric
+coordinates (§3.4) here. Responses are PBD
 projections (Müller et al. 2007 §3.4), weighted by the corners' inverse masses:
 
 * vertex-triangle: a vertex whose projection falls inside the other triangle keeps at
@@ -17,13 +17,14 @@ projections (Müller et al. 2007 §3.4), weighted by the corners' inverse masses
 
 Each triangle computes its own side of a pair (the other triangle computes the
 mirror image), adding corrections to local accumulators of its three corners;
-:func:`kernels.tissue_collision.detect_and_respond` averages and applies them.
+:func:`~taichi_lap.kernels.collision.response.detect_and_respond` averages and applies them.
 """
 
 import taichi as ti
+from taichi_lap.kernels.collision.closest_points import segment_segment, segment_triangle
+from taichi_lap.kernels.collision.tool_shapes import round_shape, tool_distance
 
-from taichi_lap.kernels.closest_points import point_triangle, segment_segment
-from taichi_lap.kernels.tool_shapes import MAX_TOOL_SHAPES, round_shape, tool_distance
+from taichi_lap.core.instruments import MAX_TOOL_SHAPES
 
 
 @ti.func
@@ -36,41 +37,6 @@ def barycentric(q, a, b, c):
     v = (d11 * d20 - d01 * d21) / denom
     w = (d00 * d21 - d01 * d20) / denom
     return ti.Vector([1.0 - v - w, v, w])
-
-
-@ti.func
-def segment_triangle_closest(p, q, a, b, c):
-    """Closest points of segment p-q and triangle a, b, c: (on segment, on triangle,
-    barycentric coordinates of the latter). A segment piercing the triangle gives the
-    piercing point twice."""
-    n = (b - a).cross(c - a)
-    seg = q - p
-    on_seg, on_tri, bary = p, a, ti.Vector([1.0, 0.0, 0.0])
-    best = 1e30
-    denom = seg.dot(n)
-    if ti.abs(denom) > 1e-30:
-        tau = (a - p).dot(n) / denom
-        hit = p + tau * seg
-        bh = barycentric(hit, a, b, c)
-        if 0.0 <= tau <= 1.0 and bh.min() >= 0.0:
-            on_seg, on_tri, bary, best = hit, hit, bh, 0.0
-    ends, corners = [p, q], [a, b, c]
-    for end in ti.static(range(2)):
-        e = ends[end]
-        be = point_triangle(e, a, b, c)
-        point = be[0] * a + be[1] * b + be[2] * c
-        d = (point - e).norm_sqr()
-        if d < best:
-            on_seg, on_tri, bary, best = e, point, be, d
-    for k in ti.static(range(3)):
-        _, t, c1, c2 = segment_segment(p, q, corners[k], corners[(k + 1) % 3])
-        d = (c2 - c1).norm_sqr()
-        if d < best:
-            be = ti.Vector([0.0, 0.0, 0.0])
-            be[k] = 1.0 - t
-            be[(k + 1) % 3] = t
-            on_seg, on_tri, bary, best = c1, c2, be, d
-    return on_seg, on_tri, bary
 
 
 @ti.func
@@ -115,7 +81,7 @@ def edge_edge(p1, q1, p10, q10, wp, wq, p2, q2, p20, q20, wp2, wq2, thickness):
 @ti.func
 def add_corner(acc, count, corner, delta):
     """Row ``corner`` of the local accumulator ``acc`` (3 x 3) += ``delta``, and
-    count[corner] += 1; locals, so no atomics (see :mod:`kernels.spatial_hash`)."""
+    count[corner] += 1; locals, so no atomics (see :mod:`kernels.collision.spatial_hash`)."""
     for r in ti.static(range(3)):
         if corner == r:
             for c in ti.static(range(3)):
@@ -186,7 +152,7 @@ def polygon_pair(coll: ti.template(), t, u, acc, hits):
 
 
 @ti.func
-def polygon_tool(coll: ti.template(), t, tool, pose, acc, hits):
+def polygon_tool(coll: ti.template(), control: ti.template(), t, tool, pose, acc, hits):
     """Triangle t against a kinematic tool at ``pose``: vertices projected to the
     surface of the union, triangle interior pushed off the axis of each round shape,
     added to t's corner accumulators. Returns (corrections, acc, hits)."""
@@ -195,15 +161,15 @@ def polygon_tool(coll: ti.template(), t, tool, pose, acc, hits):
     count = 0
     for k in range(3):
         if coll.corner_owner[3 * t + k] and w[k] > 0.0:
-            dist, grad = tool_distance(coll, tool, pose, coll.vertex_p[v[k]])
+            dist, grad = tool_distance(control, tool, pose, coll.vertex_p[v[k]])
             if dist < 0.0:
                 acc, hits = add_corner(acc, hits, k, -dist * grad)
                 count += 1
     p0, p1, p2 = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]
     for s in range(MAX_TOOL_SHAPES):
-        round_, a, b, r = round_shape(coll, tool * MAX_TOOL_SHAPES + s, pose)
+        round_, a, b, r = round_shape(control, tool * MAX_TOOL_SHAPES + s, pose)
         if round_:
-            on_seg, on_tri, bary = segment_triangle_closest(a, b, p0, p1, p2)
+            _, bary, on_seg, on_tri = segment_triangle(a, b, p0, p1, p2)
             gap = on_tri - on_seg
             dist = gap.norm()
             denom = (bary * bary * w).sum()

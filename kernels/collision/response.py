@@ -1,0 +1,320 @@
+"""Detection and response of tissue collision after the broad phase: the
+bounding-sphere and sphere phases of seed 000 §4.1 and the impulse response of §4.3,
+for the spheres of :mod:`~taichi_lap.kernels.collision.spheres` or the features of the
+polygon baseline (:mod:`~taichi_lap.kernels.collision.polygon`).
+
+:func:`detect_and_respond` runs, for the active triangles of the broad phase
+(:mod:`~taichi_lap.kernels.collision.broad_phase`), per triangle (gathered: each
+triangle computes its own side of every pair, so there are no float atomics and runs
+are bit-reproducible), then per particle:
+
+* bounding-sphere phase (§4.1): listed pairs whose bounding spheres, grown by their
+  motion over the substep, overlap, and that face each other at the substep's start
+  (opposite normals, each centroid in front of the other): the back faces of a thin
+  body lie inside the front faces' spheres. A triangle meets a tool when its bounding
+  sphere grown by the tool's motion since the last frame reaches the tool's union of
+  shapes and its start normal faces the tool at its previous pose.
+* sphere phase: the spheres overlap at some time of the substep (linear motion:
+  continuous for sphere pairs); a sphere's centre is closer than its radius to a
+  tool's union of implicit shapes. The line to the other sphere's centre (to the
+  tool) must leave through the triangle's own cap (``sphere_cone``): outside that
+  cone a circumsphere bulges far above its triangle.
+* response (§4.3): back up along the displacements to the first contact, exchange a
+  perfectly inelastic normal impulse (momentum conserved; a tool is kinematic, of
+  infinite mass, and static within the substep because Control carries poses, not
+  velocities), move the spheres along their new velocities to the end of the
+  substep, push out what overlap remains (split by inverse mass), and translate the
+  triangle with its sphere. Several contacts of one triangle are averaged (Jacobi).
+* per particle: the translations of the triangle corners bound to it, averaged with
+  the binding weights, move p; the particle is flagged collided (the η path of
+  Alg. 1, as the particle contacts of
+  :mod:`~taichi_lap.kernels.collision.particle_contact` do).
+
+Velocities enter as displacements over the substep (v h = p - x), so h cancels.
+Lengths in metres.
+"""
+
+import taichi as ti
+from taichi_lap.kernels.collision.broad_phase import facing, tool_motion
+from taichi_lap.kernels.collision.polygon import add_corner, polygon_pair, polygon_tool
+from taichi_lap.kernels.collision.spheres import (
+    C_BOUNDING,
+    C_TISSUE,
+    C_TOOL,
+    C_TOOL_CANDIDATES,
+    C_TRIANGLES,
+    POLYGON,
+    bounding_overlap,
+    in_cone,
+)
+from taichi_lap.kernels.collision.tool_shapes import control_pose, tool_distance
+
+from taichi_lap.core.instruments import MAX_TOOLS
+
+
+@ti.func
+def exchange_impulse(v_t, v_u, normal, w_t, w_u):
+    """§4.3: perfectly inelastic normal impulse j = max(-(v_t - v_u)·n, 0) / (w_t + w_u)
+    between bodies of inverse masses w_t, w_u (0: kinematic); ``normal`` points from u
+    to t. Returns the new velocities; m_t v_t + m_u v_u is conserved."""
+    v_t_new, v_u_new = v_t, v_u
+    w = w_t + w_u
+    if w > 0.0:
+        j = ti.max(-(v_t - v_u).dot(normal), 0.0) / w
+        v_t_new = v_t + j * w_t * normal
+        v_u_new = v_u - j * w_u * normal
+    return v_t_new, v_u_new
+
+
+@ti.func
+def contact_time(d0, e, reach):
+    """Smallest τ ∈ [0, 1] with |d0 + τ e| = reach (0 when already within reach)."""
+    tau = 0.0
+    c = d0.dot(d0) - reach * reach
+    a = e.dot(e)
+    if c > 0.0 and a > 1e-30:
+        b = d0.dot(e)
+        disc = ti.max(b * b - a * c, 0.0)
+        tau = ti.math.clamp((-b - ti.sqrt(disc)) / a, 0.0, 1.0)
+    return tau
+
+
+@ti.func
+def safe_direction(d, fallback):
+    n = d.norm()
+    return ti.select(n > 1e-12, d / ti.max(n, 1e-12), fallback)
+
+
+@ti.func
+def sphere_pair_translation(c_t, r_t, disp_t, w_t, c_u, r_u, disp_u, w_u, fallback):
+    """§4.3 for two spheres ending at c_t, c_u [m] after moving by disp_t, disp_u over
+    the substep: (1 if they touch during it, translation of sphere t [m]). Swapping the
+    arguments gives sphere u's side exactly (its translation times its mass cancels
+    ours)."""
+    reach = r_t + r_u
+    d0 = (c_t - disp_t) - (c_u - disp_u)
+    e = disp_t - disp_u
+    a = e.dot(e)
+    closest = 1.0
+    if a > 1e-30:
+        closest = ti.math.clamp(-d0.dot(e) / a, 0.0, 1.0)
+    hit = 0
+    translation = ti.Vector([0.0, 0.0, 0.0])
+    if (d0 + closest * e).norm() < reach and w_t + w_u > 0.0:
+        hit = 1
+        tau = contact_time(d0, e, reach)
+        normal = safe_direction(d0 + tau * e, fallback)
+        v_t, v_u = exchange_impulse(disp_t, disp_u, normal, w_t, w_u)
+        final_t = c_t - disp_t + tau * disp_t + (1.0 - tau) * v_t
+        final_u = c_u - disp_u + tau * disp_u + (1.0 - tau) * v_u
+        gap = final_t - final_u
+        dist = gap.norm()
+        if dist < reach:
+            final_t += (reach - dist) * w_t / (w_t + w_u) * safe_direction(gap, normal)
+        translation = final_t - c_t
+    return hit, translation
+
+
+@ti.func
+def sphere_tool_translation(control: ti.template(), tool, pose, center, r, disp):
+    """§4.3 against a kinematic tool (its union of shapes at its current ``pose``). When
+    the sphere (centre ``center`` [m], radius r, displacement ``disp``) started the
+    substep clear of the tool: back up to where it first touched (8 bisections of
+    sdf(start + τ disp) - r), remove the approaching normal velocity and move on.
+    When the tool moved into it (no contact time to find), start from the end
+    position. Then push out what overlap remains (two projections). Returns the
+    translation of the sphere [m]; one distance call site (compile time)."""
+    start = center - disp
+    lo, hi = 0.0, 1.0
+    final = center
+    clear = False
+    for it in range(12):  # 0: start, 1-8: bisection, 9: contact normal, 10-11: push out
+        if it == 0 or it >= 10 or clear:
+            point = start + 0.5 * (lo + hi) * disp
+            if it == 0:
+                point = start
+            elif it == 9:
+                point = start + hi * disp
+            elif it >= 10:
+                point = final
+            d, g = tool_distance(control, tool, pose, point)
+            if it == 0:
+                clear = d > r
+            elif it <= 8:
+                if d > r:
+                    lo = 0.5 * (lo + hi)
+                else:
+                    hi = 0.5 * (lo + hi)
+            elif it == 9:
+                v, _ = exchange_impulse(disp, ti.Vector([0.0, 0.0, 0.0]), g, 1.0, 0.0)
+                final = point + (1.0 - hi) * v
+            elif d < r:
+                final += (r - d) * g
+    return final - center
+
+
+@ti.func
+def facing_pair(coll: ti.template(), t, u):
+    """t and u face each other at the substep's start (:func:`facing`)."""
+    return facing(
+        coll.start_centroid[t], coll.start_normal[t], coll.start_centroid[u], coll.start_normal[u]
+    )
+
+
+@ti.func
+def add_to_corners(acc, hits, translation):
+    """Every row of the local corner accumulator ``acc`` += ``translation``."""
+    for k in ti.static(range(3)):
+        acc, hits = add_corner(acc, hits, k, translation)
+    return acc, hits
+
+
+@ti.func
+def sphere_pair(coll: ti.template(), t, u):
+    """Sphere phase and response of t against u: (1 on contact, t's translation)."""
+    d = coll.sphere_center[u] - coll.sphere_center[t]
+    direction = d / ti.max(d.norm(), 1e-30)
+    hit, translation = 0, ti.Vector([0.0, 0.0, 0.0])
+    if in_cone(coll, t, direction) and in_cone(coll, u, -direction):
+        hit, translation = sphere_pair_translation(
+            coll.sphere_center[t],
+            coll.sphere_radius[t],
+            coll.displacement[t],
+            coll.tri_inv_mass[t],
+            coll.sphere_center[u],
+            coll.sphere_radius[u],
+            coll.displacement[u],
+            coll.tri_inv_mass[u],
+            coll.start_normal[t],
+        )
+    return hit, translation
+
+
+@ti.func
+def tissue_contacts(coll: ti.template(), rows: ti.template(), t, acc, hits):
+    """Bounding-sphere and sphere phases of triangle t against its listed partners;
+    adds t's side of every contact to its corner accumulators. Returns (bounding,
+    contacts, acc, hits)."""
+    bounding, contacts = 0, 0
+    moved = ti.Vector([0.0, 0.0, 0.0])  # sphere methods: Σ translations of t
+    for m in range(rows.start[t], rows.start[t + 1]):
+        u = rows.partner[m]
+        if bounding_overlap(coll, t, u) and facing_pair(coll, t, u):
+            bounding += 1
+            if ti.static(coll.method == POLYGON):
+                n, acc, hits = polygon_pair(coll, t, u, acc, hits)
+                contacts += n
+            else:
+                hit, translation = sphere_pair(coll, t, u)
+                moved += translation
+                contacts += hit
+    if ti.static(coll.method != POLYGON):
+        for k in ti.static(range(3)):
+            for c in ti.static(range(3)):
+                acc[k, c] += moved[c]
+            hits[k] += contacts
+    return bounding, contacts, acc, hits
+
+
+@ti.func
+def tool_contacts(coll: ti.template(), control: ti.template(), t, acc, hits):
+    """Triangle t against every active tool: (bounding-phase passes, contacts, acc,
+    hits)."""
+    candidates, contacts = 0, 0
+    for k in range(MAX_TOOLS):
+        if control.tool_active[k]:
+            move = tool_motion(coll, control, k)
+            pose = control_pose(control, k)
+            center, r = coll.sphere_center[t], coll.sphere_radius[t]
+            touching = True
+            for test in range(3):  # one distance call site: bounding, facing, sphere phase
+                at, point = pose, coll.bound_center[t]
+                if test == 1:
+                    at, point = coll.tool_prev[k], coll.start_centroid[t]
+                elif test == 2:
+                    point = center
+                dist, grad = tool_distance(control, k, at, point)
+                if test == 0:
+                    touching = dist < coll.bound_reach[t] + move
+                    if touching:
+                        candidates += 1
+                elif test == 1:
+                    touching = grad.dot(coll.start_normal[t]) < 0.0
+                else:
+                    touching = dist < r and in_cone(coll, t, -grad)
+                if not touching or ti.static(coll.method == POLYGON):
+                    break
+            if touching:
+                if ti.static(coll.method == POLYGON):
+                    n, acc, hits = polygon_tool(coll, control, t, k, pose, acc, hits)
+                    contacts += n
+                elif coll.tri_inv_mass[t] > 0.0:
+                    acc, hits = add_to_corners(
+                        acc,
+                        hits,
+                        sphere_tool_translation(control, k, pose, center, r, coll.displacement[t]),
+                    )
+                    contacts += 1
+    return candidates, contacts, acc, hits
+
+
+@ti.kernel
+def detect_and_respond(
+    model: ti.template(),
+    state: ti.template(),
+    control: ti.template(),
+    coll: ti.template(),
+    rows: ti.template(),
+    tissue: ti.i32,
+):
+    """The module docstring: contacts of the active triangles (corner translations,
+    averaged; tissue pairs only if ``tissue``), then per particle under a contact the
+    bound corners' translations averaged with the binding weights move p and set
+    collided. Reads the spheres, the pair rows and the tool poses; writes corner_delta,
+    corner_count (zero again at the end), counter, p, collided."""
+    coll.touched_count[None] = 0
+    for m in range(coll.active_count[None]):
+        t = coll.active_list[m]
+        acc, hits = ti.Matrix.zero(ti.f32, 3, 3), ti.Vector([0, 0, 0])
+        bounding, contacts, tool_candidates, tool = 0, 0, 0, 0
+        if ti.static(coll.tissue_pairs):
+            if tissue:
+                bounding, contacts, acc, hits = tissue_contacts(coll, rows, t, acc, hits)
+        if ti.static(coll.tools):
+            tool_candidates, tool, acc, hits = tool_contacts(coll, control, t, acc, hits)
+        for k in ti.static(range(3)):
+            coll.corner_delta[3 * t + k] = ti.Vector([acc[k, 0], acc[k, 1], acc[k, 2]]) / ti.max(
+                ti.cast(hits[k], ti.f32), 1.0
+            )
+            coll.corner_count[3 * t + k] = hits[k]
+        ti.atomic_add(coll.counter[C_BOUNDING], bounding)
+        ti.atomic_add(coll.counter[C_TISSUE], contacts)
+        ti.atomic_add(coll.counter[C_TOOL_CANDIDATES], tool_candidates)
+        ti.atomic_add(coll.counter[C_TOOL], tool)
+        ti.atomic_add(coll.counter[C_TRIANGLES], ti.cast(hits.max() > 0, ti.i32))
+    for m in range(coll.active_count[None]):  # list the particles bound to hit corners
+        t = coll.active_list[m]
+        for k in ti.static(range(3)):
+            if coll.corner_count[3 * t + k] > 0:
+                s = coll.tri_vertex[t][k]
+                idx, w = model.surface_index[s], model.surface_weight[s]
+                for j in ti.static(range(4)):
+                    if w[j] > 0.0 and ti.atomic_add(coll.particle_mark[idx[j]], 1) == 0:
+                        coll.touched_list[ti.atomic_add(coll.touched_count[None], 1)] = idx[j]
+    for n in range(coll.touched_count[None]):
+        i = coll.touched_list[n]
+        j = coll.particle_rank[i]
+        total, weight = ti.Vector([0.0, 0.0, 0.0]), 0.0
+        for m in range(coll.particle_start[j], coll.particle_start[j + 1]):
+            corner = coll.particle_corner[m]
+            if coll.corner_count[corner] > 0:
+                total += coll.particle_weight[m] * coll.corner_delta[corner]
+                weight += coll.particle_weight[m]
+        if model.inv_mass[i] > 0.0:
+            state.p[i] = state.p[i] + total / weight
+        state.collided[i] = 1
+        coll.particle_mark[i] = 0
+    for m in range(coll.active_count[None]):
+        t = coll.active_list[m]
+        for k in ti.static(range(3)):
+            coll.corner_count[3 * t + k] = 0

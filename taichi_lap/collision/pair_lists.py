@@ -1,0 +1,38 @@
+"""Storage of the broad phase's margin pair lists (seed 000 §4.1 kept between steps,
+:mod:`taichi_lap.kernels.collision.broad_phase`)."""
+
+import taichi as ti
+
+from taichi_lap.core.fields import FieldGroup
+from taichi_lap.kernels.collision.broad_phase import ROW_BLOCK
+
+
+@ti.data_oriented
+class PairRows:
+    """Partner lists of ``triangles`` triangles in one array of ``capacity`` entries:
+    row t is ``partner[start[t]:start[t + 1]]``, sorted (CSR); ``size``, ``cursor`` and
+    ``block_start`` are scratch of the rebuild (:func:`kernels.collision.broad_phase.count_rows`)."""
+
+    def __init__(self, triangles: int, capacity: int):
+        group = FieldGroup()
+        self.capacity = int(capacity)
+        self.start = group.field(ti.i32, triangles + 1)
+        self.size = group.field(ti.i32, triangles)
+        self.cursor = group.field(ti.i32, triangles)
+        self.block_start = group.field(ti.i32, -(-triangles // ROW_BLOCK))
+        self.partner = group.field(ti.i32, self.capacity)
+        group.finalize()
+        self._group = group
+
+
+@ti.data_oriented
+class FoundPairs:
+    """Pairs found by one rescan (at most ``capacity``; ``count`` may say more)."""
+
+    def __init__(self, capacity: int):
+        group = FieldGroup()
+        self.capacity = int(capacity)
+        self.pair = group.field(ti.i32, self.capacity, vector=2)
+        self.count = group.field(ti.i32, None)
+        group.finalize()
+        self._group = group

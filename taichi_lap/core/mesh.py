@@ -1,0 +1,53 @@
+"""Edges of triangle and tetrahedral meshes (NumPy), listed in one place for every
+layer: model building, mesh checks, tissue and intestine collision, the grasp pull."""
+
+from __future__ import annotations
+
+import numpy as np
+
+TRIANGLE_EDGES = np.array([[0, 1], [1, 2], [2, 0]])
+"""Edge k of a triangle joins corners k and k + 1."""
+TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+
+
+def element_edges(elements: np.ndarray) -> np.ndarray:
+    """Every edge of every element, element by element (E·k, 2) int64, each sorted
+    i < j: triangles (F, 3) in the order of :data:`TRIANGLE_EDGES`, tets (T, 4) in that
+    of :data:`TET_EDGES`."""
+    elements = np.asarray(elements, dtype=np.int64)
+    pattern = {3: TRIANGLE_EDGES, 4: TET_EDGES}[elements.shape[1]]
+    return np.sort(elements[:, pattern].reshape(-1, 2), axis=1)
+
+
+def unique_edges(
+    elements: np.ndarray, *, return_inverse: bool = False, return_counts: bool = False
+):
+    """The distinct edges (E, 2) of ``elements`` (see :func:`element_edges`), sorted
+    i < j and in increasing order; with ``return_inverse`` also the edge of each row
+    of :func:`element_edges`, with ``return_counts`` how many elements use each."""
+    edges = element_edges(elements)
+    n = np.int64(edges.max(initial=0) + 1)
+    keys, inverse, counts = np.unique(
+        edges[:, 0] * n + edges[:, 1], return_inverse=True, return_counts=True
+    )
+    out = [np.stack(np.divmod(keys, n), axis=1)]
+    if return_inverse:
+        out.append(inverse.reshape(-1))
+    if return_counts:
+        out.append(counts)
+    return out[0] if len(out) == 1 else tuple(out)
+
+
+def edge_neighbours(triangles: np.ndarray) -> np.ndarray:
+    """(F, 3): the triangle across edge k = (v_k, v_k+1) of each triangle; -1 on a
+    boundary or a non-manifold edge (one shared by more than two triangles)."""
+    f = len(triangles)
+    _, edge, uses = unique_edges(triangles, return_inverse=True, return_counts=True)
+    order = np.argsort(edge, kind="stable")
+    same = edge[order[:-1]] == edge[order[1:]]
+    i, j = order[:-1][same], order[1:][same]
+    manifold = uses[edge[i]] == 2
+    i, j = i[manifold], j[manifold]
+    out = np.full(3 * f, -1, dtype=np.int64)
+    out[i], out[j] = j // 3, i // 3
+    return out.reshape(f, 3)

@@ -1,0 +1,40 @@
+"""Edges of triangle and tet meshes (core.mesh), shared by every layer."""
+
+import numpy as np
+
+from taichi_lap.core.mesh import edge_neighbours, element_edges, unique_edges
+
+
+def test_tet_edges_are_listed_once_each_sorted():
+    edges, uses = unique_edges(np.array([[3, 1, 2, 0], [0, 1, 2, 4]]), return_counts=True)
+    assert edges.tolist() == [
+        [0, 1],
+        [0, 2],
+        [0, 3],
+        [0, 4],
+        [1, 2],
+        [1, 3],
+        [1, 4],
+        [2, 3],
+        [2, 4],
+    ]
+    assert uses.tolist() == [2, 2, 1, 1, 2, 1, 1, 1, 1]
+    assert element_edges(np.array([[5, 1, 3]])).tolist() == [[1, 5], [1, 3], [3, 5]]
+
+
+def test_edge_neighbours_across_manifold_edges_only():
+    # a fan of three triangles on edge (0, 1) (non-manifold), and one more across (1, 2)
+    triangles = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [2, 1, 5]])
+    neighbours = edge_neighbours(triangles)
+    assert neighbours[0].tolist() == [-1, 3, -1]  # edge 01 in three triangles: none
+    assert neighbours[3].tolist() == [0, -1, -1]
+    assert neighbours[1].tolist() == [-1, -1, -1]
+
+
+def test_edge_neighbours_of_a_closed_surface_are_symmetric():
+    tetra = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]])
+    neighbours = edge_neighbours(tetra)
+    assert (neighbours >= 0).all()
+    for t, row in enumerate(neighbours):
+        for u in row:
+            assert t in neighbours[u]

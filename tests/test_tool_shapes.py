@@ -1,0 +1,99 @@
+"""One definition of an instrument's shape (core.instruments): the kernels' union of
+shapes and its NumPy evaluation (haptic proxy) agree, particles are pushed out of
+every shape, and the drawn mesh is the collision shape."""
+
+import numpy as np
+import taichi as ti
+from taichi_lap.kernels.collision.tool_shapes import control_pose, push_out_of_tools
+from taichi_lap.kernels.collision.tool_shapes import tool_distance as kernel_tool_distance
+
+from taichi_lap.core.instruments import (
+    JAW_RADIUS,
+    MAX_TOOL_SHAPES,
+    ToolGeometry,
+    ToolShape,
+    tool_distance,
+    tool_geometry,
+)
+from taichi_lap.render.instruments import instrument_mesh
+from taichi_lap.sim import Control
+
+RADIUS, LENGTH, JAW = 0.003, 0.05, 0.012
+SHAPES = (
+    ToolShape("jaws"),
+    ToolShape("shaft"),
+    ToolShape.sphere([0.004, 0.0, 0.01], 0.003),
+    ToolShape.box([-0.004, 0.002, 0.02], [0.002, 0.003, 0.004]),
+)
+GEOMETRY = ToolGeometry(SHAPES, LENGTH, RADIUS, JAW, JAW_RADIUS * RADIUS)
+TIP = np.array([0.01, 0.02, -0.005])
+
+
+def tilted_control() -> tuple[Control, np.ndarray]:
+    """Tool 1 of a Control as :data:`GEOMETRY`, tilted; returns it and its frame."""
+    control = Control()
+    direction = np.array([0.3, 1.0, -0.2]) / np.linalg.norm([0.3, 1.0, -0.2])
+    control.set_tool(1, TIP, TIP + LENGTH * direction, RADIUS, jaw_length=JAW)
+    control.set_tool_shapes(1, SHAPES)
+    return control, control.tool_frame.to_numpy()[1].astype(np.float64)
+
+
+@ti.kernel
+def kernel_distances(
+    control: ti.template(),
+    points: ti.types.ndarray(dtype=ti.math.vec3),
+    out: ti.types.ndarray(),
+    grad: ti.types.ndarray(dtype=ti.math.vec3),
+):
+    for i in range(points.shape[0]):
+        out[i], grad[i] = kernel_tool_distance(control, 1, control_pose(control, 1), points[i])
+
+
+@ti.kernel
+def pushed(control: ti.template(), points: ti.types.ndarray(dtype=ti.math.vec3), r: ti.f32):
+    for i in range(points.shape[0]):
+        points[i], _ = push_out_of_tools(control, points[i], r)
+
+
+def sample_points(count: int) -> np.ndarray:
+    rng = np.random.default_rng(4)
+    return TIP + rng.uniform([-0.015, -0.02, -0.015], [0.015, 0.07, 0.015], (count, 3))
+
+
+def test_kernels_and_numpy_give_the_same_distance_of_a_union():
+    control, frame = tilted_control()
+    points = sample_points(4000).astype(np.float32)
+    dist, grad = np.zeros(len(points), np.float32), np.zeros_like(points)
+    kernel_distances(control, points, dist, grad)
+    local = (points.astype(np.float64) - TIP) @ frame
+    expected, expected_grad, on_axis = tool_distance(GEOMETRY, local)
+    assert np.abs(dist - expected).max() < 2e-6
+    clear = ~on_axis & (np.abs(dist) > 1e-4)
+    np.testing.assert_allclose(grad[clear], (expected_grad @ frame.T)[clear], atol=2e-3)
+    assert (expected < 0).sum() > 50 and (expected > 0).sum() > 1000  # inside and out
+
+
+def test_particles_are_pushed_out_of_every_shape_of_the_union():
+    control, frame = tilted_control()
+    r = 0.0005
+    points = sample_points(4000).astype(np.float32)
+    before, _, _ = tool_distance(GEOMETRY, (points.astype(np.float64) - TIP) @ frame)
+    pushed(control, points, r)
+    after, _, _ = tool_distance(GEOMETRY, (points.astype(np.float64) - TIP) @ frame)
+    assert (before < 0.0).sum() > 50  # inside some shape
+    assert after.min() > 0.9 * r  # every particle out of every shape
+    assert np.quantile(after, 0.01) > r - 2e-5  # and nearly all onto the surface
+
+
+def test_the_drawn_instrument_is_its_collision_shape():
+    for kind in ("probe", "grasper"):
+        tool = {"kind": kind, "radius": RADIUS, "length": LENGTH}
+        geometry, mesh = tool_geometry(tool), instrument_mesh(tool)
+        distance, _, _ = tool_distance(geometry, mesh.vertices)
+        assert distance.max() < 1e-9  # nothing is drawn outside the collision shape
+        assert len(geometry.shapes) <= MAX_TOOL_SHAPES
+        reach = geometry.jaw_length + geometry.jaw_radius if kind == "grasper" else RADIUS
+        np.testing.assert_allclose(mesh.bounds[:, 2], [-reach, LENGTH + RADIUS], atol=1e-9)
+    grasper = tool_geometry({"kind": "grasper", "radius": RADIUS, "length": LENGTH})
+    jaw_end = np.array([[0.0, 0.0, -grasper.jaw_length - grasper.jaw_radius]])
+    assert abs(tool_distance(grasper, jaw_end)[0][0]) < 1e-12  # the jaws reach ahead
