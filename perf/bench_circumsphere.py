@@ -93,13 +93,14 @@ def cylinder_height(frame: int) -> float:
 def run(session, collision, controls, iterations: int, frames: int):
     """Per-frame relative errors and collision milliseconds of one run; ``controls``
     are (no tools, the cylinder), created once so that kernels compile once."""
+    from taichi_lap.sim import Solver
+
     session.reset()
     collision.reset()
     no_tools, tools = controls
-    solver = session.solver
-    solver.collision = collision
-    solver.settings = replace(solver.settings, shape_iterations=iterations)
-    h = session.dt / solver.settings.substeps
+    settings = replace(session.solver.settings, shape_iterations=iterations)
+    solver = Solver(session.model, settings, collision=collision)
+    h = session.dt / settings.substeps
     errors, times = [], []
     for frame in range(frames):
         y = cylinder_height(frame)
@@ -123,24 +124,22 @@ WINDOWS = {"start": (0, 30, 0), "steady": (60, 120, 1)}
 
 def scene_window(session, script, collision, first: int, end: int, drop: int) -> dict:
     """Frame times [ms] over frames first..end-1, the tools driven by ``script``, with
-    ``collision`` (None: off) on from frame ``first``, the first ``drop`` of them left
-    out."""
+    the session's ``collision`` (None: collision off) on from frame ``first``, the
+    first ``drop`` of them left out."""
     session.reset()
-    session.solver.collision = None
 
-    def step():
+    def step(collide: bool):
         time = session.state.time
-        session.step(script.poses(time), script.buttons(time))
+        session.step(script.poses(time), script.buttons(time), collide=collide)
 
     for _ in range(first):
-        step()
-    session.solver.collision = collision
+        step(False)
     out = {"frame": [], "collision": [], "phases": []}
     if collision is not None:
         collision.reset()
     for frame in range(first, end):
         spent, phases = (collision.total_ms, dict(collision.phase_ms)) if collision else (0, {})
-        step()
+        step(collision is not None)
         if frame >= first + drop:
             out["frame"].append(session.timings["physics"])
             if collision is not None:

@@ -181,22 +181,53 @@ def fascia_cases(quick: bool, runs: int) -> list[dict]:
     return out
 
 
-def startup_probe():
-    """Child process: time to the first stepped frame of the full liver scene as it
-    runs (settling and tissue collision included)."""
+STARTUP_SCENES = ("liver", "rectum", "intestine")
+
+
+def startup_probe(arch: str, name: str):
+    """Child process: seconds from launch to the first stepped frame of scene ``name``
+    as it runs (settled start, tissue collision), then of a second session of it in the
+    same process, and the kernels that second session compiled."""
     from taichi_lap import runtime
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.session import Session
 
     start = time.perf_counter()
-    runtime.init("cpu")
-    session = liver_session(1.0, True, as_scene=True)
+    runtime.init(arch)
+    scene = scene_mod.load(name)
+    session = Session(scene, progress=False)
     session.step()
+    first = time.perf_counter() - start
+    session.close()
+    compiled = runtime.kernel_compilations()
+    start = time.perf_counter()
+    with Session(scene, progress=False) as second:
+        second.step()
     print(
-        f"STARTUP {time.perf_counter() - start:.3f} BUILD {session.build_seconds:.3f} "
-        f"SETTLE {session.settle_seconds:.3f}"
+        f"STARTUP {first:.3f} BUILD {session.build_seconds:.3f} "
+        f"SETTLE {session.settle_seconds:.3f} SECOND {time.perf_counter() - start:.3f} "
+        f"COMPILED {runtime.kernel_compilations() - compiled}"
     )
 
 
-def startup_cases() -> list[dict]:
+def run_probe(env: dict, arch: str, name: str) -> dict[str, float]:
+    proc = subprocess.run(
+        [sys.executable, __file__, "--startup-probe", arch, name],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    line = next(l for l in proc.stdout.splitlines() if l.startswith("STARTUP"))
+    words = line.split()
+    return {key.lower(): float(value) for key, value in zip(words[::2], words[1::2])}
+
+
+def startup_cases(arch: str) -> list[dict]:
+    """``cold-start``: the full liver with empty model, settled-start and kernel caches;
+    ``cached-start[-scene]``: each built-in scene with warm caches (the liver's case
+    keeps its old name); ``second-session-<scene>``: a second session of it in the
+    same process (``kernel_compilations`` in its params)."""
     out = []
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(
@@ -204,31 +235,29 @@ def startup_cases() -> list[dict]:
             TAICHI_LAP_CACHE=str(Path(tmp) / "models"),
             TI_OFFLINE_CACHE_FILE_PATH=str(Path(tmp) / "kernels"),
         )
-        for case in ("cold-start", "cached-start"):
-            proc = subprocess.run(
-                [sys.executable, __file__, "--startup-probe"],
-                env=env,
-                capture_output=True,
-                text=True,
-                check=True,
+        for name in STARTUP_SCENES:
+            cold = run_probe(env, arch, name)  # fills the caches
+            warm = run_probe(env, arch, name)
+            if name == "liver":
+                params = {"model_build_s": cold["build"], "settle_s": cold["settle"]}
+                out.append(result("cold-start", params, "seconds", [cold["startup"]]))
+            case = "cached-start" if name == "liver" else f"cached-start-{name}"
+            params = {"model_build_s": warm["build"], "settle_s": warm["settle"]}
+            out.append(result(case, params, "seconds", [warm["startup"]]))
+            params = {"kernel_compilations": int(warm["compiled"])}
+            out.append(result(f"second-session-{name}", params, "seconds", [warm["second"]]))
+            print(
+                name,
+                f"cold {cold['startup']:.2f} s, warm {warm['startup']:.2f} s, second "
+                f"session {warm['second']:.2f} s compiling {int(warm['compiled'])} kernels",
+                flush=True,
             )
-            line = next(l for l in proc.stdout.splitlines() if l.startswith("STARTUP"))
-            _, total, _, build, _, settle = line.split()
-            out.append(
-                result(
-                    case,
-                    {"model_build_s": float(build), "settle_s": float(settle)},
-                    "seconds",
-                    [float(total)],
-                )
-            )
-            print(case, total, "s", flush=True)
     return out
 
 
 def main():
     if "--startup-probe" in sys.argv:
-        startup_probe()
+        startup_probe(*sys.argv[sys.argv.index("--startup-probe") + 1 :][:2])
         return
     args = arguments("deform")
     from taichi_lap import runtime
@@ -237,7 +266,7 @@ def main():
     runs = args.runs or (5 if args.quick else 20)
     results = deform_cases(args.quick, runs) + fascia_cases(args.quick, runs)
     if not args.quick:
-        results += startup_cases()
+        results += startup_cases(args.arch)
     report("deform", args.arch, results, args.json)
 
 

@@ -2,7 +2,8 @@
 
 ``auto`` tries CUDA, then Metal, then the CPU, and logs which one it got. Vulkan
 is used only when asked for: on a machine without a GPU it is a software driver,
-several times slower than the CPU backend. Kernels use f32 and i32 only.
+several times slower than the CPU backend. Physics kernels use f32 and i32; the
+rasterizer's depth|triangle keys are i64 (``atomic_min``), which Vulkan supports.
 """
 
 from __future__ import annotations
@@ -73,3 +74,11 @@ def available_backends() -> list[str]:
     """Backends this Taichi build can start here (OpenGL is not probed: its probe
     crashes the process on machines without a display)."""
     return [name for name in ("cpu", "cuda", "vulkan", "metal") if _is_supported(name)]
+
+
+def kernel_compilations() -> int:
+    """Kernel instances Taichi has compiled in this process: each kernel once per
+    distinct object or field it is given as a template argument."""
+    from taichi.lang import impl
+
+    return impl.get_runtime().get_num_compiled_functions()

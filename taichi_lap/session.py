@@ -3,15 +3,26 @@ Model / State / Control, the solver, and per-stage timings."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import time
+from dataclasses import dataclass
 
 import taichi as ti
 
+from taichi_lap import runtime
 from taichi_lap.core.instruments import tool_geometry
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.kernels.skinning import skin_surface
-from taichi_lap.preprocess.cache import build_model
+from taichi_lap.preprocess.cache import (
+    build_model,
+    cache_dir,
+    code_digest,
+    load_arrays,
+    save_arrays,
+    scene_digest,
+)
 from taichi_lap.scene import Scene
 from taichi_lap.sim import Control, Model, Solver, SolverSettings, State
 
@@ -35,6 +46,56 @@ def scene_script(scene: Scene) -> ScriptedDevice | None:
     return ScriptedDevice.from_tables(scene.source, frames, scene.tools) if frames else None
 
 
+def session_key(scene: Scene) -> str:
+    """What a session's device objects and settled start depend on: the model (its cache
+    key: validated organs, detail, mesh files, builder code), the settings, planes and
+    tools."""
+    content = {
+        "model": scene_digest(scene),
+        "settings": scene.settings,
+        "planes": scene.planes,
+        "tools": scene.tools,
+    }
+    return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def settled_start_digest(key: str) -> str:
+    """Cache key of a scene's settled start: the session key, the code that simulates
+    (every package module a session reads) and the backend (another rounds
+    differently)."""
+    content = [key, code_digest(("taichi_lap.session",)), str(runtime.current_arch())]
+    return hashlib.sha256("/".join(content).encode()).hexdigest()[:32]
+
+
+@dataclass
+class _Parts:
+    """The device objects of a closed session, kept for the next one of its scene."""
+
+    key: str
+    model: Model
+    state: State
+    control: Control
+    solver: Solver
+    start_state: dict | None
+    settle_seconds: float
+
+    def close(self):
+        for owner in (self.solver, self.control, self.state, self.model):
+            owner.close()
+
+
+_parked: _Parts | None = None
+"""The last closed session's parts (one at a time: the fields of others are freed)."""
+
+
+def release_parked():
+    """Free the fields of the session kept for reuse, if any."""
+    global _parked
+    if _parked is not None:
+        _parked.close()
+        _parked = None
+
+
 class Session:
     """Owns everything one running scene needs. ``timings`` holds the last frame's
     milliseconds per stage (``physics``; renderers add theirs); ``events`` the last
@@ -46,28 +107,75 @@ class Session:
     every surface triangle, which the collision broad phase pays for in every
     substep), and :meth:`reset` returns to that state (``settle_seconds``: the wall
     time it took). The tissue collision's pair lists are then built for the start
-    state, so that the first frame does not pay for them."""
+    state, so that the first frame does not pay for them.
+
+    :meth:`close` (or leaving a ``with`` block) ends the session. Its Model, State,
+    Control and Solver are kept for the next session of the same scene in this
+    process (:func:`session_key`), which takes them, with the settled start, instead
+    of allocating new fields: Taichi compiles a kernel once per object it is given, so
+    that session compiles nothing and starts at once. Only the last closed session is
+    kept; closing another frees the fields of the one kept before
+    (:func:`release_parked` frees it too), after which Taichi compiles every kernel
+    again (:meth:`taichi_lap.core.fields.FieldGroup.close`)."""
 
     def __init__(self, scene: Scene, *, use_cache: bool = True, progress: bool = True):
         start = time.perf_counter()
         self.scene = scene
-        self.data = build_model(scene, use_cache=use_cache, progress=progress)
-        self.build_seconds = time.perf_counter() - start
-        self.model = model_for(scene, self.data)
-        self.state = State(self.model)
-        self.control = Control()
-        for index, tool in enumerate(scene.tools):
-            self.control.set_tool_shapes(index, tool_geometry(tool).shapes)
-        self.solver = Solver(self.model, SolverSettings.from_scene(scene.settings))
         self.dt = scene.settings["dt"]
         self.timings: dict[str, float] = {}
         self.events: list[dict] = []
-        self._start_state = None
-        self.settle_seconds = 0.0
-        self.reset()
-        self._settle(round(scene.settings["settle_time"] / self.dt))
+        self.key = session_key(scene)
+        self._closed = False
+        parts = _take_parked(self.key)
+        if parts is not None:
+            self.data = parts.model.data
+            self.model, self.state, self.control = parts.model, parts.state, parts.control
+            self.solver, self._start_state = parts.solver, parts.start_state
+            self.settle_seconds = parts.settle_seconds
+            self.build_seconds = time.perf_counter() - start
+            self.solver.reset(pairs=True)
+            self.reset()
+        else:
+            self.data = build_model(scene, use_cache=use_cache, progress=progress)
+            self.build_seconds = time.perf_counter() - start
+            self.model = model_for(scene, self.data)
+            self.state = State(self.model)
+            self.control = Control()
+            for index, tool in enumerate(scene.tools):
+                self.control.set_tool_shapes(index, tool_geometry(tool).shapes)
+            self.solver = Solver(self.model, SolverSettings.from_scene(scene.settings))
+            self._start_state = None
+            self.settle_seconds = 0.0
+            self.reset()
+            frames = round(scene.settings["settle_time"] / self.dt)
+            if frames > 0:
+                self._start_state = self._settled_start(frames, use_cache)
+                self.reset()
         if self.solver.collision is not None:
             self.solver.collision.prime(self.state, self.control)
+
+    def __enter__(self) -> Session:
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        """End the session (class docstring); it must not be used afterwards."""
+        global _parked
+        if self._closed:
+            return
+        self._closed = True
+        release_parked()
+        _parked = _Parts(
+            self.key,
+            self.model,
+            self.state,
+            self.control,
+            self.solver,
+            self._start_state,
+            self.settle_seconds,
+        )
 
     def reset(self):
         """Back to the start state (the rest shape, or the settled one), tools at their
@@ -77,28 +185,27 @@ class Session:
         else:
             self.state.restore(self._start_state)
         self.control.reset()
-        for collision in (self.solver.collision, self.solver.self_collision):
-            if collision is not None:
-                collision.reset()
+        self.solver.reset()
         apply_poses(self.control, self.scene.tools, {})
         skin_surface(self.model, self.state)
 
-    def _settle(self, frames: int):
-        """Run ``frames`` frames from the rest state with collision off and keep the
-        result as the start state (class docstring)."""
-        if frames <= 0:
-            return
+    def _settled_start(self, frames: int, use_cache: bool) -> dict:
+        """The state after ``frames`` frames from the rest state with collision off
+        (class docstring): from the cache when a run of this scene, code and backend
+        stored it, else simulated (and stored)."""
+        path = cache_dir() / f"{settled_start_digest(self.key)}.start.npz"
+        if use_cache and path.is_file():
+            try:
+                snapshot = load_arrays(path)
+                self.state.restore(snapshot)  # checks every array against its field
+                log.info("settled start loaded from cache %s", path)
+                return snapshot
+            except (OSError, ValueError, KeyError) as exc:
+                log.warning("ignoring unreadable settled start %s: %s", path, exc)
         start = time.perf_counter()
-        solver = self.solver
-        pipelines = solver.collision, solver.self_collision
-        solver.collision = solver.self_collision = None
-        try:
-            for _ in range(frames):
-                solver.step(self.state, self.control, self.dt)
-        finally:
-            solver.collision, solver.self_collision = pipelines
-        self._start_state = self.state.snapshot()
-        self.reset()
+        for _ in range(frames):
+            self.solver.step(self.state, self.control, self.dt, collide=False)
+        snapshot = self.state.snapshot()
         self.settle_seconds = time.perf_counter() - start
         log.info(
             "%s settled for %.2f s of simulated time in %.1f s",
@@ -106,14 +213,35 @@ class Session:
             frames * self.dt,
             self.settle_seconds,
         )
+        if use_cache:
+            save_arrays(path, snapshot)
+        return snapshot
 
-    def step(self, poses: dict[str, Pose] | None = None, buttons: dict[str, int] | None = None):
+    def step(
+        self,
+        poses: dict[str, Pose] | None = None,
+        buttons: dict[str, int] | None = None,
+        *,
+        collide: bool = True,
+    ):
         """Place the tools (``buttons`` per tool name close graspers), advance one
-        frame of ``dt``, time it."""
+        frame of ``dt``, time it; ``collide=False``: without the collision pipelines
+        (:meth:`Solver.step`)."""
+        if self._closed:
+            raise RuntimeError("the session is closed")
         start = time.perf_counter()
         apply_poses(self.control, self.scene.tools, poses or {}, buttons)
-        self.solver.step(self.state, self.control, self.dt)
+        self.solver.step(self.state, self.control, self.dt, collide=collide)
         ti.sync()
         self.timings["physics"] = (time.perf_counter() - start) * 1e3
         names = [tool["name"] for tool in self.scene.tools]
         self.events = [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
+
+
+def _take_parked(key: str) -> _Parts | None:
+    """The kept parts when they are of the scene ``key`` names (then no longer kept)."""
+    global _parked
+    if _parked is None or _parked.key != key:
+        return None
+    parts, _parked = _parked, None
+    return parts

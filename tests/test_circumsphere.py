@@ -12,7 +12,7 @@ from taichi_lap.kernels.collision import response, spheres
 
 from taichi_lap.collision.tissue import TissueCollision, broad_spheres
 from taichi_lap.core.instruments import ToolShape
-from taichi_lap.sim import Control
+from taichi_lap.sim import Control, Solver
 from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX, simulation
 
@@ -266,10 +266,11 @@ def sheet_run(method: str, speed: float):
             {"kind": "fixed", "box_min": [0.018, -1, -1], "box_max": [1, 1, 1]},
         ],
     }
-    _, data, model, state, no_tools, solver = simulation(
+    _, data, model, state, no_tools, session_solver = simulation(
         [sheet], gravity=[0, 0, 0], shape_iterations=5
     )
-    solver.collision = TissueCollision(model, method=method, tissue_pairs=False)
+    collision = TissueCollision(model, method=method, tissue_pairs=False)
+    solver = Solver(model, session_solver.settings, collision=collision)
     tools = Control()
     radius, y, y_end = 0.0025, 0.001 + 0.0025 + 0.0005, -0.002
     x0 = data.rest_position
@@ -277,7 +278,7 @@ def sheet_run(method: str, speed: float):
     held = 0
     while held < 3:
         tools.set_tool(0, [0.0, y, -0.03], [0.0, y, 0.03], radius)
-        solver.collision.begin_frame(tools)
+        collision.begin_frame(tools)
         solver.substep(state, no_tools, DT, collision_control=tools)
         held += y == y_end
         y = max(y - speed * DT, y_end)

@@ -2,6 +2,7 @@
 gravity, and every reset returns there."""
 
 import numpy as np
+import pytest
 
 from taichi_lap import scene as scene_mod
 from taichi_lap.session import Session
@@ -66,3 +67,70 @@ def test_solver_settings_take_every_default_from_the_scene_schema():
     settings = SolverSettings.from_scene(scene.settings)
     assert settings.substeps == 3 and settings.gravity == (0.0, 0.0, -1.0)
     assert settings.self_collision is True
+
+
+@pytest.mark.parametrize("name", ["rectum", "intestine"])
+def test_a_second_session_of_a_scene_compiles_nothing_and_runs_the_same(name):
+    from taichi_lap.runtime import kernel_compilations
+    from taichi_lap.session import release_parked, scene_script
+
+    scene = scene_mod.load(name, {"scene.detail": 0.1, "scene.settle_time": 0.1})
+
+    def run() -> list[np.ndarray]:
+        with Session(scene, use_cache=False, progress=False) as session:
+            script = scene_script(scene)
+            frames = []
+            for _ in range(8):
+                t = session.state.time
+                session.step(script.poses(t), script.buttons(t))
+                frames.append(session.state.positions())
+        return frames
+
+    release_parked()  # another test's session (freeing it drops every compiled kernel)
+    first = run()
+    compiled = kernel_compilations()
+    second = run()
+    assert kernel_compilations() == compiled
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_closed_session_cannot_step_and_its_fields_are_freed_for_another_scene():
+    from taichi_lap.session import release_parked
+
+    session = ball_session(0.0)
+    session.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        session.step()
+    tree = session.model._group.tree
+    assert tree is not None  # kept for the next session of the ball scene
+    other = Session(scene_mod.from_tables([BALL], substeps=3), use_cache=False, progress=False)
+    other.close()  # another scene: the ball's fields are freed
+    assert session.model._group.tree is None
+    release_parked()
+    assert other.model._group.tree is None
+
+
+def test_settled_start_is_cached_and_a_damaged_cache_is_settled_again(
+    tmp_path, monkeypatch, caplog
+):
+    from taichi_lap.session import release_parked
+
+    monkeypatch.setenv("TAICHI_LAP_CACHE", str(tmp_path))
+    scene = scene_mod.from_tables([BALL], planes=[FLOOR], substeps=2, settle_time=0.5)
+
+    def start() -> tuple[float, dict]:
+        """A new session (not the one kept for reuse): its settling time and start."""
+        release_parked()
+        with Session(scene, progress=False) as session:
+            return session.settle_seconds, session.state.snapshot()
+
+    seconds, settled = start()
+    assert seconds > 0.0 and len(list(tmp_path.glob("*.start.npz"))) == 1
+    seconds, loaded = start()
+    assert seconds == 0.0  # loaded, not simulated
+    for key, value in settled.items():
+        np.testing.assert_array_equal(value, loaded[key], err_msg=key)
+    next(tmp_path.glob("*.start.npz")).write_bytes(b"not an archive")
+    seconds, _ = start()
+    assert seconds > 0.0 and "ignoring unreadable settled start" in caplog.text

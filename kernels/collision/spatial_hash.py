@@ -38,6 +38,8 @@ import math
 import numpy as np
 import taichi as ti
 
+from taichi_lap.core.fields import FieldGroup, FieldOwner
+
 _PRIMES = (73856093, 19349663, 83492791)
 
 
@@ -91,7 +93,7 @@ def exclusive_scan(
 
 
 @ti.data_oriented
-class SpatialHash:
+class SpatialHash(FieldOwner):
     """Counting-sort spatial hash over at most ``capacity`` points.
 
     ``table_size`` buckets, cells of ``cell_size`` [m]; ``find_pairs`` writes up to
@@ -108,15 +110,18 @@ class SpatialHash:
         self.block = max(64, math.isqrt(table_size - 1) + 1)  # prefix-sum block of buckets
         self.n_blocks = (table_size + self.block - 1) // self.block
         self.pair_capacity = pair_capacity if pair_capacity is not None else 8 * capacity
-        self.point_bucket = ti.field(ti.i32, capacity)
-        self.sorted_index = ti.field(ti.i32, capacity)
-        self.bucket_count = ti.field(ti.i32, table_size)  # counts, then scatter cursors
-        self.bucket_start = ti.field(ti.i32, table_size + 1)
-        self.block_start = ti.field(ti.i32, self.n_blocks)
-        self.pairs = ti.Vector.field(2, ti.i32, max(self.pair_capacity, 1))
-        self.pair_count = ti.field(ti.i32, ())
+        group = FieldGroup()
+        self.point_bucket = group.field(ti.i32, capacity)
+        self.sorted_index = group.field(ti.i32, capacity)
+        self.bucket_count = group.field(ti.i32, table_size)  # counts, then scatter cursors
+        self.bucket_start = group.field(ti.i32, table_size + 1)
+        self.block_start = group.field(ti.i32, self.n_blocks)
+        self.pairs = group.field(ti.i32, self.pair_capacity, vector=2)
+        self.pair_count = group.field(ti.i32, None)
+        self.neighbour_count = group.field(ti.i32, capacity)
+        group.finalize()
+        self._group = group
         self.count = 0  # points in the last build
-        self.neighbour_count = ti.field(ti.i32, capacity)
         # Vulkan: no atomic inside the candidate loops (see the module docstring).
         self.reserve_per_point = ti.lang.impl.current_cfg().arch == ti.vulkan
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.geometry import arc_length
 from taichi_lap.core.mesh import edge_neighbours
 from taichi_lap.kernels.collision import intestine as kernels
@@ -107,7 +107,7 @@ def collision_elements(model) -> dict[str, np.ndarray]:
 
 
 @ti.data_oriented
-class IntestineCollision:
+class IntestineCollision(FieldOwner):
     """Stochastic self-collision detection (seed 001 §4.1) and response (§4.2) of
     every organ with spring rows in ``model``.
 

@@ -10,7 +10,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.collision.intestine import IntestineCollision
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.kernels.collision import intestine as kernels
 
 
@@ -41,7 +41,7 @@ def region_labels(pairs: np.ndarray, neighbour: np.ndarray) -> np.ndarray:
 
 
 @ti.data_oriented
-class ExactDetector:
+class ExactDetector(FieldOwner):
     """Every non-neighbouring (segment, element) pair with gap < ``skin`` [m] (0:
     the colliding pairs), O(n²): ground truth for the stochastic detector."""
 

@@ -3,12 +3,12 @@
 
 import taichi as ti
 
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.kernels.collision.broad_phase import ROW_BLOCK
 
 
 @ti.data_oriented
-class PairRows:
+class PairRows(FieldOwner):
     """Partner lists of ``triangles`` triangles in one array of ``capacity`` entries:
     row t is ``partner[start[t]:start[t + 1]]``, sorted (CSR); ``size``, ``cursor`` and
     ``block_start`` are scratch of the rebuild (:func:`kernels.collision.broad_phase.count_rows`)."""
@@ -26,7 +26,7 @@ class PairRows:
 
 
 @ti.data_oriented
-class FoundPairs:
+class FoundPairs(FieldOwner):
     """Pairs found by one rescan (at most ``capacity``; ``count`` may say more)."""
 
     def __init__(self, capacity: int):

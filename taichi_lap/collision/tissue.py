@@ -135,6 +135,7 @@ class TissueCollision:
         self.reach_bound = REACH_FACTOR * max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
         tables = triangle_corner_tables(data)
         self._init_fields(data, triangles, tables, rest_sphere, rest_normal)
+        self._retired = []  # pair lists outgrown, freed with the rest by close()
         self.grid = self.rows = self.spare = self.found = None  # tissue pairs only
         if tissue_pairs:
             if cell_size is None:
@@ -146,6 +147,7 @@ class TissueCollision:
             self.rows = PairRows(f, ROW_CAPACITY * f)
             self.spare = PairRows(f, ROW_CAPACITY * f)
             self.found = FoundPairs(ROW_CAPACITY // 2 * f)
+        self.reset(pairs=True)
 
     def _init_fields(
         self,
@@ -168,7 +170,7 @@ class TissueCollision:
         self.broad_sphere = group.field(ti.f32, f, vector=4)
         self.rest_sphere = group.field(ti.f32, f, vector=4, values=rest_sphere)
         self.rest_normal = group.field(ti.f32, f, vector=3, values=rest_normal)
-        self.ref_sphere = group.field(ti.f32, f, vector=4, values=np.full((f, 4), FAR))
+        self.ref_sphere = group.field(ti.f32, f, vector=4)
         self.hash_sphere = group.field(ti.f32, f, vector=4)
         self.moved = group.field(ti.i32, f)
         self.active_list = group.field(ti.i32, f)
@@ -229,6 +231,14 @@ class TissueCollision:
         self.counter = group.field(ti.i32, len(spheres.COUNTERS))
         group.finalize()
 
+    def close(self):
+        """Free the fields of the tables, the hash and the pair lists (Taichi then
+        compiles every kernel again at its next launch: not on a frame's path)."""
+        self._group.close()
+        for owner in (self.grid, self.rows, self.spare, self.found, *self._retired):
+            if owner is not None:
+                owner.close()
+
     def begin_frame(self, control):
         """Remember the tools' poses of the last frame (for the tool motion in the
         bounding-sphere phase and the facing test); call once per frame after the
@@ -236,15 +246,21 @@ class TissueCollision:
         broad_phase.remember_tool_poses(control, self)
         self._begun = True
 
-    def reset(self):
+    def reset(self, *, pairs: bool = False):
         """Forget the lazy-update state (every circumsphere is recomputed at the next
         step) and the tools' last poses, e.g. after :meth:`State.reset`. The pair lists
         stay: each row holds the partners within the margin of where its triangle was
         when listed, wherever the state jumped since, and a triangle that is now
-        elsewhere rescans at the next step, as after any drift."""
+        elsewhere rescans at the next step, as after any drift. With ``pairs`` the
+        lists and the hash are forgotten too (every triangle rescans, as in a new
+        collision), and so is the count of oversize steps."""
         self.area_last.fill(0.0)
         self.tool_last_active.fill(0)
         self._begun = False
+        if pairs:
+            self.ref_sphere.fill(FAR)
+            self._hashed = False
+            self.oversize_steps = 0
 
     def prime(self, state, control):
         """List the pairs of every triangle at the current positions (p and x) now, e.g.
@@ -334,8 +350,10 @@ class TissueCollision:
             found = int(status[broad_phase.B_FOUND])
             rows = int(status[broad_phase.B_ROWS])
             if found > self.found.capacity:
+                self._retired.append(self.found)
                 self.found = FoundPairs(2 * found)
             elif rows > self.spare.capacity:
+                self._retired.append(self.spare)
                 self.spare = PairRows(self.triangle_count, 2 * rows)
             else:
                 break

@@ -3,7 +3,8 @@
 Taichi gives every separately created field its own SNode tree, and a process can
 hold only a limited number of trees (beyond ~512 the CPU backend crashes). A
 session allocates dozens of fields, so each Model, State, Control or viewer places
-its fields in one :class:`FieldGroup`.
+its fields in one :class:`FieldGroup`, and :meth:`FieldGroup.close` frees the tree
+when its owner is closed (Taichi frees trees only on request).
 """
 
 from __future__ import annotations
@@ -56,6 +57,17 @@ class FieldGroup:
         """Upload ``values`` into ``field`` when the group is finalized."""
         self._uploads.append((field, np.asarray(values)))
 
+    def close(self):
+        """Free the fields' memory (destroy the SNode tree). The fields must not be used
+        afterwards; closing twice, or a group never finalized, does nothing. Taichi
+        then compiles every kernel of the process again at its next launch (it cannot
+        tell which kernels read the tree), so groups are closed when a whole session
+        ends, not on a frame's path."""
+        if self.tree is not None:
+            ti.sync()
+            self.tree.destroy()
+            self.tree = None
+
     def finalize(self):
         self.tree = self._builder.finalize()
         for f, values in self._uploads:
@@ -64,3 +76,13 @@ class FieldGroup:
                 padded[: len(values)] = values
                 f.from_numpy(padded)
         self._uploads = []
+
+
+class FieldOwner:
+    """Base of objects whose fields live in one :class:`FieldGroup`, ``self._group``."""
+
+    _group: FieldGroup
+
+    def close(self):
+        """Free the object's fields (:meth:`FieldGroup.close`)."""
+        self._group.close()

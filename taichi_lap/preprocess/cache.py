@@ -79,11 +79,12 @@ def _imported_modules(tree: ast.AST, package: str) -> list[str]:
     return [n for n in names if n == "taichi_lap" or n.startswith("taichi_lap.")]
 
 
-def _code_digest() -> str:
-    """Digest of the package version and of every source file a build reads, so a
-    change of any of them misses the cache."""
+def code_digest(roots: tuple[str, ...] = BUILD_ROOTS) -> str:
+    """Digest of the package version and of every source file ``roots`` read
+    (:func:`build_sources`; by default those of a build), so that a change of any of
+    them misses a cache keyed on it."""
     h = hashlib.sha256(taichi_lap.__version__.encode())
-    for path in build_sources():
+    for path in build_sources(roots):
         h.update(path.read_bytes())
     return h.hexdigest()
 
@@ -96,7 +97,7 @@ def scene_digest(scene: Scene) -> str:
     for organ in scene.organs:
         if organ.geometry.mesh is not None:
             h.update(Path(organ.geometry.mesh).read_bytes())
-    h.update(_code_digest().encode())
+    h.update(code_digest().encode())
     return h.hexdigest()[:32]
 
 
@@ -116,11 +117,9 @@ def build_model(scene: Scene, *, use_cache: bool = True, progress: bool = True) 
     return data
 
 
-def save_model(data: ModelData, path: Path):
-    """Write the model atomically (temporary file, then rename)."""
+def save_arrays(path: Path, arrays: dict[str, np.ndarray]):
+    """Write named arrays to an ``.npz`` atomically (temporary file, then rename)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = data.arrays()
-    arrays["organs_json"] = np.array(json.dumps([asdict(r) for r in data.organs]))
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
     try:
         with os.fdopen(fd, "wb") as handle:
@@ -131,10 +130,22 @@ def save_model(data: ModelData, path: Path):
         raise
 
 
+def load_arrays(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` written by :func:`save_arrays` (no pickles)."""
+    with np.load(path, allow_pickle=False) as archive:
+        return {k: archive[k] for k in archive.files}
+
+
+def save_model(data: ModelData, path: Path):
+    """Write the model atomically."""
+    arrays = data.arrays()
+    arrays["organs_json"] = np.array(json.dumps([asdict(r) for r in data.organs]))
+    save_arrays(path, arrays)
+
+
 def load_model(path: Path) -> ModelData:
     """Read a model written by :func:`save_model`."""
-    with np.load(path, allow_pickle=False) as archive:
-        arrays = {k: archive[k] for k in archive.files}
+    arrays = load_arrays(path)
     organs = [
         OrganRecord(**{k: tuple(v) if isinstance(v, list) else v for k, v in r.items()})
         for r in json.loads(str(arrays.pop("organs_json")))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.instruments import (
     JAW_RADIUS,
     MAX_TOOL_SHAPES,
@@ -58,7 +58,7 @@ def shape_rows(shapes) -> tuple[np.ndarray, ...]:
 
 
 @ti.data_oriented
-class Control:
+class Control(FieldOwner):
     """Tools: the shaft from ``tool_a`` (tip) to ``tool_b`` [m] of ``tool_radius``
     [m], the jaws from ``tool_jaw`` [m] (ahead of the tip) to the tip of
     ``tool_jaw_radius`` [m] (0: no jaws), ``tool_active``, ``tool_frame`` (columns x, y,

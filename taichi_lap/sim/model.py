@@ -11,7 +11,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.core.csr import both_ends, incidence
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.preprocess.model_data import ModelData
 
 CHUNK = 128
@@ -40,7 +40,7 @@ def greedy_colors(pairs: np.ndarray, count: int) -> np.ndarray:
 
 
 @ti.data_oriented
-class Model:
+class Model(FieldOwner):
     """Device copy of a :class:`ModelData` plus the environment planes.
 
     ``planes`` is a list of ``(point, normal, friction)``; ``iterations`` is the

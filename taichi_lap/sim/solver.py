@@ -79,9 +79,20 @@ class SolverSettings:
 
 
 class Solver:
-    """Advances a :class:`State` in place; see the module docstring for the order."""
+    """Advances a :class:`State` in place; see the module docstring for the order.
 
-    def __init__(self, model: Model, settings: SolverSettings):
+    The tissue collision is the one ``settings.collision`` chooses, or ``collision``
+    when given (seed 000's cylinder experiment compares methods on one model); the
+    intestine self-collision is on for organs with spring rows when
+    ``settings.self_collision``."""
+
+    def __init__(
+        self,
+        model: Model,
+        settings: SolverSettings,
+        *,
+        collision: TissueCollision | None = None,
+    ):
         if model.constraint_solver != settings.constraint_solver:
             raise ValueError("the model was built for another constraint solver")
         self.model = model
@@ -89,8 +100,8 @@ class Solver:
         self._has_constraints = model.distance_count > 0 or model.lra_count > 0
         self._has_clusters = model.cluster_total > 0
         self._has_springs = model.spring_count > 0
-        self.collision = None
-        if settings.collision != "off" and len(model.data.surface_triangles):
+        self.collision = collision
+        if collision is None and settings.collision != "off" and len(model.data.surface_triangles):
             self.collision = TissueCollision(
                 model, method=settings.collision, scale_phi=settings.collision_scale_phi
             )
@@ -106,20 +117,43 @@ class Solver:
             )
         self.events: list[dict] = []
 
-    def step(self, state: State, control: Control, dt: float):
-        """Advance one frame of ``dt`` [s]; raise :class:`SimulationFault` on a fault."""
+    def step(self, state: State, control: Control, dt: float, *, collide: bool = True):
+        """Advance one frame of ``dt`` [s]; raise :class:`SimulationFault` on a fault.
+        ``collide=False`` leaves out both collision pipelines (particle contacts with
+        tools and planes stay), e.g. while a scene settles from its rest shape."""
         h = dt / self.settings.substeps
         state.fault_particle[None] = NO_FAULT
         self.events = []
         self.update_grasps(state, control)
-        if self.collision is not None:
+        if self.collision is not None and collide:
             self.collision.begin_frame(control)
         for k in range(self.settings.substeps):
-            self.substep(state, control, h, first=k == 0, last=k == self.settings.substeps - 1)
+            self.substep(
+                state,
+                control,
+                h,
+                first=k == 0,
+                last=k == self.settings.substeps - 1,
+                collide=collide,
+            )
         skinning.skin_surface(self.model, state)
         state.time += dt
         state.frame += 1
         self.check_health(state)
+
+    def reset(self, *, pairs: bool = False):
+        """Forget what the collision pipelines carry from frame to frame (after the
+        state jumped); ``pairs``: the tissue collision's pair lists too."""
+        if self.collision is not None:
+            self.collision.reset(pairs=pairs)
+        if self.self_collision is not None:
+            self.self_collision.reset()
+
+    def close(self):
+        """Free the fields of the collision pipelines."""
+        for pipeline in (self.collision, self.self_collision):
+            if pipeline is not None:
+                pipeline.close()
 
     def update_grasps(self, state: State, control: Control):
         """Capture for jaws that closed since the last step, release for jaws that
@@ -152,6 +186,7 @@ class Solver:
         *,
         first: bool = True,
         last: bool = True,
+        collide: bool = True,
         collision_control: Control | None = None,
     ):
         """One substep: predict, constraints, shape matching, update goals. Within a
@@ -162,6 +197,7 @@ class Solver:
         the collision pipeline only)."""
         model, settings = self.model, self.settings
         collision_control = collision_control or control
+        collision = self.collision if collide else None
         if first or self._has_springs:
             shape_matching.predict(model, state, control, settings.gravity, h, int(not first))
         if self._has_constraints:
@@ -170,21 +206,16 @@ class Solver:
             for _ in range(settings.shape_iterations - 1):
                 shape_matching.match_clusters(model, state)
                 shape_matching.project_to_goals(model, state, control)
-                self._collide(state, collision_control, tissue=False)
+                if collision is not None:  # tool contacts after every pass
+                    collision.step(state, collision_control, tissue=False)
             shape_matching.match_clusters(model, state)
-        self._collide(state, collision_control)
-        if self.self_collision is not None:
+        if collision is not None:  # the last move of p before the goal update
+            collision.step(state, collision_control)
+        if self.self_collision is not None and collide:
             self.self_collision.step(state, h)
         shape_matching.update_goals(
             model, state, control, h, settings.speed_limit, settings.gravity, int(not last)
         )
-
-    def _collide(self, state: State, control: Control, tissue: bool = True):
-        """Tissue collision (seed 000 §4), the last move of p before the goal update;
-        tissue-tissue pairs only after the last shape-matching pass (``tissue``), tool
-        contacts after every pass."""
-        if self.collision is not None:
-            self.collision.step(state, control, tissue=tissue)
 
     def _solve_constraints(self, state: State, control: Control):
         model, settings = self.model, self.settings

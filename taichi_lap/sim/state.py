@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.instruments import MAX_TOOLS
 from taichi_lap.kernels.collision.particle_contact import FREE
 from taichi_lap.kernels.health import NO_FAULT
@@ -30,7 +30,7 @@ SNAPSHOT_FIELDS = (
 
 
 @ti.data_oriented
-class State:
+class State(FieldOwner):
     """Per-particle ``x`` [m], ``v`` [m/s], predicted ``p`` [m] (and a second buffer
         for Jacobi sweeps), shape-matching ``goal`` [m], recovery factor ``eta`` and
         ``collided`` flag (seed 000 Alg. 1); per-cluster rotation and mass centre; the
@@ -62,6 +62,7 @@ class State:
         self.fault = group.field(ti.i32, None)
         self.fault_particle = group.field(ti.i32, None)
         group.finalize()
+        self._group = group
         self.time = 0.0
         self.frame = 0
         self.jaws_closed = [False] * MAX_TOOLS
@@ -102,7 +103,15 @@ class State:
 
     def restore(self, snapshot: dict[str, np.ndarray]):
         """Put back a :meth:`snapshot` taken while no tool held tissue, as frame 0:
-        predictions at x, no fault, jaws open, time 0."""
+        predictions at x, no fault, jaws open, time 0. A snapshot of another model (an
+        array of another shape or type) raises ValueError and changes nothing."""
+        for name, current in self.snapshot().items():
+            array = snapshot[name]
+            if array.shape != current.shape or array.dtype != current.dtype:
+                raise ValueError(
+                    f"{name}: {array.dtype} {array.shape} was found, {current.dtype} "
+                    f"{current.shape} was expected"
+                )
         if (snapshot["grasp_tool"] != FREE).any():
             raise ValueError("cannot restore a snapshot taken while a tool held tissue")
         for name in SNAPSHOT_FIELDS:
