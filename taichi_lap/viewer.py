@@ -7,7 +7,6 @@ where there is no GPU)."""
 
 from __future__ import annotations
 
-import numpy as np
 import taichi as ti
 
 from taichi_lap.kernels.shading import VIEWS
@@ -111,9 +110,3 @@ class Viewer:
             )
             gui.text("LMB drag: tool, q/e: tool depth")
             gui.text("RMB drag: turn scope, w/s a/d r/f: move scope")
-
-    def screenshot(self) -> np.ndarray:
-        """What the window shows, as ``(H, W, 3)`` uint8 RGB (GGUI's own buffer)."""
-        rgba = self.window.get_image_buffer_as_numpy()  # (W, H, 4) float, origin bottom-left
-        rgb = np.flipud(np.transpose(rgba[:, :, :3], (1, 0, 2)))
-        return (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)

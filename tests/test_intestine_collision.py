@@ -106,6 +106,12 @@ def momentum(model, state) -> tuple[np.ndarray, np.ndarray]:
     return (m * (p - x) / H).sum(axis=0), (m * p).sum(axis=0)
 
 
+def element_particles(collision) -> np.ndarray:
+    """Global particle indices (E, 3) of each element (-1: a segment's third)."""
+    vertex = collision.element_vertex.to_numpy()
+    return np.where(vertex >= 0, collision.particle_global.to_numpy()[np.maximum(vertex, 0)], -1)
+
+
 @ti.kernel
 def closest_distance(cd: ti.template(), state: ti.template(), a: ti.i32, b: ti.i32) -> ti.f32:
     d, _, _, _, _ = kernels.closest(cd, state.p, a, b)
@@ -116,7 +122,7 @@ def test_segment_triangle_distance_is_the_least_over_dense_samples(strip):
     _, state, collision = planted(strip, 0.03)
     p = np.random.default_rng(5).uniform(-0.05, 0.05, (80, 3)).astype(np.float32)
     state.p.from_numpy(p)
-    elements = collision.element_particles()
+    elements = element_particles(collision)
     t = np.linspace(0.0, 1.0, 41)
     u, v = np.meshgrid(t, t)
     inside = u + v <= 1.0
@@ -171,7 +177,7 @@ def test_pairs_converging_to_one_minimum_are_merged(strip):
 def across_legs(collision, pairs: np.ndarray) -> np.ndarray:
     """Which pairs join an element of one leg of the crossing to one of the other
     (the connecting segment 19 and its triangles belong to neither)."""
-    particles = collision.element_particles()
+    particles = element_particles(collision)
     leg = np.where(particles < 0, particles[:, :1], particles) % 40 >= 20
     pure = np.where(leg.min(axis=1) == leg.max(axis=1), leg[:, 0].astype(int), -1)
     first, second = pure[pairs[:, 0]], pure[pairs[:, 1]]

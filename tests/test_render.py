@@ -137,7 +137,7 @@ def objects_seen(renderer: Renderer) -> set[int]:
     return set(objects[triangles[triangles >= 0]].tolist())
 
 
-def test_instrument_is_drawn_where_its_capsule_is_and_hidden_when_inactive():
+def test_instrument_is_drawn_where_its_shapes_are_and_hidden_when_inactive():
     session = small_session("rectum")
     renderer = Renderer.for_scene(session.scene, session.data, size=(160, 120))
     tool_object = len(session.data.organs)
@@ -149,7 +149,8 @@ def test_instrument_is_drawn_where_its_capsule_is_and_hidden_when_inactive():
     assert renderer.mesh.triangle_object[triangle] == tool_object
     depth = renderer.gbuffer.depth[80, 60]
     assert abs(depth - np.linalg.norm(tip - renderer.camera.eye)) < 0.02
-    session.control.clear_tool(0)
+    tail, radius = session.control.tool_b[0].to_numpy(), session.control.tool_radius[0]
+    session.control.set_tool(0, tip, tail, radius, active=False)
     renderer.render(session.state, session.control)
     assert tool_object not in objects_seen(renderer)
 
@@ -176,7 +177,10 @@ def window_screenshot() -> dict[str, np.ndarray]:
         session, Renderer.for_scene(session.scene, session.data, size=(160, 120)), show_window=False
     )
     viewer.draw()
-    return {"screenshot": viewer.screenshot(), "image": viewer.renderer.image()}
+    rgba = viewer.window.get_image_buffer_as_numpy()  # (W, H, 4) float, origin bottom-left
+    rgb = np.flipud(np.transpose(rgba[:, :, :3], (1, 0, 2)))
+    screenshot = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    return {"screenshot": screenshot, "image": viewer.renderer.image()}
 
 
 @pytest.mark.vulkan

@@ -83,7 +83,7 @@ def test_collided_vertex_holds_then_recovers_at_rate():
     # held: eta = 1 (eta_on_contact) makes the goal the current position
     assert np.allclose(goal[dented], x[dented], atol=1e-7)
     assert np.allclose(state.eta.to_numpy()[dented], 1.0)
-    control.clear_tool(0)
+    control.set_tool(0, [0.0, 0.0125, 0.0], [0.0, 0.1125, 0.0], 0.004, active=False)
     rate = BOX["material"]["recover_rate"]
     substeps = solver.settings.substeps
     for frame in range(1, 8):

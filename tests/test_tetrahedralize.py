@@ -5,10 +5,10 @@ import pytest
 import trimesh
 
 from taichi_lap.core.geometry import Solid, TriangleMesh
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import TET_EDGES, unique_edges
 from taichi_lap.preprocess.tetrahedralize import (
+    TET_FACES,
     TetMesh,
-    min_dihedral_angle,
     points_inside,
     tet_volumes,
     tetrahedralize,
@@ -17,6 +17,16 @@ from taichi_lap.preprocess.tetrahedralize import (
 RADIUS = 0.05  # m
 SPACING = RADIUS / 10  # m, cube edge of the lattice
 SNAPPED_MIN_DIHEDRAL = 10.0  # degrees, bound stated for a sphere of 10 cells radius
+
+
+def min_dihedral_angle(particles: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Smallest dihedral angle of each tet ``(T,)`` [degrees]; 60 for BCC tets."""
+    x = particles[tets]
+    faces = x[:, TET_FACES]  # (T, 4, 3, 3)
+    normal = np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=2, keepdims=True), 1e-300)
+    cosine = -np.einsum("tei,tei->te", normal[:, TET_EDGES[:, 0]], normal[:, TET_EDGES[:, 1]])
+    return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).min(axis=1)
 
 
 def sphere_solid(radius: float = RADIUS) -> Solid:

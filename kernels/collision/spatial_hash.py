@@ -96,29 +96,23 @@ def exclusive_scan(
 class SpatialHash(FieldOwner):
     """Counting-sort spatial hash over at most ``capacity`` points.
 
-    ``table_size`` buckets, cells of ``cell_size`` [m]; ``find_pairs`` writes up to
-    ``pair_capacity`` pairs (i < j) into ``pairs`` and the true count into ``pair_count``.
+    ``table_size`` buckets, cells of ``cell_size`` [m]; kernels query it with
+    :meth:`neighbour_buckets` and :meth:`bucket_range` (module docstring).
     """
 
-    def __init__(
-        self, capacity: int, table_size: int, cell_size: float, pair_capacity: int | None = None
-    ):
+    def __init__(self, capacity: int, table_size: int, cell_size: float):
         if capacity < 1 or table_size < 1 or not cell_size > 0:
             raise ValueError("capacity and table_size must be >= 1, cell_size > 0")
         self.capacity, self.table_size, self.cell_size = capacity, table_size, float(cell_size)
         self.inv_cell = float(np.float32(1.0 / cell_size))  # x * inv_cell: exact on every backend
         self.block = max(64, math.isqrt(table_size - 1) + 1)  # prefix-sum block of buckets
         self.n_blocks = (table_size + self.block - 1) // self.block
-        self.pair_capacity = pair_capacity if pair_capacity is not None else 8 * capacity
         group = FieldGroup()
         self.point_bucket = group.field(ti.i32, capacity)
         self.sorted_index = group.field(ti.i32, capacity)
         self.bucket_count = group.field(ti.i32, table_size)  # counts, then scatter cursors
         self.bucket_start = group.field(ti.i32, table_size + 1)
         self.block_start = group.field(ti.i32, self.n_blocks)
-        self.pairs = group.field(ti.i32, self.pair_capacity, vector=2)
-        self.pair_count = group.field(ti.i32, None)
-        self.neighbour_count = group.field(ti.i32, capacity)
         group.finalize()
         self._group = group
         self.count = 0  # points in the last build
@@ -208,77 +202,3 @@ class SpatialHash(FieldOwner):
                         c -= gap
                     self.sorted_index[c] = v
                 gap //= 3
-
-    # ---- neighbour queries -----------------------------------------------------
-    def find_pairs(self, points, radius: float) -> int:
-        """All pairs i < j of the last build with |x_i - x_j| <= radius [m] into ``pairs``.
-
-        Returns the number of pairs found; more than ``pair_capacity`` means overflow
-        (only the first ``pair_capacity``, in no fixed order, were written).
-        """
-        self._check_radius(radius)
-        self._find_pairs(points, self.count, radius)
-        return int(self.pair_count[None])
-
-    def overflowed(self) -> bool:
-        """True when the last ``find_pairs`` found more pairs than ``pair_capacity``."""
-        return int(self.pair_count[None]) > self.pair_capacity
-
-    def pairs_numpy(self) -> np.ndarray:
-        """Found pairs as an (m, 2) i32 array sorted lexicographically."""
-        n = min(int(self.pair_count[None]), self.pair_capacity)
-        p = self.pairs.to_numpy()[:n]
-        return p[np.lexsort((p[:, 1], p[:, 0]))]
-
-    def count_neighbours(self, points, radius: float) -> None:
-        """``neighbour_count[i]`` = number of j != i with |x_i - x_j| <= radius [m]."""
-        self._check_radius(radius)
-        self._count_neighbours(points, self.count, radius)
-
-    def _check_radius(self, radius: float) -> None:
-        if not 0 <= radius <= self.cell_size:
-            raise ValueError(f"radius {radius} must lie in [0, cell_size={self.cell_size}]")
-
-    @ti.func
-    def _visit(
-        self, points: ti.template(), i, radius, upper: ti.template(), write: ti.template(), base
-    ):
-        """Count neighbours j of point i (only j > i if ``upper``); ``write`` pairs (i, j):
-        0 no, 1 from slot ``base`` on, 2 to slots taken by one atomic per pair."""
-        x = points[i]
-        buckets, n_buckets = self.neighbour_buckets(x, radius)
-        r2, found = radius * radius, 0
-        for k in range(n_buckets):
-            start, end = self.bucket_range(buckets[k])
-            for s in range(start, end):
-                j = self.sorted_index[s]
-                near = (points[j] - x).norm_sqr() <= r2
-                if (j > i if ti.static(upper) else j != i) and near:
-                    if ti.static(write):
-                        store_pair(
-                            self.pairs,
-                            self.pair_count,
-                            self.pair_capacity,
-                            write,
-                            base,
-                            found,
-                            i,
-                            j,
-                        )
-                    found += 1
-        return found
-
-    @ti.kernel
-    def _find_pairs(self, points: ti.template(), count: ti.i32, radius: ti.f32):
-        self.pair_count[None] = 0
-        for i in range(count):
-            if ti.static(self.reserve_per_point):  # count, reserve the slots, write
-                found = self._visit(points, i, radius, True, 0, 0)
-                self._visit(points, i, radius, True, 1, ti.atomic_add(self.pair_count[None], found))
-            else:
-                self._visit(points, i, radius, True, 2, 0)
-
-    @ti.kernel
-    def _count_neighbours(self, points: ti.template(), count: ti.i32, radius: ti.f32):
-        for i in range(count):
-            self.neighbour_count[i] = self._visit(points, i, radius, False, 0, 0)

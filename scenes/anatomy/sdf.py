@@ -95,10 +95,6 @@ def union(*ds) -> np.ndarray:
     return np.minimum.reduce(ds)
 
 
-def intersection(*ds) -> np.ndarray:
-    return np.maximum.reduce(ds)
-
-
 def smooth_union(d1, d2, k: float) -> np.ndarray:
     """Polynomial smooth minimum with blend width ``k`` [m] (Quilez)."""
     if k <= 0.0:

@@ -300,8 +300,3 @@ class IntestineCollision(FieldOwner):
         """Colliding element pairs (gap < 0) of the contact areas, in (a, b) order."""
         pairs, gaps = self.contacts()
         return pairs[gaps < 0.0]
-
-    def element_particles(self) -> np.ndarray:
-        """Global particle indices (E, 3) of each element (-1: a segment's third)."""
-        vertex = self.element_vertex.to_numpy()
-        return np.where(vertex >= 0, self.particle_global.to_numpy()[np.maximum(vertex, 0)], -1)

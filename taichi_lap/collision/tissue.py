@@ -141,9 +141,7 @@ class TissueCollision:
             if cell_size is None:
                 cell_size = 2.0 * self.reach_bound + self.pair_margin + self.hash_slack
             f = max(self.triangle_count, 1)
-            self.grid = SpatialHash(
-                f, 1 << max(4, int(2 * f).bit_length()), cell_size, pair_capacity=1
-            )
+            self.grid = SpatialHash(f, 1 << max(4, int(2 * f).bit_length()), cell_size)
             self.rows = PairRows(f, ROW_CAPACITY * f)
             self.spare = PairRows(f, ROW_CAPACITY * f)
             self.found = FoundPairs(ROW_CAPACITY // 2 * f)

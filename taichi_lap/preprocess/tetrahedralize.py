@@ -22,10 +22,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from taichi_lap.core.geometry import SignedDistance, Solid, TriangleMesh
-from taichi_lap.core.mesh import TET_EDGES, unique_edges
+from taichi_lap.core.mesh import unique_edges
 
 # Outward faces of a positively oriented tet, face k opposite vertex k.
-_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+"""Faces of a tet, each opposite one corner, outward for a positive tet."""
 # Deterministic ray shift (times the mesh diagonal) so rays miss vertices and edges.
 _RAY_SHIFT = np.array([0.7548776662466927e-9, 0.5698402909980532e-9])
 _SDF_CHUNK = 1 << 20  # points per sdf call
@@ -191,7 +192,7 @@ def _compact(lattice: _Lattice, kept: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def boundary_faces(tets: np.ndarray) -> np.ndarray:
     """Faces ``(F, 3)`` used by one tet, counter-clockwise seen from outside."""
-    faces = tets[:, _FACES].reshape(-1, 3)
+    faces = tets[:, TET_FACES].reshape(-1, 3)
     n = np.int64(tets.max() + 1)
     if n >= 1 << 21:
         raise ValueError(f"{n} particles exceed the 2^21 face keys of boundary_faces")
@@ -375,16 +376,6 @@ def tet_volumes(particles: np.ndarray, tets: np.ndarray) -> np.ndarray:
     x = particles[tets]
     d = x[:, 1:] - x[:, :1]
     return np.einsum("ij,ij->i", np.cross(d[:, 0], d[:, 1]), d[:, 2]) / 6.0
-
-
-def min_dihedral_angle(particles: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Smallest dihedral angle of each tet ``(T,)`` [degrees]; 60 for BCC tets."""
-    x = particles[tets]
-    faces = x[:, _FACES]  # (T, 4, 3, 3)
-    normal = np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0])
-    normal /= np.maximum(np.linalg.norm(normal, axis=2, keepdims=True), 1e-300)
-    cosine = -np.einsum("tei,tei->te", normal[:, TET_EDGES[:, 0]], normal[:, TET_EDGES[:, 1]])
-    return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).min(axis=1)
 
 
 def _newton_step(sdf: SignedDistance, x: np.ndarray, h: float) -> np.ndarray:

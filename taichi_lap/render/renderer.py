@@ -15,7 +15,7 @@ import taichi as ti
 from taichi_lap.core.fields import FieldGroup
 from taichi_lap.kernels.ibl import ImageLighting
 from taichi_lap.kernels.raster import GBuffer, camera_matrices
-from taichi_lap.kernels.shading import VIEWS, shade
+from taichi_lap.kernels.shading import shade
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
 
@@ -78,10 +78,6 @@ class Renderer:
     def for_scene(cls, scene, data, *, size=(640, 480)) -> "Renderer":
         """The renderer of a scene: its organs, tubes and instruments seen from its camera."""
         return cls(SceneMesh(scene, data), EndoscopeCamera.from_scene(scene.camera), size=size)
-
-    @property
-    def view_name(self) -> str:
-        return VIEWS[self.view]
 
     def render(self, state, control):
         """Draw ``state`` (deformed surfaces) and ``control`` (instruments)."""

@@ -146,10 +146,6 @@ class TubeMesh:
             self, tube_count, level, vertices, normals, indices, vertex_offset, index_offset
         )
 
-    def live_counts(self) -> tuple[int, int]:
-        """(vertices, triangles) written by the last update; reads back (syncs)."""
-        return int(self.live_vertex_count[None]), int(self.live_triangle_count[None])
-
 
 class TessellationController:
     """Frame-time feedback on (ε, n), seed 001 §5.3 Eq. 15.

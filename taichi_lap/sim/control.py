@@ -143,7 +143,3 @@ class Control(FieldOwner):
         """Forget the tools' frames and open every grasper."""
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
-
-    def clear_tool(self, index: int):
-        self.tool_active[index] = 0
-        self.grasp[index] = False
