@@ -27,6 +27,6 @@ def test_scene_follows_its_reference_trajectory_on_vulkan(name):
     run = RUNS[name]
     assert_within_tolerance(
         name,
-        run_on_arch("vulkan", "tests.trajectories:run_scene", name=name),
+        run_on_arch("vulkan", "tests.trajectories:run_scene", name=name, frames=run.vulkan_frames),
         run.vulkan_tolerance or run.tolerance,
     )
