@@ -13,6 +13,16 @@ from taichi_lap.session import Session
 from tests import fake_hd
 
 SMALL = {"scene.detail": 0.03}
+TWO_DEVICES = ("openhaptics:Left Device", "openhaptics:Right Device")
+
+
+def headless_run(out, scene: str, frames: int, *devices: str, extra: tuple = ()) -> int:
+    """Exit status of ``taichi-lap run`` of ``scene`` (detail 0.03), headless into
+    ``out`` at 64x48, each of ``devices`` a ``--device``."""
+    arguments = ["run", scene, "--headless", "--frames", str(frames), "--size", "64x48"]
+    for device in devices:
+        arguments += ["--device", device]
+    return main([*arguments, "--out", str(out), *extra, "--set", "scene.detail=0.03"])
 
 
 @pytest.fixture(scope="module")
@@ -44,46 +54,14 @@ def test_device_origin_puts_the_tool_at_its_scene_tip(fake_library):
 
 def test_run_with_openhaptics_device_completes(fake_library, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
-    status = main(
-        [
-            "run",
-            "rectum",
-            "--headless",
-            "--device",
-            "openhaptics",
-            "--frames",
-            "3",
-            "--size",
-            "64x48",
-            "--out",
-            str(tmp_path / "frames"),
-            "--set",
-            "scene.detail=0.03",
-        ]
-    )
+    status = headless_run(tmp_path / "frames", "rectum", 3, "openhaptics")
     assert status == 0, capsys.readouterr().err
     assert len(list((tmp_path / "frames").glob("*.png"))) == 3
 
 
 def test_missing_libhd_is_a_clear_error(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("TAICHI_LAP_LIBHD", str(tmp_path / "no-such-libHD.so"))
-    status = main(
-        [
-            "run",
-            "rectum",
-            "--headless",
-            "--device",
-            "openhaptics",
-            "--frames",
-            "1",
-            "--size",
-            "64x48",
-            "--out",
-            str(tmp_path / "f"),
-            "--set",
-            "scene.detail=0.03",
-        ]
-    )
+    status = headless_run(tmp_path / "f", "rectum", 1, "openhaptics")
     assert status == 2
     err = capsys.readouterr().err
     assert "error: --device: openhaptics: a working haptic device was expected" in err
@@ -151,26 +129,8 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
     )
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
     record = tmp_path / "s.tlap"
-    status = main(
-        [
-            "run",
-            str(scene),
-            "--headless",
-            "--device",
-            "openhaptics:Left Device",
-            "--device",
-            "openhaptics:Right Device",
-            "--frames",
-            "3",
-            "--size",
-            "64x48",
-            "--out",
-            str(tmp_path / "frames"),
-            "--record",
-            str(record),
-            "--set",
-            "scene.detail=0.03",
-        ]
+    status = headless_run(
+        tmp_path / "frames", str(scene), 3, *TWO_DEVICES, extra=("--record", str(record))
     )
     assert status == 0, capsys.readouterr().err
     recording = read_recording(str(record))
@@ -193,25 +153,7 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
 
 def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
-    status = main(
-        [
-            "run",
-            "rectum",
-            "--headless",
-            "--device",
-            "openhaptics:Left Device",
-            "--device",
-            "openhaptics:Right Device",
-            "--frames",
-            "1",
-            "--size",
-            "64x48",
-            "--out",
-            str(tmp_path / "f"),
-            "--set",
-            "scene.detail=0.03",
-        ]
-    )
+    status = headless_run(tmp_path / "f", "rectum", 1, *TWO_DEVICES)
     assert status == 2
     err = capsys.readouterr().err
     assert (
