@@ -1,11 +1,11 @@
 """Adaptive circumspheres of surface triangles: seed 000 §4.2 (Qian et al., VRST 2015,
 Eq. 4-6, lazy update of §4.2.3), and the bounding spheres of the baseline (Mendoza and
 O'Sullivan 2006), for :class:`taichi_lap.collision.TissueCollision`:
-:mod:`kernels.tissue_collision` finds the triangles that need them and detects and
-responds with them.
+:mod:`kernels.collision.broad_phase` finds the triangles that need them and
+:mod:`kernels.collision.response` detects and responds with them.
 
 :func:`update_spheres` computes, for the triangles the broad phase of
-:mod:`kernels.tissue_collision` found near something (``active``), from the skinned
+:mod:`kernels.collision.broad_phase` found near something (``active``), from the skinned
 predicted positions p and the substep's start positions x: the smallest bounding
 sphere (centre m_b, radius R_b; Ericson 2004 §4.3), the displacement of the centroid
 over the substep, unit normal N_c, area S and the collision sphere:

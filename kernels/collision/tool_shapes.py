@@ -160,7 +160,7 @@ def push_out_of_tools(control: ti.template(), p, r):
     Returns the new position and 1 when a tool touched it (seed 000 Alg. 1 lines 13-14
     then hold its goal)."""
     hit = 0
-    for k in ti.static(range(MAX_TOOLS)):
+    for k in range(MAX_TOOLS):
         pose = control_pose(control, k)
         reach = bounding_radius(control, k, pose) + r
         if (

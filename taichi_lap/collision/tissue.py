@@ -145,6 +145,7 @@ class TissueCollision:
             self.rows = PairRows(f, ROW_CAPACITY * f)
             self.spare = PairRows(f, ROW_CAPACITY * f)
             self.found = FoundPairs(ROW_CAPACITY // 2 * f)
+        self._swapped = False  # rows and spare trade places at every listing
         self.reset(pairs=True)
 
     def _init_fields(
@@ -259,6 +260,8 @@ class TissueCollision:
             self.ref_sphere.fill(FAR)
             self._hashed = False
             self.oversize_steps = 0
+            if self._swapped:  # a reused collision lists in the order it first did
+                self.rows, self.spare, self._swapped = self.spare, self.rows, False
 
     def prime(self, state, control):
         """List the pairs of every triangle at the current positions (p and x) now, e.g.
@@ -332,10 +335,12 @@ class TissueCollision:
         self.oversize_steps += 1
 
     def _list_pairs(self, stale: bool):
-        """Broad phase of the moved triangles (:mod:`kernels.tissue_collision`): the hash
+        """Broad phase of the moved triangles (:mod:`kernels.collision.broad_phase`): the hash
         is rebuilt when out of date, the moved rescan it, the rows are rebuilt; found
         pairs and rows that outgrow their arrays get larger ones (compiled once more)
-        and the rescan runs again."""
+        and the rescan runs again. The spare grows with the rows, so that both keep one
+        capacity and a reused collision lists into the arrays its kernels were compiled
+        for."""
         if stale or not self._hashed:
             self.grid.build(self.broad_sphere, self.triangle_count)
             broad_phase.hold_spheres(self, self.grid)
@@ -357,6 +362,10 @@ class TissueCollision:
                 break
         broad_phase.fill_rows(self, self.rows, self.spare, self.found)
         self.rows, self.spare = self.spare, self.rows
+        self._swapped = not self._swapped
+        if self.spare.capacity < self.rows.capacity:
+            self._retired.append(self.spare)
+            self.spare = PairRows(self.triangle_count, self.rows.capacity)
         self._lap("pairs")
 
     def _lap(self, phase: str):
