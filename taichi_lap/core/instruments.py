@@ -158,38 +158,55 @@ def tool_geometry(tool) -> ToolGeometry:
     return ToolGeometry((ToolShape("shaft"),), length, radius)
 
 
-def tool_distance(geometry: ToolGeometry, points: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Signed distances [m] of ``points`` (n, 3), in the tool frame, from the union of
-    ``geometry``'s shapes; the unit gradients (n, 3) of the nearest shape (out of the
-    tool); and a flag per point that lies on a round shape's axis, where the gradient
-    is undefined (zero there)."""
+def tool_distance(
+    geometry: ToolGeometry,
+    points: np.ndarray,
+    tip: np.ndarray | None = None,
+    rotation: np.ndarray | None = None,
+    *,
+    gradients: bool = True,
+) -> tuple[np.ndarray, ...]:
+    """Signed distances [m] of ``points`` (n, 3) from the union of ``geometry``'s shapes
+    placed at ``tip`` [m] with the tool frame ``rotation`` (3×3, columns; default: the
+    points are in the tool frame); the unit gradients (n, 3) of the nearest shape (out
+    of the tool); and a flag per point that lies on a round shape's axis, where the
+    gradient is undefined (zero there). ``gradients=False``: the distances alone (None
+    for the rest; the haptic proxy's cluster test runs this every 1 kHz tick)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    tip = np.zeros(3) if tip is None else np.asarray(tip, dtype=np.float64)
+    rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
     dist = np.full(len(points), FAR)
-    grad = np.zeros((len(points), 3))
-    on_axis = np.zeros(len(points), dtype=bool)
-    for a, b, r in geometry.round_shapes():
-        ab = b - a
-        t = (points - a) @ ab / max(ab @ ab, 1e-30)
-        offset = points - (a + np.clip(t, 0.0, 1.0)[:, None] * ab)
-        length = np.linalg.norm(offset, axis=1)
+    grad = np.zeros((len(points), 3)) if gradients else None
+    on_axis = np.zeros(len(points), dtype=bool) if gradients else None
+    for a, b, r in geometry.round_shapes():  # placed in the world, the points stay
+        ab = rotation @ (b - a)
+        offset = points - (tip + rotation @ a)
+        t = np.clip(offset @ ab / max(ab @ ab, 1e-30), 0.0, 1.0)
+        offset -= np.multiply.outer(t, ab)
+        length = np.sqrt(np.einsum("ij,ij->i", offset, offset))
         d = length - r
         nearer = d < dist
         dist[nearer] = d[nearer]
-        axial = length < 1e-9
-        grad[nearer] = offset[nearer] / np.maximum(length[nearer], 1e-30)[:, None]
-        grad[nearer & axial] = 0.0
-        on_axis[nearer] = axial[nearer]
-    for center, half in geometry.boxes():
-        local = points - center
-        q = np.abs(local) - half
+        if gradients:
+            axial = length[nearer] < 1e-9
+            g = offset[nearer] / np.maximum(length[nearer], 1e-30)[:, None]
+            g[axial] = 0.0
+            grad[nearer], on_axis[nearer] = g, axial
+    boxes = geometry.boxes()
+    local = (points - tip) @ rotation if boxes else points
+    for center, half in boxes:
+        offset = local - center
+        q = np.abs(offset) - half
         outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
         d = outside + np.minimum(q.max(axis=1), 0.0)
-        side = np.where(local >= 0.0, 1.0, -1.0)
-        g = side * np.maximum(q, 0.0) / np.maximum(outside, 1e-30)[:, None]
-        inside = outside <= 0.0
-        face = np.argmax(q, axis=1)
-        g[inside] = 0.0
-        g[inside, face[inside]] = side[inside, face[inside]]
         nearer = d < dist
-        dist[nearer], grad[nearer], on_axis[nearer] = d[nearer], g[nearer], False
+        dist[nearer] = d[nearer]
+        if gradients:
+            side = np.where(offset >= 0.0, 1.0, -1.0)
+            g = side * np.maximum(q, 0.0) / np.maximum(outside, 1e-30)[:, None]
+            inside = outside <= 0.0
+            face = np.argmax(q, axis=1)
+            g[inside] = 0.0
+            g[inside, face[inside]] = side[inside, face[inside]]
+            grad[nearer], on_axis[nearer] = g[nearer] @ rotation.T, False
     return dist, grad, on_axis

@@ -127,18 +127,6 @@ class ProxyResult:
     qp_seconds: float
 
 
-def tool_gap(
-    tool: ToolGeometry, points: np.ndarray, tip: np.ndarray, rotation: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distances [m] of ``points`` (n, 3) from the surface of ``tool`` placed at ``tip``
-    with the tool frame ``rotation`` (3×3, columns; negative inside), the unit
-    directions (n, 3) from each point into the tool (the nearest shape's, minus its
-    gradient) and a flag per point on a round shape's axis (no direction there)."""
-    local = (np.asarray(points, dtype=np.float64) - tip) @ rotation
-    gap, gradient, on_axis = tool_distance(tool, local)
-    return gap, -gradient @ rotation.T, on_axis
-
-
 def ranges(start: np.ndarray, which: np.ndarray) -> np.ndarray:
     """The indices ``start[c]:start[c+1]`` of every ``c`` in ``which``, concatenated."""
     first = start[which]
@@ -236,19 +224,20 @@ class HapticProxy:
         ``q_p`` turned by ``rotation``: tool-sphere tests on the clusters, then
         tool-particle tests on the particles of the clusters hit."""
         tool, margin = self.settings.tool, self.settings.contact_margin
-        gap, _, _ = tool_gap(tool, scene.cluster_center, q_p, rotation)
+        gap, _, _ = tool_distance(tool, scene.cluster_center, q_p, rotation, gradients=False)
         hit = np.flatnonzero(gap < scene.cluster_radius + margin)
         if not len(hit):
             return hit
         candidates = ranges(scene.cluster_start, hit)
         points = scene.particle_position[candidates].astype(np.float64)
-        gap, _, _ = tool_gap(tool, points, q_p, rotation)
+        gap, _, _ = tool_distance(tool, points, q_p, rotation, gradients=False)
         return candidates[gap < scene.particle_radius[candidates] + margin]
 
     def _solve(self, q_h, q_prev, rotation, scene, found):
         """The QP in Δ = q - q_g(t-1): min ½ (Δ - e)ᵀ K (Δ - e), nᵢᵀ Δ ≥ bᵢ."""
         points = scene.particle_position[found].astype(np.float64)
-        gap, normal, on_axis = tool_gap(self.settings.tool, points, q_prev, rotation)
+        gap, gradient, on_axis = tool_distance(self.settings.tool, points, q_prev, rotation)
+        normal = -gradient  # into the tool
         if np.any(on_axis):  # no normal: push back towards where q_h came from
             back = q_prev - q_h
             if np.linalg.norm(back) > 1e-12:
