@@ -1,13 +1,13 @@
 """Package discovery (the metadata is in pyproject.toml).
 
-``kernels/`` and ``scenes/`` install as ``taichi_lap.kernels`` and
-``taichi_lap.scenes``, so the only top-level import name is ``taichi_lap``. Every
-package below the three folders is found here, so a new one cannot be left out of the
-wheel."""
+``kernels/``, ``scenes/`` and ``perf/`` install as ``taichi_lap.kernels``,
+``taichi_lap.scenes`` and ``taichi_lap.perf``, so the only top-level import name is
+``taichi_lap``. Every package below the four folders is found here, so a new one cannot
+be left out of the wheel."""
 
 from setuptools import find_packages, setup
 
-MAPPED = {"taichi_lap.kernels": "kernels", "taichi_lap.scenes": "scenes"}
+MAPPED = {"taichi_lap.kernels": "kernels", "taichi_lap.scenes": "scenes", "taichi_lap.perf": "perf"}
 
 
 def packages() -> list[str]:

@@ -41,15 +41,12 @@ Usage: python perf/bench_circumsphere.py [--quick] [--arch cpu] [--json OUT]
 from __future__ import annotations
 
 import statistics
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from common import arguments, report, result
+from taichi_lap.perf.common import arguments, report, result
 
 METHODS = ("circumsphere", "bounding_sphere", "polygon")
 RADIUS = 0.008  # cylinder radius ρ = d_exa [m]

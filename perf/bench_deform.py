@@ -31,9 +31,7 @@ import time
 from functools import partial
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from common import arguments, report, result, timed
+from taichi_lap.perf.common import arguments, report, result, timed
 
 LIVER_ONLY_PARTICLES = 146_000  # liver organ of scenes/liver.toml at detail 1 (approx.)
 DT = 1.0 / 60.0

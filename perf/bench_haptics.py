@@ -23,15 +23,11 @@ Usage: python perf/bench_haptics.py [--quick] [--arch cpu] [--json OUT]
 from __future__ import annotations
 
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from common import arguments, report, result
+from taichi_lap.perf.common import arguments, report, result
 
 PERIOD = 0.001  # [s]
 MISSED = 0.002  # [s]
@@ -164,7 +160,7 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
 
 def main():
     args = arguments("haptics")
-    from bench_deform import liver_session
+    from taichi_lap.perf.bench_deform import liver_session
 
     from taichi_lap import runtime
 

@@ -37,15 +37,11 @@ Usage: python perf/bench_intestine_cd.py [--quick] [--arch cpu] [--json OUT] [--
 
 from __future__ import annotations
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from common import arguments, report, result
+from taichi_lap.perf.common import arguments, report, result
 
 WARMUP_FRAMES = 10
 """Frames (1/6 s) from rest, with an empty pair list, before measuring."""

@@ -12,15 +12,11 @@ Usage: python perf/bench_render.py [--quick] [--arch cpu] [--json OUT]
 """
 
 import math
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from common import arguments, report, result
+from taichi_lap.perf.common import arguments, report, result
 
 RADIUS = 0.05  # [m]
 EYE = (0.0, 0.01, 0.085)  # close, as an endoscope: the blob fills most of the frame

@@ -8,11 +8,32 @@ import json
 import os
 import platform
 import statistics
+import subprocess
 import time
 from pathlib import Path
 
 
-def machine() -> dict:
+def gpu() -> str | None:
+    """The NVIDIA GPU and its driver (``nvidia-smi``), or None where there is none."""
+    try:
+        out = subprocess.run(
+            ["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"],
+            capture_output=True,
+            text=True,
+            timeout=20,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    lines = [line.strip() for line in out.splitlines() if line.strip()]
+    if not lines:
+        return None
+    name, _, driver = lines[0].rpartition(",")
+    return f"{name.strip()}, driver {driver.strip()}"
+
+
+def machine(arch: str = "cpu") -> dict:
+    """CPU model, core count and, for a GPU backend, the GPU and its driver."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -21,7 +42,7 @@ def machine() -> dict:
                 break
     except OSError:
         pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "gpu": None}
+    return {"cpu": cpu, "cores": os.cpu_count(), "gpu": gpu() if arch != "cpu" else None}
 
 
 def arguments(name: str) -> argparse.Namespace:
@@ -62,7 +83,9 @@ def report(benchmark: str, arch: str, results: list[dict], path: str):
     import taichi
 
     width = max(len(r["case"]) for r in results) + 2
-    print(f"\n{benchmark} on {machine()['cpu']} ({machine()['cores']} cores), backend {arch}")
+    host = machine(arch)
+    gpu_text = f", GPU {host['gpu']}" if host["gpu"] else ""
+    print(f"\n{benchmark} on {host['cpu']} ({host['cores']} cores{gpu_text}), backend {arch}")
     print(f"{'case':<{width}}{'metric':<22}{'median':>12}{'min':>12}{'max':>12}{'runs':>6}  params")
     for r in results:
         params = ", ".join(f"{k}={v}" for k, v in r["params"].items())
@@ -72,7 +95,7 @@ def report(benchmark: str, arch: str, results: list[dict], path: str):
         )
     out = {
         "benchmark": benchmark,
-        "machine": machine(),
+        "machine": host,
         "taichi": ".".join(map(str, taichi.__version__)),
         "arch": arch,
         "results": results,

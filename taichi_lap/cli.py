@@ -1,4 +1,4 @@
-"""The ``taichi-lap`` command line: run, render, check, list, info.
+"""The ``taichi-lap`` command line: run, render, check, bench, list, info.
 
 Exit status 0 on success, 2 on bad input (one line on stderr:
 ``error: FILE: KEY: what was expected, what was found``), 1 on an internal error
@@ -75,6 +75,16 @@ def _parser() -> argparse.ArgumentParser:
     check = sub.add_parser("check", help="validate a scene and print model statistics")
     scene_args(check)
     check.add_argument("--json", action="store_true", help="print JSON")
+
+    bench = sub.add_parser("bench", help="run the benchmarks on each backend and compare them")
+    bench.add_argument(
+        "--arch", default="cpu", help="comma-separated backends: cpu, cuda, vulkan, metal"
+    )
+    bench.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
+    bench.add_argument("--out", default="bench-results", help="folder for the JSON and summary")
+    bench.add_argument(
+        "--only", default=None, help="comma-separated benchmarks (default: all of them)"
+    )
 
     sub.add_parser("list", help="list the built-in scenes")
     sub.add_parser("info", help="versions, backends and devices")
@@ -318,12 +328,35 @@ def cmd_render(args) -> int:
     return 0
 
 
+def cmd_bench(args) -> int:
+    from pathlib import Path
+
+    from taichi_lap import bench
+    from taichi_lap.perf import BENCHMARKS
+
+    arches = bench.parse_list("--arch", args.arch, bench.ARCHES)
+    chosen = bench.parse_list("--only", args.only, BENCHMARKS) if args.only else BENCHMARKS
+    out = Path(args.out)
+    status = bench.run_benchmarks(arches, out, quick=args.quick, benchmarks=chosen)
+    print(f"wrote {bench.write_summary(out, arches, status)}")
+    failed = [
+        f"{arch} {name}: {text}"
+        for arch, per_benchmark in status.items()
+        for name, text in per_benchmark.items()
+        if text.startswith("failed")
+    ]
+    for line in failed:
+        print(f"error: {line}", file=sys.stderr)
+    return 1 if failed else 0
+
+
 COMMANDS = {
     "run": cmd_run,
     "render": cmd_render,
     "check": cmd_check,
     "list": cmd_list,
     "info": cmd_info,
+    "bench": cmd_bench,
 }
 
 

@@ -1,0 +1,94 @@
+"""``taichi-lap bench``: the summary across backends, the skipping of backends that
+are not available, and one real (quick) benchmark run through the command line."""
+
+import json
+import sys
+
+from taichi_lap import bench, runtime
+from taichi_lap.cli import main
+
+
+def write_result(folder, arch: str, name: str, rows: list[tuple], gpu=None):
+    (folder / arch).mkdir(parents=True, exist_ok=True)
+    results = [
+        {"case": case, "params": params, "metric": metric, "median": median}
+        for case, metric, params, median in rows
+    ]
+    data = {
+        "benchmark": name,
+        "machine": {"cpu": "Test CPU", "cores": 2, "gpu": gpu},
+        "taichi": "1.7.4",
+        "arch": arch,
+        "results": results,
+    }
+    (folder / arch / f"bench_{name}.json").write_text(json.dumps(data))
+
+
+def test_summary_has_a_column_per_backend_and_the_ratio_to_the_cpu(tmp_path):
+    jacobi, gauss = {"solver": "jacobi"}, {"solver": "gauss_seidel"}
+    write_result(
+        tmp_path,
+        "cpu",
+        "deform",
+        [("sheet", "ms_per_step", jacobi, 10.0), ("sheet", "ms_per_step", gauss, 20.0)],
+    )
+    write_result(
+        tmp_path,
+        "cuda",
+        "deform",
+        [("sheet", "ms_per_step", gauss, 5.0), ("big", "ms_per_step", {}, 1.0)],
+        gpu="Test GPU, driver 1",
+    )
+    status = {
+        "cpu": {"deform": "ok"},
+        "cuda": {"deform": "ok"},
+        "metal": {"deform": "backend not available"},
+    }
+    text = bench.write_summary(tmp_path, ["cpu", "cuda", "metal"], status).read_text()
+    assert "- metal: backend not available" in text
+    assert "GPU cuda: Test GPU, driver 1" in text
+    assert "| case | metric | cpu | cuda | cuda/cpu | params |" in text
+    assert "| sheet | ms_per_step | 20 | 5 | 0.25 | solver=gauss_seidel |" in text
+    assert "| sheet | ms_per_step | 10 | — | — | solver=jacobi |" in text  # cpu only
+    assert "| big | ms_per_step | — | 1 | — |  |" in text
+    labels = [
+        label for label, _ in bench.timing_rows(bench.load_results(tmp_path, ["cpu"]))["deform"]
+    ]
+    assert labels == [
+        "sheet ms_per_step (solver=jacobi)",
+        "sheet ms_per_step (solver=gauss_seidel)",
+    ]
+
+
+def test_bar_chart_without_matplotlib_says_which_extra_gives_it(tmp_path, monkeypatch, capsys):
+    write_result(tmp_path, "cpu", "render", [("blob", "ms_per_frame", {}, 3.0)])
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib fails
+    assert bench.bar_chart(bench.load_results(tmp_path, ["cpu"]), tmp_path / "s.png") is False
+    assert "pip install 'taichi-lap[perf]'" in capsys.readouterr().out
+    assert not (tmp_path / "s.png").exists()
+
+
+def test_unknown_backend_or_benchmark_is_a_clear_error(tmp_path, capsys):
+    assert main(["bench", "--arch", "cpu,gpu", "--out", str(tmp_path)]) == 2
+    assert "error: --arch: cpu,gpu: a comma-separated list of cpu, cuda" in capsys.readouterr().err
+    assert main(["bench", "--only", "render,speed", "--out", str(tmp_path)]) == 2
+    assert (
+        "error: --only: render,speed: a comma-separated list of deform" in capsys.readouterr().err
+    )
+    assert not any(tmp_path.iterdir())
+
+
+def test_quick_render_benchmark_runs_and_a_missing_backend_is_skipped(tmp_path, capsys):
+    missing = [arch for arch in bench.ARCHES if arch not in runtime.available_backends()]
+    arches = ",".join(["cpu", *missing[:1]])
+    status = main(
+        ["bench", "--arch", arches, "--quick", "--only", "render", "--out", str(tmp_path)]
+    )
+    assert status == 0, capsys.readouterr().err
+    data = json.loads((tmp_path / "cpu" / "bench_render.json").read_text())
+    assert data["arch"] == "cpu" and data["results"]
+    summary = (tmp_path / "summary.md").read_text()
+    assert "## render" in summary and "- cpu: all ran" in summary
+    if missing:
+        assert f"- {missing[0]}: backend not available" in summary
+        assert f"{missing[0]}: not available on this machine, skipped" in capsys.readouterr().out
