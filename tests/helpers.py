@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+from taichi_lap.perf.bench_contact import BOX as BOX  # the test block: one definition
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
 
@@ -28,20 +29,6 @@ def state_after(organs: list[dict], frames: int, **settings) -> dict:
     for _ in range(frames):
         solver.step(state, control, 1.0 / 60.0)
     return {"x": state.x.to_numpy(), "eta": state.eta.to_numpy()}
-
-
-BOX = {
-    "name": "block",
-    "model": "tet_clusters",
-    "geometry": {"generator": "box", "half_extents": [0.02, 0.012, 0.015]},
-    "material": {
-        "particle_spacing": 0.004,
-        "stiffness": 0.5,
-        "damping": 0.0,
-        "recover_rate": 0.05,
-        "eta_on_contact": 1.0,
-    },
-}
 
 
 def wait_for(predicate, timeout: float) -> bool:
