@@ -102,9 +102,10 @@ def run(session, collision, controls, iterations: int, frames: int):
     for frame in range(frames):
         y = cylinder_height(frame)
         tools.set_tool(0, [0.0, y, -2 * HALF[2]], [0.0, y, 2 * HALF[2]], RADIUS)
-        collision.begin_frame(tools)
         spent = collision.total_ms
-        for _ in range(solver.settings.substeps):
+        n = solver.settings.substeps
+        for k in range(n):
+            tools.advance(k / n, (k + 1) / n)
             solver.substep(session.state, no_tools, h, collision_control=tools)
         times.append(collision.total_ms - spent)
         collided = session.state.collided.to_numpy() > 0
@@ -266,7 +267,11 @@ def main():
     for case, self_collision, iteration_counts in cases:
         collisions = {
             method: TissueCollision(
-                session.model, method=method, timing=True, tissue_pairs=self_collision
+                session.model,
+                method=method,
+                timing=True,
+                tissue_pairs=self_collision,
+                method_tools=True,
             )
             for method in METHODS
         }

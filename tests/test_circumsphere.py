@@ -269,7 +269,7 @@ def sheet_run(method: str, speed: float):
     _, data, model, state, no_tools, session_solver = simulation(
         [sheet], gravity=[0, 0, 0], shape_iterations=5
     )
-    collision = TissueCollision(model, method=method, tissue_pairs=False)
+    collision = TissueCollision(model, method=method, tissue_pairs=False, method_tools=True)
     solver = Solver(model, session_solver.settings, collision=collision)
     tools = Control()
     radius, y, y_end = 0.0025, 0.001 + 0.0025 + 0.0005, -0.002
@@ -278,7 +278,6 @@ def sheet_run(method: str, speed: float):
     held = 0
     while held < 3:
         tools.set_tool(0, [0.0, y, -0.03], [0.0, y, 0.03], radius)
-        collision.begin_frame(tools)
         solver.substep(state, no_tools, DT, collision_control=tools)
         held += y == y_end
         y = max(y - speed * DT, y_end)
@@ -391,7 +390,6 @@ def compute_collision_case(method: str = "circumsphere") -> dict:
     for k in range(3):
         y = 0.012 + 0.004 - 0.001 * k
         tools.set_tool(0, [-0.03, y, 0.0], [0.03, y, 0.0], 0.005)
-        collision.begin_frame(tools)
         shape_matching.predict(model, state, tools, (0.0, 0.0, 0.0), 1.0 / 60.0, 0)
         collision.step(state, tools)
     p2, _ = pressed_blocks(*two_blocks(), method, 2)
@@ -426,7 +424,6 @@ def jaw_press(jaw_length: float):
     for k in range(4):
         y = top + 0.016 + 0.7 * radius - 0.001 * k
         tools.set_tool(0, [0.0, y, 0.0], [0.0, y + 0.2, 0.0], radius, jaw_length=jaw_length)
-        collision.begin_frame(tools)
         for _ in range(3):
             collision.step(state, tools)
     return skinned(data, state.p.to_numpy()), skinned(data, data.rest_position), tools

@@ -55,7 +55,7 @@ from taichi_lap.kernels.collision.spheres import (
     C_RESCANNED,
     skin_vertices,
 )
-from taichi_lap.kernels.collision.tool_shapes import bounding_radius, control_pose
+from taichi_lap.kernels.collision.tool_shapes import bounding_radius, control_pose, pose_motion
 
 from taichi_lap.core.instruments import MAX_TOOLS
 
@@ -97,32 +97,6 @@ def shares_vertex(coll: ti.template(), t, u):
     return shared
 
 
-@ti.kernel
-def remember_tool_poses(control: ti.template(), coll: ti.template()):
-    """Once per frame: the previous pose of each tool becomes the pose seen at the last
-    call (or the current pose for a tool that just became active). Writes tool_prev,
-    tool_last, tool_last_active."""
-    for k in ti.static(range(MAX_TOOLS)):
-        pose = control_pose(control, k)
-        if coll.tool_last_active[k] and control.tool_active[k]:
-            coll.tool_prev[k] = coll.tool_last[k]
-        else:
-            coll.tool_prev[k] = pose
-        coll.tool_last[k] = pose
-        coll.tool_last_active[k] = control.tool_active[k]
-
-
-@ti.func
-def tool_motion(coll: ti.template(), control: ti.template(), k):
-    """How far [m] tool k's shaft ends and jaw end moved since the last frame."""
-    prev = coll.tool_prev[k]
-    return ti.max(
-        (control.tool_a[k] - prev.tip).norm(),
-        (control.tool_b[k] - prev.tail).norm(),
-        (control.tool_jaw[k] - prev.jaw).norm(),
-    )
-
-
 @ti.func
 def any_tool_near(coll: ti.template(), sphere):
     """Some tool's bounding capsule (:func:`update_bounds`) reaches ``sphere`` (centre,
@@ -148,8 +122,8 @@ def update_bounds(
     vertex_x), bound every triangle by its broad sphere (``broad_sphere``: centroid,
     largest corner distance + centroid displacement over the substep), list as active
     the triangles that a tool's bounding capsule reaches (the Control capsule grown
-    to hold all the tool's shapes, ``tool_reach``, and by its motion since the last
-    frame; ``tool_cull*``), and with tissue pairs flag the triangles whose
+    to hold all the tool's shapes, ``tool_reach``, and by its motion over the
+    substep; ``tool_cull*``), and with tissue pairs flag the triangles whose
     broad sphere drifted (centre shift + reach change) more than ``rescan_drift``
     since they were listed (``moved``, counted in ``broad[B_MOVED]``), whether some
     drifted more than ``hash_slack`` from the hash (``broad[B_STALE]``) and how many
@@ -158,9 +132,8 @@ def update_bounds(
     coll.active_count[None] = 0
     for k in ti.static(range(MAX_TOOLS)):  # bounding capsules: tip, axis, 1 / |axis|², reach
         axis = control.tool_b[k] - control.tool_a[k]
-        reach = bounding_radius(control, k, control_pose(control, k)) + tool_motion(
-            coll, control, k
-        )
+        pose = control_pose(control, k)
+        reach = bounding_radius(control, k, pose) + pose_motion(control.tool_last[k], pose)
         coll.tool_cull_a[k], coll.tool_cull_axis[k] = control.tool_a[k], axis
         coll.tool_cull[k] = ti.Vector(
             [
@@ -193,6 +166,8 @@ def update_bounds(
                 ti.atomic_add(coll.broad[B_OVERSIZE], 1)
         if any_tool_near(coll, sphere):
             coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
+        else:
+            coll.tool_held[t] = 0
 
 
 @ti.kernel

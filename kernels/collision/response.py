@@ -12,7 +12,7 @@ are bit-reproducible), then per particle:
   motion over the substep, overlap, and that face each other at the substep's start
   (opposite normals, each centroid in front of the other): the back faces of a thin
   body lie inside the front faces' spheres. A triangle meets a tool when its bounding
-  sphere grown by the tool's motion since the last frame reaches the tool's union of
+  sphere grown by the tool's motion over the substep reaches the tool's union of
   shapes and its start normal faces the tool at its previous pose.
 * sphere phase: the spheres overlap at some time of the substep (linear motion:
   continuous for sphere pairs); a sphere's centre is closer than its radius to a
@@ -35,7 +35,8 @@ Lengths in metres.
 """
 
 import taichi as ti
-from taichi_lap.kernels.collision.broad_phase import facing, tool_motion
+from taichi_lap.kernels.collision.broad_phase import facing
+from taichi_lap.kernels.collision.closest_points import segment_triangle
 from taichi_lap.kernels.collision.polygon import add_corner, polygon_pair, polygon_tool
 from taichi_lap.kernels.collision.spheres import (
     C_BOUNDING,
@@ -47,9 +48,17 @@ from taichi_lap.kernels.collision.spheres import (
     bounding_overlap,
     in_cone,
 )
-from taichi_lap.kernels.collision.tool_shapes import control_pose, tool_distance
+from taichi_lap.kernels.skinning import skin
+from taichi_lap.kernels.collision.tool_shapes import (
+    control_pose,
+    pose_motion,
+    round_shape,
+    shape_distance,
+    side_distance,
+    tool_distance,
+)
 
-from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.core.instruments import MAX_TOOL_SHAPES, MAX_TOOLS, SHAPE_BOX
 
 
 @ti.func
@@ -193,13 +202,18 @@ def sphere_pair(coll: ti.template(), t, u):
 @ti.func
 def tissue_contacts(coll: ti.template(), rows: ti.template(), t, acc, hits):
     """Bounding-sphere and sphere phases of triangle t against its listed partners;
-    adds t's side of every contact to its corner accumulators. Returns (bounding,
-    contacts, acc, hits)."""
+    adds t's side of every contact to its corner accumulators. Pairs with a triangle
+    a tool holds (``tool_held``: the tool's contact that holds touched it in this
+    substep) are left out: the tool places it. Returns (bounding, contacts, acc,
+    hits)."""
     bounding, contacts = 0, 0
     moved = ti.Vector([0.0, 0.0, 0.0])  # sphere methods: Σ translations of t
     for m in range(rows.start[t], rows.start[t + 1]):
         u = rows.partner[m]
-        if bounding_overlap(coll, t, u) and facing_pair(coll, t, u):
+        held = 0
+        if ti.static(not coll.method_tools):
+            held = coll.tool_held[t] | coll.tool_held[u]
+        if not held and bounding_overlap(coll, t, u) and facing_pair(coll, t, u):
             bounding += 1
             if ti.static(coll.method == POLYGON):
                 n, acc, hits = polygon_pair(coll, t, u, acc, hits)
@@ -217,20 +231,88 @@ def tissue_contacts(coll: ti.template(), rows: ti.template(), t, acc, hits):
 
 
 @ti.func
-def tool_contacts(coll: ti.template(), control: ti.template(), t, acc, hits):
-    """Triangle t against every active tool: (bounding-phase passes, contacts, acc,
-    hits)."""
+def surface_tool(
+    model: ti.template(),
+    state: ti.template(),
+    coll: ti.template(),
+    control: ti.template(),
+    t,
+    k,
+    pose,
+    last,
+    acc,
+    hits,
+):
+    """Contact that holds: triangle t of the drawn surface against tool k at ``pose``
+    (at ``last`` when the substep began). The axis of every round shape pushes the
+    triangle's closest point (segment-triangle closest points, Ericson 2004 §5.1.9)
+    out to the shape's radius plus the surface's thickness there, on the side it
+    started the substep on (:func:`~.tool_shapes.side_distance`: a tool that moved
+    past the surface within the substep pushes it ahead instead of through), spread
+    over the corners as a PBD projection (Müller et al. 2007 §3.4): corner j moves by
+    λ w_j b_j n with b the barycentric weights, w the corners' inverse masses and
+    λ = depth / Σ w_j b_j². Boxes push the corners out of their nearest surface.
+    The corners are skinned from p here: tissue pairs may have moved it since the
+    phase's skinning. Returns (contacts, acc, hits)."""
+    v = coll.tri_vertex[t]
+    w = ti.Vector([coll.corner_inv_mass[3 * t + j] for j in ti.static(range(3))])
+    thickness = ti.Vector([coll.corner_thickness[3 * t + j] for j in ti.static(range(3))])
+    corners = [skin(model, state.p, v[j]) for j in ti.static(range(3))]
+    p0, p1, p2 = corners[0], corners[1], corners[2]
+    x0, x1, x2 = coll.vertex_x[v[0]], coll.vertex_x[v[1]], coll.vertex_x[v[2]]
+    count = 0
+    for s in range(MAX_TOOL_SHAPES):
+        slot = k * MAX_TOOL_SHAPES + s
+        if control.shape_kind[slot] == SHAPE_BOX:
+            for j in range(3):
+                if coll.corner_owner[3 * t + j] and w[j] > 0.0:
+                    dist, grad = shape_distance(control, slot, pose, skin(model, state.p, v[j]))
+                    if dist < thickness[j]:
+                        acc, hits = add_corner(acc, hits, j, (thickness[j] - dist) * grad)
+                        count += 1
+        else:
+            round_, a, b, r = round_shape(control, slot, pose)
+            if round_:
+                _was_round, a0, b0, _was_r = round_shape(control, slot, last)
+                u, bary, on_seg, on_tri = segment_triangle(a, b, p0, p1, p2)
+                before = bary[0] * x0 + bary[1] * x1 + bary[2] * x2 - (a0 + u * (b0 - a0))
+                dist, n = side_distance(on_tri - on_seg, before, r + bary.dot(thickness))
+                denom = (bary * bary * w).sum()
+                if dist < 0.0 and denom > 0.0:
+                    lam = -dist / denom
+                    for j in ti.static(range(3)):
+                        if bary[j] > 1e-6 and w[j] > 0.0:
+                            acc, hits = add_corner(acc, hits, j, lam * w[j] * bary[j] * n)
+                    count += 1
+    return count, acc, hits
+
+
+@ti.func
+def tool_contacts(
+    model: ti.template(),
+    state: ti.template(),
+    coll: ti.template(),
+    control: ti.template(),
+    t,
+    acc,
+    hits,
+):
+    """Triangle t against every active tool whose bounding capsule, grown by its
+    motion over the substep, reaches the triangle's bounding sphere: the contact that
+    holds (:func:`surface_tool`), or with ``coll.method_tools`` the chosen method's
+    own response (seed 000's cylinder experiment). Returns (bounding-phase passes,
+    contacts, acc, hits)."""
     candidates, contacts = 0, 0
     for k in range(MAX_TOOLS):
         if control.tool_active[k]:
-            move = tool_motion(coll, control, k)
-            pose = control_pose(control, k)
+            pose, last = control_pose(control, k), control.tool_last[k]
+            move = pose_motion(last, pose)
             center, r = coll.sphere_center[t], coll.sphere_radius[t]
             touching = True
             for test in range(3):  # one distance call site: bounding, facing, sphere phase
                 at, point = pose, coll.bound_center[t]
                 if test == 1:
-                    at, point = coll.tool_prev[k], coll.start_centroid[t]
+                    at, point = last, coll.start_centroid[t]
                 elif test == 2:
                     point = center
                 dist, grad = tool_distance(control, k, at, point)
@@ -242,10 +324,15 @@ def tool_contacts(coll: ti.template(), control: ti.template(), t, acc, hits):
                     touching = grad.dot(coll.start_normal[t]) < 0.0
                 else:
                     touching = dist < r and in_cone(coll, t, -grad)
-                if not touching or ti.static(coll.method == POLYGON):
+                if not touching or ti.static(not coll.method_tools or coll.method == POLYGON):
                     break
             if touching:
-                if ti.static(coll.method == POLYGON):
+                if ti.static(not coll.method_tools):
+                    n, acc, hits = surface_tool(
+                        model, state, coll, control, t, k, pose, last, acc, hits
+                    )
+                    contacts += n
+                elif ti.static(coll.method == POLYGON):
                     n, acc, hits = polygon_tool(coll, control, t, k, pose, acc, hits)
                     contacts += n
                 elif coll.tri_inv_mass[t] > 0.0:
@@ -266,9 +353,10 @@ def detect_and_respond(
     coll: ti.template(),
     rows: ti.template(),
     tissue: ti.i32,
+    tools: ti.i32,
 ):
     """The module docstring: contacts of the active triangles (corner translations,
-    averaged; tissue pairs only if ``tissue``), then per particle under a contact the
+    averaged; tissue pairs if ``tissue``, tools if ``tools``), then per particle under a contact the
     bound corners' translations averaged with the binding weights move p and set
     collided. Reads the spheres, the pair rows and the tool poses; writes corner_delta,
     corner_count (zero again at the end), counter, p, collided."""
@@ -281,7 +369,11 @@ def detect_and_respond(
             if tissue:
                 bounding, contacts, acc, hits = tissue_contacts(coll, rows, t, acc, hits)
         if ti.static(coll.tools):
-            tool_candidates, tool, acc, hits = tool_contacts(coll, control, t, acc, hits)
+            if tools:
+                tool_candidates, tool, acc, hits = tool_contacts(
+                    model, state, coll, control, t, acc, hits
+                )
+                coll.tool_held[t] = ti.cast(tool > 0, ti.i32)
         for k in ti.static(range(3)):
             coll.corner_delta[3 * t + k] = ti.Vector([acc[k, 0], acc[k, 1], acc[k, 2]]) / ti.max(
                 ti.cast(hits[k], ti.f32), 1.0

@@ -12,6 +12,14 @@ renderer and the grasp use the same frame) and the jaws' capsule ahead of the ti
 (:func:`push_out_of_tools`), tissue collision and, in NumPy, the haptic proxy all
 evaluate these shapes. Lengths in metres; a union's distance is the minimum over its
 shapes and its gradient that of the nearest shape (pointing out of the tool).
+
+Tools move within a frame: :func:`place_tool` keeps where a tool was when the device
+moved it (``tool_start``) beside where the device put it (``tool_goal``), and
+:func:`interpolate_tools` places it in between for each substep, keeping the pose at
+the substep's start in ``tool_last``. Contacts compare where a point lay relative to
+the tool at the substep's start with where it lies now (:func:`swept_shape_distance`),
+so a tool that moved past a point within a substep pushes it back to the side it came
+from instead of through the tool.
 """
 
 import taichi as ti
@@ -50,6 +58,73 @@ def control_pose(control: ti.template(), k):
         frame=control.tool_frame[k],
         jaw=control.tool_jaw[k],
         jaw_radius=control.tool_jaw_radius[k],
+    )
+
+
+@ti.func
+def pose_between(start, goal, f):
+    """The pose a fraction ``f`` of the way from ``start`` to ``goal`` (points linear,
+    frame re-orthonormalised about the interpolated axis; ``goal`` itself at f >= 1)."""
+    pose = goal
+    if f < 1.0:
+        pose.tip = start.tip + f * (goal.tip - start.tip)
+        pose.tail = start.tail + f * (goal.tail - start.tail)
+        pose.jaw = start.jaw + f * (goal.jaw - start.jaw)
+        m = start.frame + f * (goal.frame - start.frame)
+        z = ti.Vector([m[0, 2], m[1, 2], m[2, 2]]).normalized(1e-12)
+        x = ti.Vector([m[0, 0], m[1, 0], m[2, 0]])
+        x = (x - x.dot(z) * z).normalized(1e-12)
+        y = z.cross(x)
+        pose.frame = ti.Matrix.cols([x, y, z])
+    return pose
+
+
+@ti.kernel
+def place_tool(
+    control: ti.template(),
+    k: ti.i32,
+    tip: ti.math.vec3,
+    tail: ti.math.vec3,
+    radius: ti.f32,
+    active: ti.i32,
+    frame: ti.math.mat3,
+    jaw: ti.math.vec3,
+    jaw_radius: ti.f32,
+    jump: ti.i32,
+):
+    """Tool k's new pose (its Control entry and ``tool_goal``); the pose it leaves
+    becomes ``tool_start`` and ``tool_last``, or the new one when ``jump`` (a tool that
+    appears or teleports sweeps nothing)."""
+    goal = ToolPose(tip=tip, tail=tail, radius=radius, frame=frame, jaw=jaw, jaw_radius=jaw_radius)
+    start = goal
+    if not jump:
+        start = control_pose(control, k)
+    control.tool_start[k] = start
+    control.tool_last[k] = start
+    control.tool_goal[k] = goal
+    control.tool_a[k], control.tool_b[k], control.tool_radius[k] = tip, tail, radius
+    control.tool_frame[k], control.tool_jaw[k], control.tool_jaw_radius[k] = frame, jaw, jaw_radius
+    control.tool_active[k] = active
+
+
+@ti.kernel
+def interpolate_tools(control: ti.template(), begin: ti.f32, end: ti.f32):
+    """A substep from fraction ``begin`` to ``end`` of the way between each tool's
+    ``tool_start`` and ``tool_goal``: ``tool_last`` where it starts, the Control entry
+    where it ends (the goal at ``end`` = 1)."""
+    for k in range(MAX_TOOLS):
+        start, goal = control.tool_start[k], control.tool_goal[k]
+        control.tool_last[k] = pose_between(start, goal, begin)
+        now = pose_between(start, goal, end)
+        control.tool_a[k], control.tool_b[k], control.tool_frame[k] = now.tip, now.tail, now.frame
+        control.tool_jaw[k] = now.jaw
+
+
+@ti.func
+def pose_motion(last, pose):
+    """How far [m] the shaft's ends and the jaws' end moved from ``last`` to ``pose``."""
+    return ti.max(
+        (pose.tip - last.tip).norm(), (pose.tail - last.tail).norm(), (pose.jaw - last.jaw).norm()
     )
 
 
@@ -151,18 +226,58 @@ def tool_distance(control: ti.template(), tool, pose, x):
 
 
 @ti.func
-def push_out_of_tools(control: ti.template(), p, r):
-    """A particle at ``p`` [m] of radius ``r`` [m] moved out of every active tool: onto
-    the surface of each shape it is inside, one shape after the other in table order
-    (PBD projection, Müller et al. 2007 §3.4), again while a pass moved it (a push out
-    of one shape may end in an overlapping one), at most :data:`MAX_TOOL_SHAPES`
-    passes; particles outside the tool's bounding capsule are not tested further.
-    Returns the new position and 1 when a tool touched it (seed 000 Alg. 1 lines 13-14
-    then hold its goal)."""
+def swept_shape_distance(control: ti.template(), slot, last, pose, x, p):
+    """Signed distance [m] and push direction of a point now at ``p`` from shape
+    ``slot`` of a tool now at ``pose``, the point having been at ``x`` when the tool was
+    at ``last`` (the substep's start). For a round shape the direction is the one
+    from the shape's axis to the point, unless the axis has moved past the point
+    since the start (the two offsets point apart): then the point is pushed back to
+    the side it started on and the distance is measured along that side (negative
+    beyond the axis), so a fast tool pushes tissue ahead of it instead of through
+    itself. Boxes use the nearest surface (:func:`shape_distance`)."""
+    dist, grad = FAR, ti.Vector([0.0, 1.0, 0.0])
+    if control.shape_kind[slot] == SHAPE_BOX:
+        dist, grad = shape_distance(control, slot, pose, p)
+    else:
+        round_, a, b, r = round_shape(control, slot, pose)
+        if round_:
+            _was_round, a0, b0, _was_r = round_shape(control, slot, last)
+            now = p - point_segment(a, b, p)
+            before = x - point_segment(a0, b0, x)
+            dist, grad = side_distance(now, before, r)
+    return dist, grad
+
+
+@ti.func
+def side_distance(now, before, r):
+    """Distance [m] of a point from a round shape of radius ``r`` given its offset
+    from the shape's axis ``now`` and at the substep's start ``before``, and the
+    direction to push it (:func:`swept_shape_distance`)."""
+    length = now.norm()
+    grad = ti.Vector([0.0, 1.0, 0.0])
+    dist = length - r
+    if length > 1e-12:
+        grad = now / length
+    if before.norm_sqr() > 1e-24 and (before.dot(now) < 0.0 or length <= 1e-12):
+        grad = before.normalized()
+        dist = now.dot(grad) - r
+    return dist, grad
+
+
+@ti.func
+def push_out_of_tools(control: ti.template(), p, x, r):
+    """A particle at ``p`` [m] (at ``x`` at the substep's start) of radius ``r`` [m]
+    moved out of every active tool: onto the surface of each shape it is inside, on
+    the side it came from (:func:`swept_shape_distance`), one shape after the other in
+    table order (PBD projection, Müller et al. 2007 §3.4), again while a pass moved it
+    (a push out of one shape may end in an overlapping one), at most
+    :data:`MAX_TOOL_SHAPES` passes; particles outside the tool's bounding capsule are
+    not tested further. Returns the new position and 1 when a tool touched it (seed
+    000 Alg. 1 lines 13-14 then hold its goal)."""
     hit = 0
     for k in range(MAX_TOOLS):
-        pose = control_pose(control, k)
-        reach = bounding_radius(control, k, pose) + r
+        pose, last = control_pose(control, k), control.tool_last[k]
+        reach = bounding_radius(control, k, pose) + pose_motion(last, pose) + r
         if (
             control.tool_active[k]
             and (p - point_segment(pose.tip, pose.tail, p)).norm_sqr() < reach * reach
@@ -170,7 +285,9 @@ def push_out_of_tools(control: ti.template(), p, r):
             for _ in range(MAX_TOOL_SHAPES):
                 moved = 0
                 for s in range(MAX_TOOL_SHAPES):
-                    dist, grad = shape_distance(control, k * MAX_TOOL_SHAPES + s, pose, p)
+                    dist, grad = swept_shape_distance(
+                        control, k * MAX_TOOL_SHAPES + s, last, pose, x, p
+                    )
                     if dist < r:
                         p += (r - dist) * grad
                         moved = 1

@@ -33,7 +33,8 @@ def organ_bodies(data) -> np.ndarray:
 def triangle_corner_tables(data) -> dict[str, np.ndarray]:
     """Host tables binding triangle corners (3 t + k) to particles: the gather lists
     per particle (weights > 0 of the surface binding), the corners' inverse masses
-    (Σ w m⁻¹ of the bound particles), and one owner corner per surface vertex."""
+    (Σ w m⁻¹ of the bound particles), their thickness against tools (Σ w times the
+    particles' contact radius) and one owner corner per surface vertex."""
     corner_vertex = data.surface_triangles.reshape(-1)
     index = data.surface_index[corner_vertex]
     weight = data.surface_weight[corner_vertex]
@@ -53,4 +54,5 @@ def triangle_corner_tables(data) -> dict[str, np.ndarray]:
         "particle_weight": weight.reshape(-1)[keep][rows],
         "corner_inv_mass": corner_inv_mass,
         "corner_owner": owner.astype(np.int32),
+        "corner_thickness": (weight * data.contact_radius()[index]).sum(axis=1),
     }

@@ -6,12 +6,17 @@ triangles of all organs meet each other and the tools, by adaptive circumspheres
 :class:`TissueCollision` owns the per-triangle tables (:mod:`.surface_tables`), the
 spatial hash and the margin pair lists (:mod:`.pair_lists`); the kernels of each stage
 live in :mod:`taichi_lap.kernels.collision`: the broad phase, the spheres and their
-phases, the polygon baseline, the response and the tool shapes. A frame calls
-:meth:`TissueCollision.begin_frame` once after the tools are placed, then
+phases, the polygon baseline, the response and the tool shapes. The solver calls
 :meth:`TissueCollision.step` after every shape-matching pass (tissue pairs may be left
 to the last pass of a substep: ``tissue=False``): it reads the predicted positions p,
-the substep's start positions x and the goals, and moves p and sets ``collided`` of
-the particles under contacting triangles.
+the substep's start positions x, the goals and the tools' poses at the substep's
+start and end, and moves p and sets ``collided`` of the particles under contacting
+triangles.
+
+Tools meet the drawn surface by the contact that holds
+(:func:`~taichi_lap.kernels.collision.response.surface_tool`) whatever the method of
+the tissue pairs, or, with ``method_tools``, by the method's own response (seed 000
+compares the methods on a tool).
 """
 
 import logging
@@ -32,7 +37,6 @@ from taichi_lap.core.instruments import FAR, MAX_TOOLS
 from taichi_lap.core.mesh import edge_neighbours
 from taichi_lap.kernels.collision import broad_phase, response, spheres
 from taichi_lap.kernels.collision.spatial_hash import SpatialHash
-from taichi_lap.kernels.collision.tool_shapes import ToolPose
 
 log = logging.getLogger("taichi_lap")
 
@@ -63,7 +67,8 @@ class TissueCollision:
     §4.2.3 (relative area change that triggers recomputing curvature and recovery);
     ``tissue_pairs`` tissue-tissue contacts (``self_collision``: also inside one organ);
     ``tools`` tool-triangle contacts (the tools' shapes are the Control's, the same the
-    particle contacts of the solver's prediction use); ``polygon_thickness`` [m] kept
+    particle contacts of the solver's prediction use), ``method_tools`` by the
+    method's response instead of the contact that holds; ``polygon_thickness`` [m] kept
     between tissue features by the polygon method. Broad phase
     (:mod:`taichi_lap.kernels.collision.broad_phase`):
     ``pair_margin`` [m] of the pair lists (default the median rest broad radius;
@@ -92,6 +97,7 @@ class TissueCollision:
         tissue_pairs: bool = True,
         self_collision: bool = True,
         tools: bool = True,
+        method_tools: bool = False,
         polygon_thickness: float = 1e-4,
         pair_margin: float | None = None,
         hash_slack: float | None = None,
@@ -110,13 +116,13 @@ class TissueCollision:
         self.scale_phi, self.safe_angle = float(scale_phi), float(safe_angle)
         self.lazy_delta = float(lazy_delta)
         self.tissue_pairs, self.self_collision = bool(tissue_pairs), bool(self_collision)
-        self.tools = bool(tools)
+        self.tools, self.method_tools = bool(tools), bool(method_tools)
         self.polygon_thickness = float(polygon_thickness)
         self.rest_exclusion = float(rest_exclusion)
         self.timing, self.last_ms, self.total_ms, self.calls = timing, 0.0, 0.0, 0
         self.oversize_steps = 0
         self.phase_ms = dict.fromkeys(PHASES, 0.0)
-        self._begun, self._hashed, self._mark = False, False, 0.0
+        self._hashed, self._mark = False, 0.0
         data = model.data
         triangles = np.asarray(data.surface_triangles, dtype=np.int64).reshape(-1, 3)
         self.triangle_count, self.vertex_count = len(triangles), len(data.surface_index)
@@ -172,6 +178,7 @@ class TissueCollision:
         self.ref_sphere = group.field(ti.f32, f, vector=4)
         self.hash_sphere = group.field(ti.f32, f, vector=4)
         self.moved = group.field(ti.i32, f)
+        self.tool_held = group.field(ti.i32, f)
         self.active_list = group.field(ti.i32, f)
         self.active_count = group.field(ti.i32, None)
         self.touched_list = group.field(ti.i32, len(data.pinned))
@@ -186,6 +193,7 @@ class TissueCollision:
         )
         self.corner_inv_mass = group.field(ti.f32, 3 * f, values=corner_inv_mass)
         self.corner_owner = group.field(ti.i32, 3 * f, values=tables["corner_owner"])
+        self.corner_thickness = group.field(ti.f32, 3 * f, values=tables["corner_thickness"])
         for name in ("bound_particle", "particle_start", "particle_corner"):
             setattr(self, name, group.field(ti.i32, len(tables[name]), values=tables[name]))
         self.particle_weight = group.field(
@@ -194,12 +202,9 @@ class TissueCollision:
         self.hermite = group.field(
             ti.f32, spheres.HERMITE_SAMPLES + 1, values=spheres.hermite_table()
         )
-        self.tool_prev = group.field(ToolPose, MAX_TOOLS)
-        self.tool_last = group.field(ToolPose, MAX_TOOLS)
         self.tool_cull = group.field(ti.f32, MAX_TOOLS, vector=4)
         self.tool_cull_a = group.field(ti.f32, MAX_TOOLS, vector=3)
         self.tool_cull_axis = group.field(ti.f32, MAX_TOOLS, vector=3)
-        self.tool_last_active = group.field(ti.i32, MAX_TOOLS)
         self.vertex_p = group.field(ti.f32, v, vector=3)
         self.vertex_x = group.field(ti.f32, v, vector=3)
         for name in (
@@ -238,24 +243,15 @@ class TissueCollision:
             if owner is not None:
                 owner.close()
 
-    def begin_frame(self, control):
-        """Remember the tools' poses of the last frame (for the tool motion in the
-        bounding-sphere phase and the facing test); call once per frame after the
-        devices placed the tools."""
-        broad_phase.remember_tool_poses(control, self)
-        self._begun = True
-
     def reset(self, *, pairs: bool = False):
         """Forget the lazy-update state (every circumsphere is recomputed at the next
-        step) and the tools' last poses, e.g. after :meth:`State.reset`. The pair lists
+        step), e.g. after :meth:`State.reset`. The pair lists
         stay: each row holds the partners within the margin of where its triangle was
         when listed, wherever the state jumped since, and a triangle that is now
         elsewhere rescans at the next step, as after any drift. With ``pairs`` the
         lists and the hash are forgotten too (every triangle rescans, as in a new
         collision), and so is the count of oversize steps."""
         self.area_last.fill(0.0)
-        self.tool_last_active.fill(0)
-        self._begun = False
         if pairs:
             self.ref_sphere.fill(FAR)
             self._hashed = False
@@ -281,8 +277,6 @@ class TissueCollision:
         ``state.collided``; velocities follow from p - x in the solver's update.
         ``tissue=False`` leaves out the tissue pairs (tools only), e.g. for all but the
         last shape-matching pass of a substep."""
-        if not self._begun:
-            self.begin_frame(control)
         if self.timing:
             ti.sync()
             start = self._mark = time.perf_counter()
@@ -296,7 +290,11 @@ class TissueCollision:
             broad_phase.mark_active(self, self.rows)
         spheres.update_spheres(self.model, state, self, False)
         self._lap("spheres")
-        response.detect_and_respond(self.model, state, control, self, self.rows, int(tissue))
+        if tissue and self.tools and not self.method_tools:  # tissue first: the tools win
+            response.detect_and_respond(self.model, state, control, self, self.rows, 1, 0)
+            response.detect_and_respond(self.model, state, control, self, self.rows, 0, 1)
+        else:
+            response.detect_and_respond(self.model, state, control, self, self.rows, int(tissue), 1)
         self._lap("detect")
         if self.timing:
             self.last_ms = (time.perf_counter() - start) * 1e3

@@ -78,6 +78,18 @@ class ModelData:
         """(N,) 1 / mass [1/kg], 0 for pinned particles (they do not move)."""
         return np.where(self.pinned, 0.0, 1.0 / np.maximum(self.mass, 1e-12))
 
+    def contact_radius(self) -> np.ndarray:
+        """(N,) how far [m] a tool stays from each particle: the drawn surface's
+        distance from it. Surfaces are drawn through their particles (0); the masses
+        of a spring sheet are drawn as a tube (row 0) or a membrane of the row's
+        radius."""
+        radius = np.zeros(self.particle_count)
+        for organ in self.organs:
+            if organ.row_length:
+                span = slice(*organ.particles)
+                radius[span] = self.radius[span]
+        return radius
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Flat name -> array mapping (for the cache)."""
         out = {}

@@ -25,6 +25,7 @@ from taichi_lap.core.instruments import (
     ToolGeometry,
     ToolShape,
 )
+from taichi_lap.kernels.collision.tool_shapes import ToolPose, interpolate_tools, place_tool
 
 
 def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
@@ -45,7 +46,6 @@ def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
     return rotation @ frame
 
 
-@ti.data_oriented
 def shape_rows(shapes) -> tuple[np.ndarray, ...]:
     """One tool's rows of the shape table: kinds (S,) and a, b, size (S, 3), the
     slots after ``shapes`` empty."""
@@ -66,7 +66,12 @@ class Control(FieldOwner):
     ``shape_size``, :data:`MAX_TOOL_SHAPES` rows per tool, in the tool frame) and
     ``tool_reach`` [m], how far from the tip the shapes placed in the frame reach; per
     tool on the Python side ``grasp`` (jaws closed) and ``jaw_length`` [m]. Every tool
-    starts as jaws and shaft (the jaws are nothing while ``tool_jaw_radius`` is 0)."""
+    starts as jaws and shaft (the jaws are nothing while ``tool_jaw_radius`` is 0).
+
+    A tool moves within a step: :meth:`set_tool` keeps the pose it leaves
+    (``tool_start``) and the one it goes to (``tool_goal``); the solver places it in
+    between for every substep (:meth:`advance`), ``tool_last`` holding its pose at
+    the substep's start. Between steps the Control entry is the goal."""
 
     def __init__(self):
         group = FieldGroup()
@@ -85,11 +90,15 @@ class Control(FieldOwner):
                 self, f"shape_{name}", group.field(dtype, len(table), vector=vector, values=table)
             )
         self.tool_reach = group.field(ti.f32, MAX_TOOLS)
+        self.tool_start = group.field(ToolPose, MAX_TOOLS)
+        self.tool_goal = group.field(ToolPose, MAX_TOOLS)
+        self.tool_last = group.field(ToolPose, MAX_TOOLS)
         group.finalize()
         self._group = group
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
         self.jaw_length = [0.0] * MAX_TOOLS
+        self._jump = [True] * MAX_TOOLS
 
     def set_tool(
         self,
@@ -112,13 +121,19 @@ class Control(FieldOwner):
         if np.linalg.norm(tail - tip) > 0.0:
             self.frames[index] = frame_towards(self.frames[index], tail - tip)
         frame = self.frames[index]
-        self.tool_a[index] = tip.astype(np.float32)
-        self.tool_b[index] = tail.astype(np.float32)
-        self.tool_radius[index] = float(radius)
-        self.tool_active[index] = int(active)
-        self.tool_frame[index] = frame.astype(np.float32)
-        self.tool_jaw[index] = (tip - jaw_length * frame[:, 2]).astype(np.float32)
-        self.tool_jaw_radius[index] = JAW_RADIUS * float(radius) if jaw_length > 0.0 else 0.0
+        place_tool(
+            self,
+            index,
+            tip,
+            tail,
+            float(radius),
+            int(active),
+            frame,
+            tip - jaw_length * frame[:, 2],
+            JAW_RADIUS * float(radius) if jaw_length > 0.0 else 0.0,
+            int(self._jump[index] or not active),
+        )
+        self._jump[index] = not active
         self.grasp[index] = bool(grasp and active)
         self.jaw_length[index] = float(jaw_length)
 
@@ -139,7 +154,14 @@ class Control(FieldOwner):
             field.from_numpy(table)
         self.tool_reach[index] = geometry.reach()
 
+    def advance(self, begin: float, end: float):
+        """Place every tool for a substep from fraction ``begin`` to ``end`` of the way
+        from where it was before the last :meth:`set_tool` to where that put it
+        (:func:`~taichi_lap.kernels.collision.tool_shapes.interpolate_tools`)."""
+        interpolate_tools(self, begin, end)
+
     def reset(self):
-        """Forget the tools' frames and open every grasper."""
+        """Forget the tools' frames and motion and open every grasper."""
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
+        self._jump = [True] * MAX_TOOLS

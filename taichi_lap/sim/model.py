@@ -62,6 +62,7 @@ class Model(FieldOwner):
         self.mass = self._floats(data.mass)
         self.inv_mass = self._floats(data.inverse_mass())
         self.radius = self._floats(data.radius)
+        self.contact_radius = self._floats(data.contact_radius())
         for name, values in data.material.items():
             setattr(self, name, self._floats(values))
 
@@ -70,6 +71,7 @@ class Model(FieldOwner):
         self._init_lra(data, n)
         self._init_springs(data, n)
         self._init_surface(data)
+        self._init_tubes(data)
         self._init_planes(planes)
         self._group.finalize()
 
@@ -179,6 +181,18 @@ class Model(FieldOwner):
         self.surface_index = self._ints(data.surface_index, vector=4)
         self.surface_weight = self._floats(data.surface_weight, vector=4)
         self.surface_triangles = self._ints(data.surface_triangles.reshape(-1))
+
+    def _init_tubes(self, data: ModelData):
+        """Tubes drawn around a row of masses (row 0 of a spring sheet, seed 001): the
+        particles in order with their neighbours along the tube (-1 at its ends)."""
+        rows = [np.arange(o.particles[0], o.particles[0] + o.row_length) for o in data.organs]
+        particle = np.concatenate([r for r in rows if len(r)] or [np.zeros(0, np.int64)])
+        prev = np.concatenate([np.r_[-1, r[:-1]] for r in rows if len(r)] or [particle])
+        after = np.concatenate([np.r_[r[1:], -1] for r in rows if len(r)] or [particle])
+        self.tube_particle_count = len(particle)
+        self.tube_particle = self._ints(particle)
+        self.tube_prev = self._ints(prev)
+        self.tube_next = self._ints(after)
 
     def _init_planes(self, planes):
         """Environment half-spaces (abdominal wall, table) the tissue rests on."""

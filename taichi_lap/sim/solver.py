@@ -9,12 +9,18 @@ A frame of length dt runs ``substeps`` substeps of h = dt / substeps, each:
 3. **shape matching** — ``shape_iterations`` passes of Alg. 1 lines 7-23 (A, polar
    decomposition per cluster, limited goals); all passes but the last move p
    towards the goals;
-4. **collision** — surface triangles against the tools by adaptive circumspheres or a
-   baseline (seed 000 §4, chosen per scene) after each shape-matching pass, against each
-   other after the last; self-collision of the intestine and mesentery (seed 001 §4:
-   stochastic detection, displacement-velocity response Eq. 2-9) on the predicted
+4. **collision** — the drawn surface against the tools (the contact that holds,
+   :func:`taichi_lap.kernels.collision.response.surface_tool`) after each
+   shape-matching pass, whatever the scene chooses for tissue pairs; surface triangles
+   against each other by adaptive circumspheres or a baseline (seed 000 §4, chosen
+   per scene) after the last; self-collision of the intestine and mesentery (seed 001
+   §4: stochastic detection, displacement-velocity response Eq. 2-9) on the predicted
    positions;
 5. **update goals** — Alg. 1 lines 12-25 (η, goal limiting, v and x), health check.
+
+Each substep places the tools a fraction of the way from where they were at the
+frame's start to where the devices put them (:meth:`Control.advance`), so a tool
+moves through the tissue in steps of a substep, not of a frame.
 
 Before the substeps a grasper whose jaws just closed captures the particles between
 them and one whose jaws opened releases them (seed 002 §3.4); every projection then
@@ -33,6 +39,7 @@ from taichi_lap.collision import IntestineCollision, TissueCollision
 from taichi_lap.core.errors import SimulationFault
 from taichi_lap.core.instruments import JAW_REACH, MAX_TOOLS
 from taichi_lap.kernels import distance, grasp, shape_matching, skinning
+from taichi_lap.kernels.collision import particle_contact
 from taichi_lap.kernels.health import NO_FAULT
 from taichi_lap.scene.schema import SCENE_PARAMS
 from taichi_lap.sim.control import Control
@@ -81,8 +88,10 @@ class SolverSettings:
 class Solver:
     """Advances a :class:`State` in place; see the module docstring for the order.
 
-    The tissue collision is the one ``settings.collision`` chooses, or ``collision``
-    when given (seed 000's cylinder experiment compares methods on one model); the
+    The tissue collision holds the tools' contact with the drawn surface in every
+    model with surface triangles and meets tissue pairs by the method
+    ``settings.collision`` chooses (none for ``"off"``), or is ``collision`` when
+    given (seed 000's cylinder experiment compares methods on one model); the
     intestine self-collision is on for organs with spring rows when
     ``settings.self_collision``."""
 
@@ -101,9 +110,13 @@ class Solver:
         self._has_clusters = model.cluster_total > 0
         self._has_springs = model.spring_count > 0
         self.collision = collision
-        if collision is None and settings.collision != "off" and len(model.data.surface_triangles):
+        if collision is None and len(model.data.surface_triangles):
+            pairs = settings.collision != "off"
             self.collision = TissueCollision(
-                model, method=settings.collision, scale_phi=settings.collision_scale_phi
+                model,
+                method=settings.collision if pairs else "polygon",
+                tissue_pairs=pairs,
+                scale_phi=settings.collision_scale_phi,
             )
         self.self_collision = None
         if settings.self_collision and any(o.row_length for o in model.data.organs):
@@ -125,9 +138,9 @@ class Solver:
         state.fault_particle[None] = NO_FAULT
         self.events = []
         self.update_grasps(state, control)
-        if self.collision is not None and collide:
-            self.collision.begin_frame(control)
-        for k in range(self.settings.substeps):
+        n = self.settings.substeps
+        for k in range(n):
+            control.advance(k / n, (k + 1) / n)
             self.substep(
                 state,
                 control,
@@ -200,6 +213,8 @@ class Solver:
         collision = self.collision if collide else None
         if first or self._has_springs:
             shape_matching.predict(model, state, control, settings.gravity, h, int(not first))
+        if model.tube_particle_count:
+            particle_contact.push_tubes_out_of_tools(model, state, control)
         if self._has_constraints:
             self._solve_constraints(state, control)
         if self._has_clusters:
@@ -213,6 +228,8 @@ class Solver:
             collision.step(state, collision_control)
         if self.self_collision is not None and collide:
             self.self_collision.step(state, h)
+        if model.tube_particle_count:  # the last move of the tubes
+            particle_contact.push_tubes_out_of_tools(model, state, control)
         shape_matching.update_goals(
             model, state, control, h, settings.speed_limit, settings.gravity, int(not last)
         )

@@ -1,0 +1,77 @@
+"""The contact that holds: instruments push the drawn surface of every tissue model as
+far as they go into it, at a hand's speed, whatever the scene's tissue collision
+(``perf/bench_contact.py`` measures the whole matrix; these are its corners)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from taichi_lap.perf import bench_contact as contact
+from taichi_lap.sim import Control
+from tests.archrun import assert_vulkan_matches_cpu
+
+TOLERANCE = (0.8, 1.25)
+"""Displacement of the drawn surface under the tool over the tool's depth."""
+SLOW, HAND = 0.005, 0.25
+"""Press speeds [m/s]: a careful push and a fast hand (4.2 mm per substep at 60 Hz)."""
+
+
+def pressed(model: str, collision: str, depth: float, speed: float, solver) -> float:
+    session, target = contact.press_scene(model, collision, *solver)
+    try:
+        ratio, _ = contact.press(session, target, depth, speed)
+    finally:
+        session.close()
+    assert ratio is not None, "the press faulted"
+    return ratio
+
+
+@pytest.mark.parametrize("collision", ["off", "circumsphere"])
+def test_a_probe_indents_the_tet_block_as_deep_as_it_goes(collision):
+    """The probe's 6 mm tip slipped between the 2 mm particles (0.22 mm for 7 mm) and
+    the circumspheres pushed the surface 5 mm beyond the tool."""
+    ratio = pressed("tet_clusters", collision, 0.004, SLOW, contact.SOLVERS[0])
+    assert TOLERANCE[0] <= ratio <= TOLERANCE[1]
+
+
+@pytest.mark.parametrize("model", ["tet_clusters", "fascia_lra"])
+def test_a_fast_press_with_one_undamped_substep_holds(model):
+    """0.25 m/s with 1 substep, no damping, η = 1: no fault, no tunnelling through the
+    block or the 2 mm fascia sheet, no over-push."""
+    ratio = pressed(model, "off", 0.008, HAND, contact.SOLVERS[1])
+    assert TOLERANCE[0] <= ratio <= TOLERANCE[1]
+
+
+@pytest.mark.parametrize("model", ["mass_spring", "mesentery"])
+def test_a_probe_pushes_the_intestine_tube_and_the_mesentery_between_masses(model):
+    """The tube is drawn 2 cm around masses a tube diameter apart: pressed between two
+    of them it moves with the probe (contact acted on the masses alone)."""
+    ratio = pressed(model, "off", 0.008, SLOW, contact.SOLVERS[0])
+    assert TOLERANCE[0] <= ratio <= TOLERANCE[1]
+
+
+def test_tools_move_a_fraction_of_the_frame_per_substep():
+    control = Control()
+    control.set_tool(0, [0.0, 0.0, 0.0], [0.0, 0.1, 0.0], 0.003)  # appears: no sweep
+    assert np.allclose(control.tool_last.tip.to_numpy()[0], 0.0)
+    control.set_tool(0, [0.0, -0.004, 0.0], [0.0, 0.096, 0.0], 0.003)
+    control.advance(0.25, 0.5)
+    assert np.allclose(control.tool_last.tip.to_numpy()[0], [0.0, -0.001, 0.0], atol=1e-7)
+    assert np.allclose(control.tool_a.to_numpy()[0], [0.0, -0.002, 0.0], atol=1e-7)
+    frame = control.tool_frame.to_numpy()[0]
+    assert np.allclose(frame.T @ frame, np.eye(3), atol=1e-6)
+    control.advance(0.5, 1.0)
+    assert np.array_equal(control.tool_a.to_numpy()[0], np.float32([0.0, -0.004, 0.0]))
+
+
+def compute_press_case() -> dict:
+    """A fast press into the tet block (also run on Vulkan)."""
+    session, target = contact.press_scene("tet_clusters", "off", *contact.SOLVERS[1])
+    ratio, _ = contact.press(session, target, 0.004, HAND, hold=0.1)
+    return {"x": session.state.x.to_numpy(), "ratio": np.float32([ratio])}
+
+
+@pytest.mark.vulkan
+def test_vulkan_agrees_with_cpu():
+    assert_vulkan_matches_cpu("tests.test_tool_contact:compute_press_case", 2e-4)
