@@ -385,7 +385,7 @@ def compute_collision_case(method: str = "circumsphere") -> dict:
     prediction's contacts, triangles by the collision), and two blocks pressed
     together, a few steps each (also run on Vulkan)."""
     _, data, model, state, tools, _ = simulation([BOX], gravity=[0, 0, 0])
-    collision = TissueCollision(model, method=method)
+    collision = TissueCollision(model, method=method, method_tools=True)  # seed 000 §4.3
     tools.set_tool_shapes(0, UNION)
     for k in range(3):
         y = 0.012 + 0.004 - 0.001 * k
@@ -408,7 +408,10 @@ def test_a_union_of_implicit_shapes_pushes_particles_and_triangles_out():
     distance = union_distances(
         result["p"].astype(float), tip, tail, 0.005, result["frame"].astype(float)
     )
-    assert distance.min() > -1e-5  # nothing left inside any shape
+    # nothing left inside any shape beyond the sphere method's own error: a triangle's
+    # circumsphere is translated out rigidly, so a corner the prediction had put on the
+    # curved shaft slides along it (about move² / 2 radius, 0.1 mm for a 1 mm move)
+    assert distance.min() > -2e-4
     assert np.all(distance.min(axis=1) < 2.5e-3)  # and every shape pushed some of it
     assert result["collided"].sum() > 10
 

@@ -52,7 +52,7 @@ def kernel_distances(
 @ti.kernel
 def pushed(control: ti.template(), points: ti.types.ndarray(dtype=ti.math.vec3), r: ti.f32):
     for i in range(points.shape[0]):
-        points[i], _ = push_out_of_tools(control, points[i], r)
+        points[i], _ = push_out_of_tools(control, points[i], points[i], r)  # tool still
 
 
 def sample_points(count: int) -> np.ndarray:

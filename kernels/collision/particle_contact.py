@@ -95,7 +95,8 @@ def segment_push(control: ti.template(), p_i, p_j, x_i, x_j, r_i, r_j, w_i, w_j)
                     s, u, on_tube, on_tool = segment_segment(p_i, p_j, a, b)
                     before = x_i + s * (x_j - x_i) - (a0 + u * (b0 - a0))
                     reach = r + (1.0 - s) * r_i + s * r_j
-                    dist, n = side_distance(on_tube - on_tool, before, reach)
+                    up = ti.Vector([0.0, 1.0, 0.0])
+                    dist, n = side_distance(on_tube - on_tool, before, reach, up)
                     denom = w_i * (1.0 - s) ** 2 + w_j * s * s
                     if dist < 0.0 and denom > 0.0:
                         delta += -dist / denom * w_i * (1.0 - s) * n

@@ -252,38 +252,58 @@ def surface_tool(
     over the corners as a PBD projection (Müller et al. 2007 §3.4): corner j moves by
     λ w_j b_j n with b the barycentric weights, w the corners' inverse masses and
     λ = depth / Σ w_j b_j². Boxes push the corners out of their nearest surface.
-    The corners are skinned from p here: tissue pairs may have moved it since the
-    phase's skinning. Returns (contacts, acc, hits)."""
+    The shapes act one after the other on a local copy of the corners (Gauss-Seidel,
+    two passes: a push out of one shape may end in an overlapping one), and each moved
+    corner gets the sum as one contact, so where shapes meet the pushes add up instead
+    of being averaged. The corners are skinned from p here: tissue pairs may have
+    moved it since the phase's skinning. Returns (contacts, acc, hits)."""
     v = coll.tri_vertex[t]
     w = ti.Vector([coll.corner_inv_mass[3 * t + j] for j in ti.static(range(3))])
     thickness = ti.Vector([coll.corner_thickness[3 * t + j] for j in ti.static(range(3))])
-    corners = [skin(model, state.p, v[j]) for j in ti.static(range(3))]
-    p0, p1, p2 = corners[0], corners[1], corners[2]
-    x0, x1, x2 = coll.vertex_x[v[0]], coll.vertex_x[v[1]], coll.vertex_x[v[2]]
+    start = ti.Matrix.rows([skin(model, state.p, v[j]) for j in ti.static(range(3))])
+    x = [coll.vertex_x[v[j]] for j in ti.static(range(3))]
+    c = start
+    moved = ti.Vector([0, 0, 0])
     count = 0
-    for s in range(MAX_TOOL_SHAPES):
-        slot = k * MAX_TOOL_SHAPES + s
-        if control.shape_kind[slot] == SHAPE_BOX:
-            for j in range(3):
-                if coll.corner_owner[3 * t + j] and w[j] > 0.0:
-                    dist, grad = shape_distance(control, slot, pose, skin(model, state.p, v[j]))
-                    if dist < thickness[j]:
-                        acc, hits = add_corner(acc, hits, j, (thickness[j] - dist) * grad)
+    for _pass in range(2):
+        for s in range(MAX_TOOL_SHAPES):
+            slot = k * MAX_TOOL_SHAPES + s
+            if control.shape_kind[slot] == SHAPE_BOX:
+                for j in ti.static(range(3)):
+                    if w[j] > 0.0:
+                        corner = ti.Vector([c[j, 0], c[j, 1], c[j, 2]])
+                        dist, grad = shape_distance(control, slot, pose, corner)
+                        if dist < thickness[j]:
+                            for m in ti.static(range(3)):
+                                c[j, m] += (thickness[j] - dist) * grad[m]
+                            moved[j] = 1
+                            count += 1
+            else:
+                round_, a, b, r = round_shape(control, slot, pose)
+                if round_:
+                    _was_round, a0, b0, _was_r = round_shape(control, slot, last)
+                    p = [ti.Vector([c[j, 0], c[j, 1], c[j, 2]]) for j in ti.static(range(3))]
+                    u, bary, on_seg, on_tri = segment_triangle(a, b, p[0], p[1], p[2])
+                    before = bary[0] * x[0] + bary[1] * x[1] + bary[2] * x[2]
+                    before -= a0 + u * (b0 - a0)
+                    away = (p[1] - p[0]).cross(p[2] - p[0]).normalized(1e-30)
+                    if away.dot(b - on_tri) > 0.0:  # a tool that appeared across the
+                        away = -away  # surface pushes it away from its handle's end
+                    reach = r + bary.dot(thickness)
+                    dist, n = side_distance(on_tri - on_seg, before, reach, away)
+                    denom = (bary * bary * w).sum()
+                    if dist < 0.0 and denom > 0.0:
+                        lam = -dist / denom
+                        for j in ti.static(range(3)):
+                            if bary[j] > 1e-6 and w[j] > 0.0:
+                                for m in ti.static(range(3)):
+                                    c[j, m] += lam * w[j] * bary[j] * n[m]
+                                moved[j] = 1
                         count += 1
-        else:
-            round_, a, b, r = round_shape(control, slot, pose)
-            if round_:
-                _was_round, a0, b0, _was_r = round_shape(control, slot, last)
-                u, bary, on_seg, on_tri = segment_triangle(a, b, p0, p1, p2)
-                before = bary[0] * x0 + bary[1] * x1 + bary[2] * x2 - (a0 + u * (b0 - a0))
-                dist, n = side_distance(on_tri - on_seg, before, r + bary.dot(thickness))
-                denom = (bary * bary * w).sum()
-                if dist < 0.0 and denom > 0.0:
-                    lam = -dist / denom
-                    for j in ti.static(range(3)):
-                        if bary[j] > 1e-6 and w[j] > 0.0:
-                            acc, hits = add_corner(acc, hits, j, lam * w[j] * bary[j] * n)
-                    count += 1
+    for j in ti.static(range(3)):
+        if moved[j]:
+            delta = ti.Vector([c[j, m] - start[j, m] for m in ti.static(range(3))])
+            acc, hits = add_corner(acc, hits, j, delta)
     return count, acc, hits
 
 
@@ -356,9 +376,9 @@ def detect_and_respond(
     tools: ti.i32,
 ):
     """The module docstring: contacts of the active triangles (corner translations,
-    averaged; tissue pairs if ``tissue``, tools if ``tools``), then per particle under a contact the
-    bound corners' translations averaged with the binding weights move p and set
-    collided. Reads the spheres, the pair rows and the tool poses; writes corner_delta,
+    averaged; tissue pairs if ``tissue``, tools if ``tools``), then per particle under
+    a contact the bound corners' translations averaged with the binding weights move p
+    and set collided. Reads the spheres, the pair rows and the tool poses; writes corner_delta,
     corner_count (zero again at the end), counter, p, collided."""
     coll.touched_count[None] = 0
     for m in range(coll.active_count[None]):

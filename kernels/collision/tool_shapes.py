@@ -244,21 +244,27 @@ def swept_shape_distance(control: ti.template(), slot, last, pose, x, p):
             _was_round, a0, b0, _was_r = round_shape(control, slot, last)
             now = p - point_segment(a, b, p)
             before = x - point_segment(a0, b0, x)
-            dist, grad = side_distance(now, before, r)
+            dist, grad = side_distance(now, before, r, ti.Vector([0.0, 1.0, 0.0]))
     return dist, grad
 
 
+TOUCH = 1e-7
+"""[m] Offsets from a shape's axis shorter than this count as on the axis (f32 noise
+at the scale of a scene is about 1e-9 m; a fixed threshold keeps backends agreeing)."""
+
+
 @ti.func
-def side_distance(now, before, r):
+def side_distance(now, before, r, fallback):
     """Distance [m] of a point from a round shape of radius ``r`` given its offset
     from the shape's axis ``now`` and at the substep's start ``before``, and the
-    direction to push it (:func:`swept_shape_distance`)."""
+    direction to push it (:func:`swept_shape_distance`). A point on the axis now and
+    at the start (a tool that appeared in tissue) goes along the unit ``fallback``."""
     length = now.norm()
-    grad = ti.Vector([0.0, 1.0, 0.0])
+    grad = fallback
     dist = length - r
-    if length > 1e-12:
+    if length > TOUCH:
         grad = now / length
-    if before.norm_sqr() > 1e-24 and (before.dot(now) < 0.0 or length <= 1e-12):
+    if before.norm() > TOUCH and (before.dot(now) < 0.0 or length <= TOUCH):
         grad = before.normalized()
         dist = now.dot(grad) - r
     return dist, grad

@@ -80,14 +80,14 @@ class ModelData:
 
     def contact_radius(self) -> np.ndarray:
         """(N,) how far [m] a tool stays from each particle: the drawn surface's
-        distance from it. Surfaces are drawn through their particles (0); the masses
-        of a spring sheet are drawn as a tube (row 0) or a membrane of the row's
-        radius."""
+        distance from it. Surfaces are drawn through their particles (0), and so is
+        the membrane of a spring sheet; its row 0 is drawn as a tube of the row's
+        radius around the masses."""
         radius = np.zeros(self.particle_count)
         for organ in self.organs:
             if organ.row_length:
-                span = slice(*organ.particles)
-                radius[span] = self.radius[span]
+                row0 = slice(organ.particles[0], organ.particles[0] + organ.row_length)
+                radius[row0] = self.radius[row0]
         return radius
 
     def arrays(self) -> dict[str, np.ndarray]:

@@ -35,6 +35,7 @@ class ReferenceShapeMatching:
         self.mass = data.mass.astype(np.float64)
         self.free = ~data.pinned
         self.radius = data.radius.astype(np.float64)
+        self.contact_radius = data.contact_radius()
         mat = data.material
         self.alpha, self.recover = mat["stiffness"], mat["recover_rate"]
         self.eta_contact, self.damping = mat["eta_on_contact"], mat["damping"]
@@ -62,7 +63,7 @@ class ReferenceShapeMatching:
             closest = a + t[:, None] * ab
             d = p - closest
             dist = np.linalg.norm(d, axis=1)
-            reach = r + self.radius
+            reach = r + self.contact_radius
             inside = dist < reach
             normal = np.where(
                 dist[:, None] > 1e-9,
