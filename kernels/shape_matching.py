@@ -32,7 +32,7 @@ vertex exactly). Both are the ``eta_on_contact`` material parameter.
 import taichi as ti
 from taichi_lap.kernels.collision.particle_contact import hold_grasped, resolve_contacts
 from taichi_lap.kernels.health import report_fault
-from taichi_lap.kernels.mass_spring import spring_force
+from taichi_lap.kernels.mass_spring import spring_velocity
 from taichi_lap.kernels.rotation import extract_rotation, quaternion_to_matrix
 
 
@@ -47,7 +47,7 @@ def predict_particle(
     if model.inv_mass[i] > 0.0:
         v = state.v[i] + model.stiffness[i] * (state.goal[i] - x) / h + h * gravity
         if ti.static(model.spring_count > 0):
-            v += h * spring_force(model, state, i) * model.inv_mass[i]
+            v = spring_velocity(model, state, i, v, h)
         v *= ti.max(1.0 - model.damping[i] * h, 0.0)
         p, hit = resolve_contacts(model, state, control, i, x + h * v, x)
     state.p[i] = p

@@ -270,6 +270,29 @@ def side_distance(now, before, r, fallback):
     return dist, grad
 
 
+TOOL_FRICTION = 1.0
+"""Coulomb coefficient of tissue on an instrument (static and kinetic)."""
+
+
+@ti.func
+def tool_friction(p, x, tool_motion, n, depth):
+    """Coulomb friction of a contact with normal ``n`` that pushed a point ``depth``
+    [m] (PBD friction, Müller et al. 2007 §3.5 as in Macklin et al. 2014 §6.1): the
+    point's motion since the substep's start relative to the tool's (``p - x`` less
+    ``tool_motion``) loses its tangential part when that is within TOOL_FRICTION ×
+    depth (it sticks to the instrument), else that much of it. A point pressed by a tip
+    moves on with the tip instead of sliding round it."""
+    relative = p - x - tool_motion
+    tangential = relative - relative.dot(n) * n
+    length = tangential.norm()
+    limit = TOOL_FRICTION * depth
+    if length <= limit:
+        p -= tangential
+    else:
+        p -= tangential * (limit / length)
+    return p
+
+
 @ti.func
 def push_out_of_tools(control: ti.template(), p, x, r):
     """A particle at ``p`` [m] (at ``x`` at the substep's start) of radius ``r`` [m]
@@ -296,6 +319,7 @@ def push_out_of_tools(control: ti.template(), p, x, r):
                     )
                     if dist < r:
                         p += (r - dist) * grad
+                        p = tool_friction(p, x, pose.tip - last.tip, grad, r - dist)
                         moved = 1
                 hit |= moved
                 if not moved:
