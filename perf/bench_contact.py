@@ -27,8 +27,9 @@ Cases
 * ``haptic-press-<d>mm``: a scripted haptic stylus (``HapticBridge``, servo process
   at 1 kHz) pressed into the tet_clusters block (circumsphere collision, 4 substeps,
   damping 6, eta_on_contact 0.7) at 5 mm/s to ``d`` = 2, 4, 8 mm below the top
-  (``--quick``: 4 mm) and held for 1.5 s of wall time once the stylus got there; the
-  scene tool follows the bridge's graphical (proxy) pose.
+  (``--quick``: 4 mm, in the press session: collision off) and held for 1.5 s of
+  wall time once the stylus got there; the scene tool follows the bridge's graphical
+  (proxy) pose.
 * ``sweep-intestine`` (not with ``--quick``): the built-in intestine scene and its
   scripted probe, 180 frames.
 
@@ -711,11 +712,12 @@ def main():
     depths = (0.004,) if quick else DEPTHS + (DEEP,)
     speeds = SPEEDS[:1] if quick else SPEEDS
     haptic_depths = (0.004,) if quick else DEPTHS
+    haptic = (collisions[0], solvers[0]) if quick else HAPTIC  # --quick: no second session
     results, haptic_rows = [], []
 
     def haptic_cases(session, target):
         for depth in haptic_depths:
-            haptic_rows.extend(haptic_press(session, target, depth, HAPTIC[0], HAPTIC[1]))
+            haptic_rows.extend(haptic_press(session, target, depth, *haptic))
 
     for model in models:
         for collision in collisions:
@@ -733,13 +735,9 @@ def main():
                     flush=True,
                 )
                 results += press_case(session, target, model, collision, solver, depths, speeds)
-                if model == "tet_clusters" and (collision, solver) == HAPTIC:
+                if model == "tet_clusters" and (collision, solver) == haptic:
                     haptic_cases(session, target)
                 session.close()
-    if not haptic_rows:  # --quick: the haptic setting is not among the press cases
-        session, target = press_scene("tet_clusters", HAPTIC[0], *HAPTIC[1])
-        haptic_cases(session, target)
-        session.close()
     results += haptic_rows
     if not quick:
         results += sweep_intestine()

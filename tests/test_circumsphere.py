@@ -392,6 +392,7 @@ def compute_collision_case(method: str = "circumsphere") -> dict:
         tools.set_tool(0, [-0.03, y, 0.0], [0.03, y, 0.0], 0.005)
         shape_matching.predict(model, state, tools, (0.0, 0.0, 0.0), 1.0 / 60.0, 0)
         collision.step(state, tools)
+        state.x.copy_from(state.p)  # the next substep starts where this one ended
     p2, _ = pressed_blocks(*two_blocks(), method, 2)
     return {
         "p": state.p.to_numpy(),

@@ -127,7 +127,11 @@ def lifted_block() -> dict[str, np.ndarray]:
 
 @pytest.mark.vulkan
 def test_grasp_vulkan_matches_cpu():
-    assert_vulkan_matches_cpu("tests.test_grasp:lifted_block", 1e-4)
+    # the block is lifted 15 mm by the jaws while the shaft's static friction holds
+    # the tissue around it: friction keeps a difference of rounding where a
+    # frictionless contact let it decay (0.9 mm at the end, 2 cm when a real error
+    # made the backends disagree)
+    assert_vulkan_matches_cpu("tests.test_grasp:lifted_block", 2e-3)
 
 
 def test_jaws_collide_as_a_second_capsule_ahead_of_the_tip():

@@ -21,6 +21,7 @@ import taichi as ti
 from taichi_lap.kernels.collision.closest_points import segment_segment
 from taichi_lap.kernels.collision.tool_shapes import (
     control_pose,
+    coulomb_friction,
     push_out_of_tools,
     round_shape,
     side_distance,
@@ -41,14 +42,8 @@ def push_out_of_planes(model: ti.template(), p, x, r):
         depth = r - (p - model.plane_point[k]).dot(n)
         if depth > 0:
             p += depth * n
-            move = p - x
-            tangential = move - move.dot(n) * n
-            length = tangential.norm()
-            limit = model.plane_friction[k] * depth
-            if length <= limit:
-                p -= tangential
-            else:
-                p -= tangential * (limit / length)
+            still = ti.Vector([0.0, 0.0, 0.0])
+            p = coulomb_friction(p, x, still, n, model.plane_friction[k] * depth)
     return p
 
 

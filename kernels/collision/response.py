@@ -55,7 +55,6 @@ from taichi_lap.kernels.collision.tool_shapes import (
     round_shape,
     shape_distance,
     side_distance,
-    tool_friction,
     tool_distance,
 )
 
@@ -256,9 +255,9 @@ def surface_tool(
     The shapes act one after the other on a local copy of the corners (Gauss-Seidel,
     two passes: a push out of one shape may end in an overlapping one), and each moved
     corner gets the sum as one contact, so where shapes meet the pushes add up instead
-    of being averaged; Coulomb friction with the tool
-    (:func:`~.tool_shapes.tool_friction`) then keeps a pressed corner moving with the
-    tool instead of sliding round its tip (the surface would split over the tip). The corners are skinned from p here: tissue pairs may have
+    of being averaged. (No friction here: the particles' contacts have it. Friction on
+    the corners too held a fast deep press on the surface but made a grasper that
+    appeared in tissue drag the surface down, differently on each backend.) The corners are skinned from p here: tissue pairs may have
     moved it since the phase's skinning. Returns (contacts, acc, hits)."""
     v = coll.tri_vertex[t]
     w = ti.Vector([coll.corner_inv_mass[3 * t + j] for j in ti.static(range(3))])
@@ -305,13 +304,8 @@ def surface_tool(
                         count += 1
     for j in ti.static(range(3)):
         if moved[j]:
-            corner = ti.Vector([c[j, m] for m in ti.static(range(3))])
-            begin = ti.Vector([start[j, m] for m in ti.static(range(3))])
-            push = corner - begin
-            depth = push.norm()
-            if depth > 0.0:
-                corner = tool_friction(corner, x[j], pose.tip - last.tip, push / depth, depth)
-            acc, hits = add_corner(acc, hits, j, corner - begin)
+            delta = ti.Vector([c[j, m] - start[j, m] for m in ti.static(range(3))])
+            acc, hits = add_corner(acc, hits, j, delta)
     return count, acc, hits
 
 

@@ -271,21 +271,21 @@ def side_distance(now, before, r, fallback):
 
 
 TOOL_FRICTION = 1.0
-"""Coulomb coefficient of tissue on an instrument (static and kinetic)."""
+"""Coulomb coefficient of tissue on an instrument (static and kinetic): a point
+pressed by a tip moves on with the tip instead of sliding round it."""
 
 
 @ti.func
-def tool_friction(p, x, tool_motion, n, depth):
-    """Coulomb friction of a contact with normal ``n`` that pushed a point ``depth``
-    [m] (PBD friction, Müller et al. 2007 §3.5 as in Macklin et al. 2014 §6.1): the
-    point's motion since the substep's start relative to the tool's (``p - x`` less
-    ``tool_motion``) loses its tangential part when that is within TOOL_FRICTION ×
-    depth (it sticks to the instrument), else that much of it. A point pressed by a tip
-    moves on with the tip instead of sliding round it."""
-    relative = p - x - tool_motion
+def coulomb_friction(p, x, obstacle_motion, n, limit):
+    """A point pushed to ``p`` [m] along the contact normal ``n`` (at ``x`` at the
+    substep's start) with Coulomb friction (PBD friction, Müller et al. 2007 §3.5 as in
+    Macklin et al. 2014 §6.1): its motion relative to the obstacle's
+    (``obstacle_motion``) loses its tangential part when that is within ``limit`` [m]
+    (friction coefficient × how far the contact pushed: it sticks), else that much of
+    it."""
+    relative = p - x - obstacle_motion
     tangential = relative - relative.dot(n) * n
     length = tangential.norm()
-    limit = TOOL_FRICTION * depth
     if length <= limit:
         p -= tangential
     else:
@@ -301,7 +301,9 @@ def push_out_of_tools(control: ti.template(), p, x, r):
     table order (PBD projection, Müller et al. 2007 §3.4), again while a pass moved it
     (a push out of one shape may end in an overlapping one), at most
     :data:`MAX_TOOL_SHAPES` passes; particles outside the tool's bounding capsule are
-    not tested further. Returns the new position and 1 when a tool touched it (seed
+    not tested further. Coulomb friction with the tool (:func:`coulomb_friction`)
+    then acts along the tool's whole push (per shape, a second shape's friction would
+    undo the first one's push where shapes meet). Returns the new position and 1 when a tool touched it (seed
     000 Alg. 1 lines 13-14 then hold its goal)."""
     hit = 0
     for k in range(MAX_TOOLS):
@@ -311,6 +313,7 @@ def push_out_of_tools(control: ti.template(), p, x, r):
             control.tool_active[k]
             and (p - point_segment(pose.tip, pose.tail, p)).norm_sqr() < reach * reach
         ):
+            entry = p
             for _ in range(MAX_TOOL_SHAPES):
                 moved = 0
                 for s in range(MAX_TOOL_SHAPES):
@@ -319,9 +322,13 @@ def push_out_of_tools(control: ti.template(), p, x, r):
                     )
                     if dist < r:
                         p += (r - dist) * grad
-                        p = tool_friction(p, x, pose.tip - last.tip, grad, r - dist)
                         moved = 1
                 hit |= moved
                 if not moved:
                     break
+            push = p - entry
+            depth = push.norm()
+            if depth > 0.0:
+                limit = TOOL_FRICTION * depth
+                p = coulomb_friction(p, x, pose.tip - last.tip, push / depth, limit)
     return p, hit
