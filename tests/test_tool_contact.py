@@ -27,11 +27,11 @@ def pressed(model: str, collision: str, depth: float, speed: float, solver) -> f
     return ratio
 
 
-@pytest.mark.parametrize("collision", ["off", "circumsphere"])
-def test_a_probe_indents_the_tet_block_as_deep_as_it_goes(collision):
-    """The probe's 6 mm tip slipped between the 2 mm particles (0.22 mm for 7 mm) and
-    the circumspheres pushed the surface 5 mm beyond the tool."""
-    ratio = pressed("tet_clusters", collision, 0.004, SLOW, contact.SOLVERS[0])
+def test_a_probe_indents_the_tet_block_as_deep_as_it_goes():
+    """The probe's 6 mm tip slipped between the 2 mm particles (0.22 mm for 7 mm) with
+    collision off (the circumsphere setting, which pushed the surface 5 mm beyond the
+    tool, is in perf/bench_contact.py)."""
+    ratio = pressed("tet_clusters", "off", 0.004, SLOW, contact.SOLVERS[0])
     assert TOLERANCE[0] <= ratio <= TOLERANCE[1]
 
 
