@@ -3,11 +3,11 @@
 Position-level projection in the PBD manner (Müller et al. 2007, §3.4): a particle
 closer to one of a tool's shapes (:mod:`.tool_shapes`) than its contact radius (the
 drawn surface's distance from it: 0 on a surface through the particles, a tube's
-radius) is moved out, on the side it came from, and flagged as collided, which holds its shape-matching goal (seed 000
-Alg. 1, lines 13-14). Planes (the
-abdominal wall, the table) push particles out with Coulomb friction on the
-displacement of the substep (Macklin et al. 2014, §6.1); they do not flag
-collisions, so tissue resting on them keeps recovering its shape. A particle a
+radius) is moved out, on the side it came from, and flagged as collided, which holds
+its shape-matching goal (seed 000 Alg. 1, lines 13-14). Planes (the abdominal wall,
+the table) push particles out with Coulomb friction on the displacement of the
+substep (Macklin et al. 2014, §6.1); they do not flag collisions, so tissue resting
+on them keeps recovering its shape. A particle a
 grasper holds (:mod:`taichi_lap.kernels.grasp`) is put at its place in the tool
 frame last, whatever pushed it.
 

@@ -303,8 +303,8 @@ def push_out_of_tools(control: ti.template(), p, x, r):
     :data:`MAX_TOOL_SHAPES` passes; particles outside the tool's bounding capsule are
     not tested further. Coulomb friction with the tool (:func:`coulomb_friction`)
     then acts along the tool's whole push (per shape, a second shape's friction would
-    undo the first one's push where shapes meet). Returns the new position and 1 when a tool touched it (seed
-    000 Alg. 1 lines 13-14 then hold its goal)."""
+    undo the first one's push where shapes meet). Returns the new position and 1 when
+    a tool touched it (seed 000 Alg. 1 lines 13-14 then hold its goal)."""
     hit = 0
     for k in range(MAX_TOOLS):
         pose, last = control_pose(control, k), control.tool_last[k]
