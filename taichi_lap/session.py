@@ -9,6 +9,7 @@ import logging
 import time
 from dataclasses import dataclass
 
+import numpy as np
 import taichi as ti
 
 from taichi_lap import runtime
@@ -236,6 +237,11 @@ class Session:
         self.timings["physics"] = (time.perf_counter() - start) * 1e3
         names = [tool["name"] for tool in self.scene.tools]
         self.events = [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
+
+    def tool_reaction(self, tool: int) -> np.ndarray:
+        """The force [N] (3,) the tissue pushed scene tool ``tool`` (an index) with at
+        the end of the last step."""
+        return self.solver.tool_reaction(self.state, self.control, tool, self.dt)
 
 
 def _take_parked(key: str) -> _Parts | None:

@@ -12,7 +12,14 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-PARTICLE_MATERIAL = ("stiffness", "recover_rate", "eta_on_contact", "damping", "lra_relaxation")
+PARTICLE_MATERIAL = (
+    "stiffness",
+    "recover_rate",
+    "eta_on_contact",
+    "haptic_mass_ratio",
+    "damping",
+    "lra_relaxation",
+)
 """Per-particle material channels copied from each organ's material table."""
 
 

@@ -165,6 +165,14 @@ _SHAPE = {
         hi=1.0,
         unit="m",
     ),
+    "haptic_mass_ratio": Param(
+        "float",
+        10.0,
+        "the particles' mass in the haptic coupling as a multiple of their mass: how "
+        "stiff the tissue feels to a haptic device (seed 002 §3.4)",
+        lo=0.0,
+        hi=1e4,
+    ),
     "organ_cluster": Param(
         "bool",
         True,

@@ -71,7 +71,9 @@ class Control(FieldOwner):
     A tool moves within a step: :meth:`set_tool` keeps the pose it leaves
     (``tool_start``) and the one it goes to (``tool_goal``); the solver places it in
     between for every substep (:meth:`advance`), ``tool_last`` holding its pose at
-    the substep's start. Between steps the Control entry is the goal."""
+    the substep's start. Between steps the Control entry is the goal.
+    ``tool_reaction`` [N]: the force the tissue pushes a tool with, where
+    :meth:`Solver.tool_reaction` measured it."""
 
     def __init__(self):
         group = FieldGroup()
@@ -93,6 +95,7 @@ class Control(FieldOwner):
         self.tool_start = group.field(ToolPose, MAX_TOOLS)
         self.tool_goal = group.field(ToolPose, MAX_TOOLS)
         self.tool_last = group.field(ToolPose, MAX_TOOLS)
+        self.tool_reaction = group.field(ti.f32, MAX_TOOLS, vector=3)
         group.finalize()
         self._group = group
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]

@@ -35,6 +35,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+import numpy as np
+
 from taichi_lap.collision import IntestineCollision, TissueCollision
 from taichi_lap.core.errors import SimulationFault
 from taichi_lap.core.instruments import JAW_REACH, MAX_TOOLS
@@ -153,6 +155,13 @@ class Solver:
         state.time += dt
         state.frame += 1
         self.check_health(state)
+
+    def tool_reaction(self, state: State, control: Control, tool: int, dt: float) -> np.ndarray:
+        """The force [N] (3,) the tissue pushed tool ``tool`` with at the end of the last
+        step of ``dt`` [s] (:func:`~taichi_lap.kernels.collision.particle_contact.measure_tool_reaction`)."""
+        h = dt / self.settings.substeps
+        particle_contact.measure_tool_reaction(self.model, state, control, tool, h)
+        return control.tool_reaction.to_numpy()[tool].astype(np.float64)
 
     def reset(self, *, pairs: bool = False):
         """Forget what the collision pipelines carry from frame to frame (after the
