@@ -26,10 +26,12 @@ Cases
   5 mm/s).
 * ``haptic-press-<d>mm``: a scripted haptic stylus (``HapticBridge``, servo process
   at 1 kHz) pressed into the tet_clusters block (circumsphere collision, 4 substeps,
-  damping 6, eta_on_contact 0.7) at 5 mm/s to ``d`` = 2, 4, 8 mm below the top
+  damping 6, eta_on_contact 0.7) at 5 mm/s to ``d`` = 2, 4, 8, 20 mm below the top
   (``--quick``: 4 mm, in the press session: collision off) and held for 1.5 s of
-  wall time once the stylus got there; the scene tool follows the bridge's graphical
-  (proxy) pose.
+  wall time once the stylus got there; the scene tool is the bridge's, coupled to
+  the stylus by the tissue's push (:mod:`taichi_lap.haptics.bridge`).
+* ``haptic-inside-4mm`` (not with ``--quick``): the same stylus held 4 mm inside the
+  block from the session's start.
 * ``sweep-intestine`` (not with ``--quick``): the built-in intestine scene and its
   scripted probe, 180 frames.
 
@@ -56,7 +58,8 @@ Metrics
   (``faults_without_contact``), i.e. whether the faults are the contact's.
 * ``ms_per_frame``: ``Session.step`` wall time over every frame of the case's presses.
 * ``force_n`` (haptic): magnitude of the force the servo sent to the device, median
-  over the frames of the last 0.5 s of the hold.
+  (min, max) over the frames of the last 0.5 s of the hold; ``contact_force_n``: the
+  median before the device's force limit.
 * ``frames_inside`` (sweep): frames in which the probe's shaft capsule comes closer to
   the row-0 centre line than tube radius + tool radius - 2 mm (the shaft inside the
   drawn tube); ``min_gap_mm``: the smallest centre-line-to-shaft distance minus
@@ -529,9 +532,12 @@ def press_case(session, target, model, collision, solver, depths, speeds) -> lis
 # ---- haptic stylus ----
 
 
-def haptic_press(session, target: Target, depth: float, collision: str, solver) -> list[dict]:
+def haptic_press(
+    session, target: Target, depth: float, collision: str, solver, *, inside: bool = False
+) -> list[dict]:
     """The ``haptic-press-<d>mm`` rows: a scripted stylus pressed ``depth`` [m] into
-    the body (the scene tool follows the bridge), held HAPTIC_HOLD s of wall time."""
+    the body (the scene tool follows the bridge), held HAPTIC_HOLD s of wall time;
+    ``inside``: the ``haptic-inside-<d>mm`` rows, the stylus there from the start."""
     from taichi_lap.core.errors import SimulationFault
     from taichi_lap.haptics.bridge import HapticBridge
     from taichi_lap.haptics.servo import scripted_device
@@ -539,11 +545,10 @@ def haptic_press(session, target: Target, depth: float, collision: str, solver) 
     session.reset()
     start = np.array(session.scene.tools[0]["tip"], dtype=np.float64)
     end = np.array([target.x, target.height - depth + PROBE_RADIUS, target.z])
-    reach = (start[1] - end[1]) / HAPTIC_SPEED
+    reach = 0.0 if inside else (start[1] - end[1]) / HAPTIC_SPEED
     up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # stylus z is +y
-    device = scripted_device(
-        [(0.0, tuple(start)), (reach, tuple(end)), (reach + 3600.0, tuple(end))], rotation=up
-    )
+    keys = [(0.0, tuple(end))] if inside else [(0.0, tuple(start)), (reach, tuple(end))]
+    device = scripted_device(keys + [(reach + 3600.0, tuple(end))], rotation=up)
     bridge = HapticBridge(session.scene.tools[0], device)
     bridge.attach(session)
     forces, frame_ms, reached, fault = [], [], None, False
@@ -585,7 +590,7 @@ def haptic_press(session, target: Target, depth: float, collision: str, solver) 
         stylus = feedback.haptic_pose[1, 3] - PROBE_RADIUS if feedback else math.nan
     finally:
         bridge.close()
-    case = f"haptic-press-{depth * 1e3:g}mm"
+    case = f"haptic-{'inside' if inside else 'press'}-{depth * 1e3:g}mm"
     params = {
         "model": "tet_clusters",
         "collision": collision,
@@ -711,13 +716,15 @@ def main():
     solvers = SOLVERS[:1] if quick else SOLVERS
     depths = (0.004,) if quick else DEPTHS + (DEEP,)
     speeds = SPEEDS[:1] if quick else SPEEDS
-    haptic_depths = (0.004,) if quick else DEPTHS
+    haptic_depths = (0.004,) if quick else DEPTHS + (DEEP,)
     haptic = (collisions[0], solvers[0]) if quick else HAPTIC  # --quick: no second session
     results, haptic_rows = [], []
 
     def haptic_cases(session, target):
         for depth in haptic_depths:
             haptic_rows.extend(haptic_press(session, target, depth, *haptic))
+        if not quick:
+            haptic_rows.extend(haptic_press(session, target, 0.004, *haptic, inside=True))
 
     for model in models:
         for collision in collisions:

@@ -157,6 +157,23 @@ def test_qp_stays_feasible_when_squeezed_particles_penetrate_the_previous_proxy(
     assert np.all(np.array(after)[hit] >= np.array(before)[hit] - 1e-6)
 
 
+def test_a_coupled_proxy_is_the_simulated_tool_and_pulls_the_stylus_to_it():
+    """While tissue pushes the simulation's tool, the graphical tool is that tool and
+    the device force is the coupling spring g (s - q_h), whatever particles lie near."""
+    tip = np.array([0.0, 0.001, 0.0])
+    scene = dataclasses.replace(scene_of(plane()), coupling_tip=tip)
+    proxy = HapticProxy(ProxySettings(TOOL, gain=GAIN))
+    stylus = np.array([0.0005, -0.002, 0.0])
+    result = proxy.step(pose(stylus), scene)
+    assert result.status == ProxyStatus.COUPLED
+    np.testing.assert_array_equal(result.graphic_position, tip)
+    np.testing.assert_allclose(result.contact_force, GAIN * (tip - stylus))
+    uncoupled = dataclasses.replace(scene, coupling_tip=None)  # the proxy takes over
+    for _ in range(100):
+        free = proxy.step(pose(tip + UP * 0.01), uncoupled)
+    assert free.status == ProxyStatus.FREE and not np.any(free.contact_force)
+
+
 def test_physical_tool_blends_previous_graphic_and_haptic_by_omega():
     scene = scene_of(plane())
     for omega in (0.95, 0.5):
@@ -238,7 +255,7 @@ def test_surface_clusters_bound_their_particles_and_the_proxy_touches_them(box_d
         top = box_data.rest_position[:, 1].max()
         result = descend(proxy, reader.scene, 0.001, 0.001, top + 0.01, top, steps=100)
         assert result.status == ProxyStatus.CONTACT and result.contact_force[1] > 0.0
-        r = 0.003 + box_data.radius[surface.particles]
+        r = 0.003 + surface.radius  # the contact radius: 0 on a tet surface
         distance = axis_distances(
             box_data.rest_position[surface.particles], result.graphic_position, UP
         )

@@ -37,6 +37,7 @@ def pattern(sequence: int) -> dict:
         "grasp_local": np.full((g, 3), value),
         "grasp_neighbor": np.full((g, 3), value),
         "grasp_rest": np.full(g, value),
+        "coupling_tip": np.full(3, value) if sequence % 2 else None,  # coupled: odd ones
         "timestamp": value,
     }
 
@@ -60,6 +61,10 @@ def assert_uniform(scene):
             getattr(scene, name), expected[name], err_msg=f"{name} of snapshot {scene.sequence}"
         )
         assert getattr(scene, name).shape == np.shape(expected[name]), name
+    if expected["coupling_tip"] is None:
+        assert scene.coupling_tip is None, f"a coupling tip in snapshot {scene.sequence}"
+    else:
+        np.testing.assert_array_equal(scene.coupling_tip, expected["coupling_tip"])
 
 
 def publish_patterns(name: str, stop):

@@ -75,3 +75,41 @@ def compute_press_case() -> dict:
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
     assert_vulkan_matches_cpu("tests.test_tool_contact:compute_press_case", 2e-4)
+
+
+def haptic_rows(presses) -> dict[tuple, dict]:
+    """Per ``(depth [m], inside)`` of ``presses`` the haptic press's rows by metric (the
+    stylus of the scripted device pressed at 5 mm/s, or there from the start, and
+    held, seed 002 §3.4; the press setting of the quick benchmark)."""
+    setting = ("off", contact.SOLVERS[0])
+    session, target = contact.press_scene("tet_clusters", setting[0], *setting[1])
+    out = {}
+    try:
+        for depth, inside in presses:
+            rows = contact.haptic_press(session, target, depth, *setting, inside=inside)
+            by_metric = {row["metric"]: row for row in rows}
+            assert by_metric["faults"]["median"] == 0 and by_metric["faults"]["reached_depth"]
+            out[depth, inside] = by_metric
+    finally:
+        session.close()
+    return out
+
+
+def test_a_haptic_stylus_indents_the_tissue_and_feels_it_grow_with_depth():
+    """The tissue gives way under the stylus (at least 70 % of its depth), the device
+    force grows with the depth below the device's maximum, a 20 mm press keeps the
+    stylus in contact through the whole hold (the force never drops to zero), and a
+    stylus held still settles, and one that starts 4 mm inside the tissue is felt
+    (before: no force at all)."""
+    from taichi_lap.haptics.servo import ScriptedHapticDevice
+
+    rows = haptic_rows([(0.002, False), (0.006, False), (0.020, False), (0.004, True)])
+    for depth in (0.002, 0.006):
+        measured = rows[depth, False]["faults"]
+        assert measured["indent_mm"] >= 0.7 * measured["stylus_depth_mm"]
+    forces = [rows[d, False]["force_n"]["median"] for d in (0.002, 0.006)]
+    assert 0.0 < forces[0] < forces[1] < ScriptedHapticDevice().max_force
+    held = rows[0.006, False]["force_n"]
+    assert held["max"] - held["min"] < 0.05 * held["median"]  # settles: no energy gain
+    assert rows[0.020, False]["force_n"]["min"] > 0.0
+    assert rows[0.004, True]["force_n"]["min"] > 0.01

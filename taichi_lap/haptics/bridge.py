@@ -1,5 +1,28 @@
 """A haptic device as a simulation input: a scene tool follows the graphical
-(non-penetrating) tool of the servo process (seed 002 §3.4).
+(non-penetrating) tool of the servo process (seed 002 §3.4), and pushes the tissue as
+the device force does.
+
+Seed 002 §3.4 couples the two ways by letting the feedback force change the
+particles' velocities (Newton's second law). Applied as it stands, once per frame to
+the few particles under the tool, that step is unstable: a proxy gain g of 300 N/m
+against particles of a few milligrams gives g dt² / m near 1000 per frame. The bridge
+solves the same force balance implicitly instead (admittance, a virtual coupling):
+while the tissue pushes the scene tool, the tool goes from where it was, s, a
+fraction κ of the way the unbalanced force points,
+
+    s' = s + κ ((q_h - s) + F_t / g),
+
+with q_h the stylus and F_t the force the tissue pushed the tool with in the last
+step (:meth:`Session.tool_reaction`: the shape-matching pull on the particles' haptic
+mass, which each tissue sets, as the seed sets the mass per tissue). The contact that
+holds moves the surface with the tool; the servo couples the stylus to s by the
+spring g (q_h - s) (:class:`~taichi_lap.haptics.proxy.HapticProxy`); the tool settles
+where F_t balances that spring, s = q_h + F_t / g, so the tissue gives way under the
+stylus and the device force, g (q_h - s), is the tissue's push and grows with the
+indentation. The iteration contracts while κ (1 + k_t / g) < 2, with k_t [N/m] the
+tissue's stiffness under the tool. A move is at most a tool radius per frame. Where
+no tissue pushes the tool it is the servo's graphical tool (the stylus in free
+space, the proxy on the surface at first touch).
 
 The simulation publishes its surface every frame (``poses`` is called once per
 frame before the step); the servo process runs the proxy at 1 kHz and writes the
@@ -29,6 +52,10 @@ log = logging.getLogger("taichi_lap.haptics")
 
 GRASP_EDGE_CAPACITY = 4096
 """Grasp edges one snapshot carries to the servo."""
+COUPLING = 0.5
+"""κ: the fraction of the unbalanced force's way the scene tool goes per frame."""
+REACTION_FLOOR = 1e-6
+"""[N]: a smaller tissue push leaves the tool uncoupled."""
 
 
 class HapticBridge:
@@ -50,6 +77,8 @@ class HapticBridge:
         self._factory, self._settings = device_factory, settings
         self.session = self.surface = self.snapshot = self.servo = self.feedback = None
         self.tool_index = -1
+        self._tip = self._coupled = None  # the scene tool's tip, the coupled tip [m]
+        self.proxy = ProxySettings(self.geometry, grasp_stiffness=self.grasp_stiffness)
         self._ticks_seen = 0
         self._held = np.zeros(0, dtype=np.int64)  # the grasped particles _edges belong to
         self._edges = np.zeros((0, 2), dtype=np.int64)
@@ -67,9 +96,8 @@ class HapticBridge:
         )
         self.surface.publish(self.snapshot, session.state.x.to_numpy())
         try:
-            proxy = ProxySettings(self.geometry, grasp_stiffness=self.grasp_stiffness)
             self.servo = ServoProcess(
-                self.snapshot.name, self._factory, proxy, self._settings
+                self.snapshot.name, self._factory, self.proxy, self._settings
             ).start()
         except RuntimeError as exc:
             self.snapshot.close()
@@ -78,17 +106,40 @@ class HapticBridge:
             ) from None
 
     def poses(self, time: float) -> dict[str, Pose]:
-        """Publish the current surface and grasp; the tool at the servo's graphical pose."""
+        """Publish the current surface, grasp and coupled tip; the tool at that tip,
+        along the servo's graphical pose."""
         state = self.session.state
         x = state.x.to_numpy()
         grasp = self._grasp(x) if state.jaws_closed[self.tool_index] else {}
-        self.surface.publish(self.snapshot, x, **grasp)
         self.feedback = self.servo.feedback.read()
         if self.feedback is None:
+            self._tip = self._coupled = None
+        else:
+            self._tip = self._coupled_tip()
+        self.surface.publish(self.snapshot, x, coupling_tip=self._coupled, **grasp)
+        if self._tip is None:
             return {}
         pose = self.feedback.graphic_pose
         direction = pose[:3, :3][:, 2]  # the tool frame's z, from the tip to the handle
-        return {self.name: Pose(tip=pose[:3, 3].copy(), direction=direction)}
+        return {self.name: Pose(tip=self._tip, direction=direction)}
+
+    def _coupled_tip(self) -> np.ndarray:
+        """The scene tool's tip [m]: s' = s + κ ((q_h - s) + F_t / g) while tissue
+        pushes it, the move at most a tool radius, else the graphical tool (module
+        docstring). Sets ``_coupled`` to the tip the servo couples to, or None."""
+        graphic = self.feedback.graphic_pose[:3, 3].astype(np.float64)
+        haptic = self.feedback.haptic_pose[:3, 3].astype(np.float64)
+        reaction = self.session.tool_reaction(self.tool_index)
+        touching = np.all(np.isfinite(reaction)) and np.linalg.norm(reaction) > REACTION_FLOOR
+        if not touching or self._tip is None:
+            self._coupled = None
+            return graphic
+        move = COUPLING * ((haptic - self._tip) + reaction / self.proxy.gain)
+        length, limit = float(np.linalg.norm(move)), self.geometry.radius
+        if length > limit:
+            move *= limit / length
+        self._coupled = self._tip + move
+        return self._coupled
 
     def buttons(self, time: float) -> dict[str, int]:
         """The stylus buttons of the servo tick :meth:`poses` read."""

@@ -22,6 +22,11 @@ squared form near contact and does not overshoot deep penetrations. The contact
 force is h_c = g (q_h - q_g) on the tissue; the device gets -h_c, plus the pull of
 grasped tissue (:func:`pull_force`, Hooke's law over the grasped particles' tet edges).
 
+While tissue pushes the simulation's tool, the snapshot carries that tool's tip s
+(the two-way coupling of :mod:`taichi_lap.haptics.bridge`): the graphical tool is s
+and the contact force h_c = g (q_h - s), a spring from the stylus to the tool the
+tissue holds, so the device feels the tissue's push as the simulation finds it.
+
 Particles that moved into the previous proxy can make these constraints
 infeasible (tissue squeezed from both sides). The QP is then solved again with
 offsets min(R_i - D_i, 0), which q_g(t-1) satisfies by construction: the proxy may
@@ -60,6 +65,7 @@ class ProxyStatus(enum.IntEnum):
     CONTACT = 1  # QP with the linearised non-penetration constraints
     RELAXED = 2  # those were infeasible: QP with offsets q_g(t-1) satisfies
     HELD = 3  # the solver failed: q_g(t-1) held
+    COUPLED = 4  # tissue pushes the simulation's tool: q_g is that tool
 
 
 def _positive(owner: str, name: str, value, allow_zero: bool = False) -> float:
@@ -205,15 +211,17 @@ class HapticProxy:
         omega = self.settings.omega
         q_p = omega * q_prev + (1.0 - omega) * q_h
         pull = np.zeros(3)
-        if scene is not None:
+        if scene is not None and scene.coupling_tip is not None:
+            q_g, status = np.array(scene.coupling_tip, dtype=np.float64), ProxyStatus.COUPLED
+        elif scene is not None:
             found = self.contacts(q_p, rotation, scene)
             if len(found):
                 q_g, status, contacts, qp_seconds = self._solve(q_h, q_prev, rotation, scene, found)
-            if len(scene.grasp_rest):
-                world = scene.grasp_local @ np.asarray(haptic_pose[:3, :3]).T + q_h
-                pull = pull_force(
-                    world, scene.grasp_neighbor, scene.grasp_rest, self.settings.grasp_stiffness
-                )
+        if scene is not None and len(scene.grasp_rest):
+            world = scene.grasp_local @ np.asarray(haptic_pose[:3, :3]).T + q_h
+            pull = pull_force(
+                world, scene.grasp_neighbor, scene.grasp_rest, self.settings.grasp_stiffness
+            )
         self._graphic = q_g
         return ProxyResult(
             q_g.copy(), q_p, self.settings.gain * (q_g - q_h), pull, contacts, status, qp_seconds
@@ -278,7 +286,9 @@ class SurfaceClusters:
     """What the simulation publishes for collision (seed 002 §3.4): the surface
     particles of a model grouped by shape-matching cluster.
 
-    Surface particles are those the render surface is bound to. Each joins the one
+    Surface particles are those the render surface is bound to; their radius is the
+    contact radius (the drawn surface's distance from them, 0 where it passes through
+    them), so the graphical tool rests on the surface as drawn. Each joins the one
     cluster of its own (whole-organ clusters excepted) whose rest centre is nearest,
     so groups are disjoint and every particle is tested once; surface particles of
     organs without clusters are grouped on a lattice of ``cell`` [m] (default: the
@@ -322,7 +332,7 @@ class SurfaceClusters:
         self.particles = surface[order]
         counts = np.unique(labels, return_counts=True)[1]
         self.start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.radius = np.asarray(data.radius, dtype=np.float32)[self.particles]
+        self.radius = np.asarray(data.contact_radius(), dtype=np.float32)[self.particles]
 
     @property
     def cluster_count(self) -> int:
@@ -341,8 +351,8 @@ class SurfaceClusters:
         reach = np.linalg.norm(positions - np.repeat(center, counts, axis=0), axis=1) + self.radius
         return center, np.maximum.reduceat(reach, self.start[:-1]), positions
 
-    def publish(self, snapshot, x: np.ndarray, **grasp) -> int:
-        """Publish this frame to ``snapshot`` (a SceneSnapshot); ``grasp`` as in
-        :meth:`SceneSnapshot.publish`. Returns the sequence number."""
+    def publish(self, snapshot, x: np.ndarray, **extra) -> int:
+        """Publish this frame to ``snapshot`` (a SceneSnapshot); ``extra`` (grasp edges,
+        coupling tip) as in :meth:`SceneSnapshot.publish`. Returns the sequence number."""
         center, radius, positions = self.spheres(x)
-        return snapshot.publish(center, radius, self.start, positions, self.radius, **grasp)
+        return snapshot.publish(center, radius, self.start, positions, self.radius, **extra)

@@ -4,7 +4,8 @@ Taichi kernel launches hold the GIL, so the 1 kHz servo runs in its own process.
 Two regions of :mod:`multiprocessing.shared_memory` connect them:
 
 * :class:`SceneSnapshot` (simulation → servo, ≥ 30 Hz): the surface cluster spheres,
-  the surface particles grouped by cluster, the grasped tet edges, a
+  the surface particles grouped by cluster, the grasped tet edges, the scene tool's
+  tip while tissue pushes it (the coupling, :mod:`taichi_lap.haptics.bridge`), a
   ``time.monotonic()`` stamp [s] and a sequence number;
 * :class:`~taichi_lap.haptics.feedback.ServoFeedback` (servo → simulation, 1 kHz): haptic and graphical tool
   poses, buttons, forces, counters, the servo state and a ring of per-tick times.
@@ -28,7 +29,7 @@ import numpy as np
 
 ALIGN = 64  # [bytes] every array starts on its own cache line
 READ_RETRIES = 1000  # torn reads tolerated in one read before giving up for this tick
-SCENE_MAGIC, FEEDBACK_MAGIC, LAYOUT_VERSION = 0x5441_4C41_5053_4E50, 0x5441_4C41_5046_4442, 1
+SCENE_MAGIC, FEEDBACK_MAGIC, LAYOUT_VERSION = 0x5441_4C41_5053_4E50, 0x5441_4C41_5046_4442, 2
 HEADER_WORDS = 8
 MESSAGE_BYTES = 512
 
@@ -70,11 +71,17 @@ _SCENE_ARRAYS = {
 
 def _scene_fields(counts, private: bool = False):
     """``(name, dtype, shape)`` of a scene slot (``counts``: 0, clusters, particles,
-    grasp edges), or of the servo's private copy."""
-    return [("counts", np.int64, (4,)), ("timestamp", np.float64, (1,))] + [
-        (name, copy if private else shared, (counts[i] + extra,) + row)
-        for name, (shared, row, i, extra, copy) in _SCENE_ARRAYS.items()
-    ]
+    grasp edges), or of the servo's private copy. ``coupling``: the coupled tool's tip
+    [m] and 1, or zeros when no tissue pushes the tool."""
+    fixed = [("counts", np.int64, (4,)), ("timestamp", np.float64, (1,))]
+    return (
+        fixed
+        + [("coupling", np.float64, (4,))]
+        + [
+            (name, copy if private else shared, (counts[i] + extra,) + row)
+            for name, (shared, row, i, extra, copy) in _SCENE_ARRAYS.items()
+        ]
+    )
 
 
 class _Region:
@@ -183,6 +190,8 @@ class HapticScene:
     ``particle_position`` [m] (radii ``particle_radius`` [m]). Grasp edge ``e`` joins
     a grasped particle at ``grasp_local[e]`` (tool frame [m]) to its tet neighbour at
     ``grasp_neighbor[e]`` (scene [m]) of rest length ``grasp_rest[e]`` [m].
+    ``coupling_tip`` [m]: where the simulation holds the tool while tissue pushes it
+    (the proxy is then coupled to it), else None.
     """
 
     sequence: int
@@ -195,6 +204,7 @@ class HapticScene:
     grasp_local: np.ndarray
     grasp_neighbor: np.ndarray
     grasp_rest: np.ndarray
+    coupling_tip: np.ndarray | None = None
 
 
 class SceneSnapshot:
@@ -248,13 +258,15 @@ class SceneSnapshot:
         grasp_local=None,
         grasp_neighbor=None,
         grasp_rest=None,
+        coupling_tip=None,
         timestamp: float | None = None,
     ) -> int:
         """Write one snapshot; return its sequence number (1, 2, ...).
 
         ``cluster_center`` (C, 3) [m], ``cluster_radius`` (C,) [m], ``cluster_start``
         (C + 1,) ranges into ``particle_position`` (P, 3) [m]; ``particle_radius`` [m]
-        is one value or (P,); grasp edges as in :class:`HapticScene` (default none);
+        is one value or (P,); grasp edges and ``coupling_tip`` (3,) [m] as in
+        :class:`HapticScene` (default none);
         ``timestamp`` [s] defaults to ``time.monotonic()`` now. Raises
         :class:`SnapshotCapacityError` beyond the capacities given at creation.
         """
@@ -284,6 +296,10 @@ class SceneSnapshot:
                 dtype,
             )
             counts[i] = len(arrays[name]) - extra
+        coupling = np.zeros(4)
+        if coupling_tip is not None:
+            coupling[:3] = _rows("publish: coupling_tip", coupling_tip, 3, (), 3, np.float64)
+            coupling[3] = 1.0
         start = arrays["cluster_start"]
         if start[0] != 0 or start[-1] != counts[2] or np.any(np.diff(start) < 0):
             raise ValueError(
@@ -294,6 +310,7 @@ class SceneSnapshot:
         slot = region.begin()
         slot["counts"][:] = region._next + 1, counts[1], counts[2], counts[3]
         slot["timestamp"][0] = time.monotonic() if timestamp is None else float(timestamp)
+        slot["coupling"][:] = coupling
         for name, values in arrays.items():
             slot[name][: len(values)] = values
         return region.end()
@@ -341,6 +358,7 @@ class SnapshotReader:
         def copy(slot):
             counts[:] = slot["counts"]
             buffers["timestamp"][:] = slot["timestamp"]
+            buffers["coupling"][:] = slot["coupling"]
             counts[1:] = np.clip(counts[1:], 0, self._capacities[1:])  # a torn read's counts
             for name, (_, _, i, extra, _) in _SCENE_ARRAYS.items():
                 n = int(counts[i]) + extra
@@ -352,9 +370,11 @@ class SnapshotReader:
             return False
         self._version = version
         self._spare ^= 1
+        coupling = buffers["coupling"]
         self.scene = HapticScene(
             sequence=int(counts[0]),
             timestamp=float(buffers["timestamp"][0]),
+            coupling_tip=coupling[:3] if coupling[3] else None,
             **{
                 name: buffers[name][: int(counts[i]) + extra]
                 for name, (_, _, i, extra, _) in _SCENE_ARRAYS.items()
