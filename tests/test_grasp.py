@@ -9,7 +9,7 @@ from taichi_lap.core.instruments import JAW_LENGTH, JAW_RADIUS
 from taichi_lap.devices import GRASP_BUTTON, ScriptedDevice
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
-from tests.archrun import run_on_arch
+from tests.archrun import assert_vulkan_matches_cpu
 from tests.helpers import BOX
 
 TOP = BOX["geometry"]["half_extents"][1]
@@ -127,16 +127,11 @@ def lifted_block() -> dict[str, np.ndarray]:
 
 @pytest.mark.vulkan
 def test_grasp_vulkan_matches_cpu():
-    """The block lifted 15 mm by the jaws agrees on both backends within 2 mm, except
-    at most one particle the jaws took on one backend only: capture is a threshold on
-    the distance from the jaws, and the contact's friction on the drawn surface keeps
-    sub-millimetre differences of rounding (0.2 mm measured) that can put a particle
-    on either side of it (a real error made the backends disagree by 2 cm)."""
-    cpu = lifted_block()
-    vulkan = run_on_arch("vulkan", "tests.test_grasp:lifted_block")
-    same = cpu["grasp_tool"] == vulkan["grasp_tool"]
-    assert np.count_nonzero(~same) <= 1
-    assert np.abs(cpu["x"][same] - vulkan["x"][same]).max() <= 2e-3
+    # the block is lifted 15 mm by the jaws while the shaft's static friction holds
+    # the tissue around it: friction keeps a difference of rounding where a
+    # frictionless contact let it decay (0.9 mm at the end, 2 cm when a real error
+    # made the backends disagree)
+    assert_vulkan_matches_cpu("tests.test_grasp:lifted_block", 2e-3)
 
 
 def test_jaws_collide_as_a_second_capsule_ahead_of_the_tip():
