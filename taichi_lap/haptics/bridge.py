@@ -22,7 +22,8 @@ stylus and the device force, g (q_h - s), is the tissue's push and grows with th
 indentation. The iteration contracts while κ (1 + k_t / g) < 2, with k_t [N/m] the
 tissue's stiffness under the tool. A move is at most a tool radius per frame. Where
 no tissue pushes the tool it is the servo's graphical tool (the stylus in free
-space, the proxy on the surface at first touch).
+space, the proxy on the surface at first touch); so it is while the tool's jaws hold
+tissue, whose pull the servo renders by Hooke's law over the grasped edges instead.
 
 The simulation publishes its surface every frame (``poses`` is called once per
 frame before the step); the servo process runs the proxy at 1 kHz and writes the
@@ -131,7 +132,7 @@ class HapticBridge:
         haptic = self.feedback.haptic_pose[:3, 3].astype(np.float64)
         reaction = self.session.tool_reaction(self.tool_index)
         touching = np.all(np.isfinite(reaction)) and np.linalg.norm(reaction) > REACTION_FLOOR
-        if not touching or self._tip is None:
+        if not touching or self._tip is None or self.session.state.jaws_closed[self.tool_index]:
             self._coupled = None
             return graphic
         move = COUPLING * ((haptic - self._tip) + reaction / self.proxy.gain)
