@@ -111,12 +111,13 @@ class HapticBridge:
         along the servo's graphical pose."""
         state = self.session.state
         x = state.x.to_numpy()
-        grasp = self._grasp(x) if state.jaws_closed[self.tool_index] else {}
+        closed = bool(state.jaws_closed[self.tool_index])
+        grasp = self._grasp(x) if closed else {}
         self.feedback = self.servo.feedback.read()
         if self.feedback is None:
             self._tip = self._coupled = None
         else:
-            self._tip = self._coupled_tip()
+            self._tip = self._coupled_tip(closed)
         self.surface.publish(self.snapshot, x, coupling_tip=self._coupled, **grasp)
         if self._tip is None:
             return {}
@@ -124,16 +125,19 @@ class HapticBridge:
         direction = pose[:3, :3][:, 2]  # the tool frame's z, from the tip to the handle
         return {self.name: Pose(tip=self._tip, direction=direction)}
 
-    def _coupled_tip(self) -> np.ndarray:
+    def _coupled_tip(self, closed: bool) -> np.ndarray:
         """The scene tool's tip [m]: s' = s + κ ((q_h - s) + F_t / g) while tissue
-        pushes it, the move at most a tool radius, else the graphical tool (module
-        docstring). Sets ``_coupled`` to the tip the servo couples to, or None."""
+        pushes it, the move at most a tool radius, else (and while the jaws are
+        ``closed``) the graphical tool (module docstring). Sets ``_coupled`` to the tip
+        the servo couples to, or None."""
         graphic = self.feedback.graphic_pose[:3, 3].astype(np.float64)
         haptic = self.feedback.haptic_pose[:3, 3].astype(np.float64)
+        self._coupled = None
+        if closed or self._tip is None:
+            return graphic
         reaction = self.session.tool_reaction(self.tool_index)
         touching = np.all(np.isfinite(reaction)) and np.linalg.norm(reaction) > REACTION_FLOOR
-        if not touching or self._tip is None or self.session.state.jaws_closed[self.tool_index]:
-            self._coupled = None
+        if not touching:
             return graphic
         move = COUPLING * ((haptic - self._tip) + reaction / self.proxy.gain)
         length, limit = float(np.linalg.norm(move)), self.geometry.radius
