@@ -225,7 +225,7 @@ def sample_tubes(
                     C = spline_segment(points, start, end, i, tau)
                     m = peak_parameter(C / ti.max((points[i + 1] - points[i]).norm(), 1e-12))
                     tubes.segment_peak[i] = m
-                    _, _, extra = peak_samples(m)
+                    extra = peak_samples(m)[2]
                     tubes.segment_sample_count[i] = 1 + extra
     for _ in range(1):  # serial prefix sums: sample slots, rings and bands per tube
         bands_per_interval = (1 << (level + 1)) - 1

@@ -9,7 +9,7 @@ from taichi_lap.core.instruments import JAW_LENGTH, JAW_RADIUS
 from taichi_lap.devices import GRASP_BUTTON, ScriptedDevice
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import run_on_arch
 from tests.helpers import BOX
 
 TOP = BOX["geometry"]["half_extents"][1]
@@ -127,11 +127,19 @@ def lifted_block() -> dict[str, np.ndarray]:
 
 @pytest.mark.vulkan
 def test_grasp_vulkan_matches_cpu():
-    # the block is lifted 15 mm by the jaws while the shaft's static friction holds
-    # the tissue around it: friction keeps a difference of rounding where a
-    # frictionless contact let it decay (0.9 mm at the end, 2 cm when a real error
-    # made the backends disagree)
-    assert_vulkan_matches_cpu("tests.test_grasp:lifted_block", 2e-3)
+    """Both backends take the same particles and lift them alike. The block is lifted
+    15 mm by the jaws while the shaft's static friction holds the tissue around it:
+    friction keeps a difference of rounding where a frictionless contact let it
+    decay, and a few free particles beside the jaws amplify it (two CPU compiles of
+    this code, Taichi's IR optimisation on and off, put 3 of 980 particles 7-12 mm
+    apart and every other within 0.6 mm; 2 cm everywhere when a real error made the
+    backends disagree)."""
+    cpu = lifted_block()
+    vulkan = run_on_arch("vulkan", "tests.test_grasp:lifted_block")
+    np.testing.assert_array_equal(cpu["grasp_tool"], vulkan["grasp_tool"])
+    apart = np.linalg.norm(cpu["x"] - vulkan["x"].astype(np.float64), axis=1)
+    assert apart[cpu["grasp_tool"] != FREE].max() < 2e-3
+    assert np.count_nonzero(apart > 2e-3) <= 0.01 * len(apart), np.sort(apart)[-10:]
 
 
 def test_jaws_collide_as_a_second_capsule_ahead_of_the_tip():

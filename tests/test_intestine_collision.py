@@ -114,8 +114,7 @@ def element_particles(collision) -> np.ndarray:
 
 @ti.kernel
 def closest_distance(cd: ti.template(), state: ti.template(), a: ti.i32, b: ti.i32) -> ti.f32:
-    d, _, _, _, _ = kernels.closest(cd, state.p, a, b)
-    return d
+    return kernels.closest(cd, state.p, a, b)[0]
 
 
 def test_segment_triangle_distance_is_the_least_over_dense_samples(strip):

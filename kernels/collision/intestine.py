@@ -76,7 +76,7 @@ def closest(cd: ti.template(), x: ti.template(), a, b):
 @ti.func
 def gap(cd: ti.template(), x: ti.template(), a, b):
     """d - r1 - r2 [m]: negative when the pair collides."""
-    d, _, _, _, _ = closest(cd, x, a, b)
+    d = closest(cd, x, a, b)[0]
     return d - cd.element_radius[a] - cd.element_radius[b]
 
 

@@ -211,7 +211,7 @@ def update_spheres(
         a0, b0, c0 = coll.vertex_x[v[0]], coll.vertex_x[v[1]], coll.vertex_x[v[2]]
         circumcenter, circumradius, normal, area = circumcircle(a, b, c)
         center_b, radius_b = bounding_sphere(a, b, c, circumcenter, circumradius)
-        _, _, start_normal, _ = circumcircle(a0, b0, c0)
+        start_normal = circumcircle(a0, b0, c0)[2]
         displacement = (a + b + c - a0 - b0 - c0) / 3.0
         coll.bound_center[t] = center_b
         coll.bound_radius[t] = radius_b
