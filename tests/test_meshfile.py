@@ -5,7 +5,8 @@ import pytest
 import trimesh
 
 from taichi_lap.core.errors import InputError
-from taichi_lap.preprocess.meshfile import load_surface_mesh, signed_volume
+from taichi_lap.core.mesh import edge_defects, enclosed_volume
+from taichi_lap.preprocess.meshfile import load_surface_mesh
 
 SCENE = "scene.toml"
 KEY = "organs.liver.mesh"
@@ -13,11 +14,6 @@ KEY = "organs.liver.mesh"
 
 def load(path, watertight=True, **kwargs):
     return load_surface_mesh(path, scene_file=SCENE, key=KEY, watertight=watertight, **kwargs)
-
-
-def edge_use_counts(triangles):
-    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(edges, axis=0, return_counts=True)[1]
 
 
 def write_obj(path, vertices, faces):
@@ -38,8 +34,8 @@ def test_closed_stl_merges_to_a_watertight_outward_mesh(tmp_path, box):
     box.export(path)
     mesh = load(path)
     assert len(mesh.vertices) == 8 and len(mesh.triangles) == 12
-    assert np.all(edge_use_counts(mesh.triangles) == 2)
-    assert signed_volume(mesh) == pytest.approx(6000.0, rel=1e-6)
+    assert edge_defects(mesh.triangles) == (0, 0)
+    assert enclosed_volume(mesh.vertices, mesh.triangles) == pytest.approx(6000.0, rel=1e-6)
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".obj", ".OBJ"])
@@ -48,7 +44,7 @@ def test_other_formats_load(tmp_path, box, suffix):
     box.export(path, file_type=suffix[1:].lower())
     mesh = load(path)
     assert len(mesh.triangles) == 12
-    assert signed_volume(mesh) == pytest.approx(6000.0, rel=1e-6)
+    assert enclosed_volume(mesh.vertices, mesh.triangles) == pytest.approx(6000.0, rel=1e-6)
 
 
 def test_scale_converts_millimetres(tmp_path, box):
@@ -58,13 +54,13 @@ def test_scale_converts_millimetres(tmp_path, box):
     np.testing.assert_allclose(
         mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0), [0.03, 0.02, 0.01]
     )
-    assert signed_volume(mesh) == pytest.approx(6e-6, rel=1e-6)
+    assert enclosed_volume(mesh.vertices, mesh.triangles) == pytest.approx(6e-6, rel=1e-6)
 
 
 def test_inward_mesh_comes_back_outward(tmp_path, box):
     path = write_obj(tmp_path / "inward.obj", box.vertices, box.faces[:, ::-1])
     mesh = load(path)
-    assert signed_volume(mesh) == pytest.approx(6000.0, rel=1e-6)
+    assert enclosed_volume(mesh.vertices, mesh.triangles) == pytest.approx(6000.0, rel=1e-6)
 
 
 def expect_error(path, fragment, file=None, **kwargs):

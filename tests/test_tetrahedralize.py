@@ -5,14 +5,8 @@ import pytest
 import trimesh
 
 from taichi_lap.core.geometry import Solid, TriangleMesh
-from taichi_lap.core.mesh import TET_EDGES, unique_edges
-from taichi_lap.preprocess.tetrahedralize import (
-    TET_FACES,
-    TetMesh,
-    points_inside,
-    tet_volumes,
-    tetrahedralize,
-)
+from taichi_lap.core.mesh import TET_EDGES, edge_defects, enclosed_volume, tet_volumes, unique_edges
+from taichi_lap.preprocess.tetrahedralize import TET_FACES, TetMesh, points_inside, tetrahedralize
 
 RADIUS = 0.05  # m
 SPACING = RADIUS / 10  # m, cube edge of the lattice
@@ -43,16 +37,6 @@ def sphere() -> TetMesh:
 @pytest.fixture(scope="module")
 def icosphere() -> trimesh.Trimesh:
     return trimesh.creation.icosphere(subdivisions=3, radius=RADIUS)
-
-
-def edge_use_counts(triangles: np.ndarray) -> np.ndarray:
-    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(edges, axis=0, return_counts=True)[1]
-
-
-def signed_volume(mesh: TriangleMesh) -> float:
-    a, b, c = (mesh.vertices[mesh.triangles[:, k]] for k in range(3))
-    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6)
 
 
 def test_helpers_on_a_regular_tet():
@@ -91,8 +75,8 @@ def test_interior_tets_are_bcc_and_snapped_tets_stay_good(sphere):
 
 def test_sphere_skin_is_watertight_outward_and_on_the_sphere(sphere):
     skin = sphere.surface
-    assert np.all(edge_use_counts(skin.triangles) == 2)
-    assert signed_volume(skin) == pytest.approx(
+    assert edge_defects(skin.triangles) == (0, 0)
+    assert enclosed_volume(skin.vertices, skin.triangles) == pytest.approx(
         tet_volumes(sphere.particles, sphere.tets).sum(), rel=1e-9
     )
     radial_error = np.abs(np.linalg.norm(skin.vertices, axis=1) - RADIUS)

@@ -8,6 +8,9 @@ import numpy as np
 TRIANGLE_EDGES = np.array([[0, 1], [1, 2], [2, 0]])
 """Edge k of a triangle joins corners k and k + 1."""
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+DEGENERATE_AREA = 1e-12
+"""A triangle is degenerate below this area, as a fraction of its mesh's squared
+bounding-box diagonal."""
 
 
 def element_edges(elements: np.ndarray) -> np.ndarray:
@@ -51,3 +54,50 @@ def edge_neighbours(triangles: np.ndarray) -> np.ndarray:
     out = np.full(3 * f, -1, dtype=np.int64)
     out[i], out[j] = j // 3, i // 3
     return out.reshape(f, 3)
+
+
+def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes ``(T,)`` [m^3] of ``tets`` at ``points``, positive for positively
+    oriented tets (corner 3 on the side of the face 0-1-2 its normal points away from,
+    the face turning counter-clockwise seen from outside)."""
+    x = np.asarray(points, dtype=np.float64)[np.asarray(tets, dtype=np.int64)]
+    d = x[:, 1:] - x[:, :1]
+    return np.einsum("ij,ij->i", np.cross(d[:, 0], d[:, 1]), d[:, 2]) / 6.0
+
+
+def enclosed_volume(points: np.ndarray, triangles: np.ndarray) -> float:
+    """Volume [m^3] a closed triangle mesh encloses (divergence theorem), negative
+    when its faces point inwards."""
+    x = np.asarray(points, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
+    return float(np.einsum("ij,ij->", x[:, 0], np.cross(x[:, 1], x[:, 2])) / 6.0)
+
+
+def edge_defects(triangles: np.ndarray) -> tuple[int, int]:
+    """Counts of open edges (in one triangle) and non-manifold edges (in three or
+    more) of a triangle mesh that should be closed."""
+    _, uses = unique_edges(triangles, return_counts=True)
+    return int(np.count_nonzero(uses == 1)), int(np.count_nonzero(uses > 2))
+
+
+def inconsistent_edges(triangles: np.ndarray) -> int:
+    """Edges of a closed manifold mesh whose two triangles run them the same way
+    (their orientations disagree)."""
+    triangles = np.asarray(triangles, dtype=np.int64)
+    directed = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    return int(len(directed) - len(np.unique(directed, axis=0)))
+
+
+def degenerate_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(F,) bool: triangles with a repeated vertex or an area below
+    :data:`DEGENERATE_AREA` of the squared diagonal of ``points``' bounding box."""
+    points = np.asarray(points, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64)
+    a, b, c = (points[triangles[:, k]] for k in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    diagonal_sq = float(np.sum((points.max(axis=0) - points.min(axis=0)) ** 2))
+    repeated = (
+        (triangles[:, 0] == triangles[:, 1])
+        | (triangles[:, 1] == triangles[:, 2])
+        | (triangles[:, 2] == triangles[:, 0])
+    )
+    return repeated | (area < DEGENERATE_AREA * diagonal_sq)

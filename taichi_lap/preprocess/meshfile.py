@@ -15,10 +15,14 @@ import trimesh
 
 from taichi_lap.core.errors import InputError
 from taichi_lap.core.geometry import TriangleMesh
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import (
+    degenerate_triangles,
+    edge_defects,
+    enclosed_volume,
+    inconsistent_edges,
+)
 
 MESH_EXTENSIONS = (".obj", ".stl", ".ply")
-_DEGENERATE_AREA = 1e-12  # of the squared bounding-box diagonal
 
 
 def load_surface_mesh(
@@ -47,7 +51,7 @@ def load_surface_mesh(
             f"non-finite values (NaN or infinity)",
         )
     vertices, triangles = _merge_vertices(vertices, triangles)
-    degenerate = _count_degenerate(vertices, triangles)
+    degenerate = int(np.count_nonzero(degenerate_triangles(vertices, triangles)))
     if degenerate:
         raise InputError(
             where,
@@ -56,7 +60,7 @@ def load_surface_mesh(
             f"degenerate faces (repeated vertex or zero area)",
         )
     if watertight:
-        open_edges, fins = _edge_defects(triangles)
+        open_edges, fins = edge_defects(triangles)
         if open_edges or fins:
             raise InputError(
                 where,
@@ -64,7 +68,7 @@ def load_surface_mesh(
                 f"a watertight (closed, manifold) surface was expected, found "
                 f"{open_edges} open edges and {fins} non-manifold edges",
             )
-        flipped = _inconsistent_edges(triangles)
+        flipped = inconsistent_edges(triangles)
         if flipped:
             raise InputError(
                 where,
@@ -73,15 +77,9 @@ def load_surface_mesh(
                 f"edges whose two faces run them the same way",
             )
     mesh = TriangleMesh(vertices * float(scale), triangles)
-    if watertight and signed_volume(mesh) < 0:
+    if watertight and enclosed_volume(mesh.vertices, mesh.triangles) < 0:
         mesh.triangles = np.ascontiguousarray(mesh.triangles[:, ::-1])
     return mesh
-
-
-def signed_volume(mesh: TriangleMesh) -> float:
-    """Volume enclosed by a closed mesh [m^3], negative when its normals point in."""
-    a, b, c = (mesh.vertices[mesh.triangles[:, k]] for k in range(3))
-    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
 
 
 def _read(path: Path, scene_file: str, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -138,29 +136,3 @@ def _merge_vertices(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.nda
     remap = np.zeros(len(vertices), dtype=np.int64)
     remap[used] = inverse.reshape(-1)
     return unique, remap[triangles]
-
-
-def _count_degenerate(vertices: np.ndarray, triangles: np.ndarray) -> int:
-    """Faces with a repeated vertex or an area below ``_DEGENERATE_AREA`` of the
-    squared bounding-box diagonal."""
-    a, b, c = (vertices[triangles[:, k]] for k in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    diagonal_sq = float(np.sum((vertices.max(axis=0) - vertices.min(axis=0)) ** 2))
-    repeated = (
-        (triangles[:, 0] == triangles[:, 1])
-        | (triangles[:, 1] == triangles[:, 2])
-        | (triangles[:, 2] == triangles[:, 0])
-    )
-    return int(np.count_nonzero(repeated | (area < _DEGENERATE_AREA * diagonal_sq)))
-
-
-def _edge_defects(triangles: np.ndarray) -> tuple[int, int]:
-    """Counts of open edges (in one face) and non-manifold edges (in three or more)."""
-    _, uses = unique_edges(triangles, return_counts=True)
-    return int(np.count_nonzero(uses == 1)), int(np.count_nonzero(uses > 2))
-
-
-def _inconsistent_edges(triangles: np.ndarray) -> int:
-    """Edges of a closed manifold mesh whose two faces traverse them the same way."""
-    directed = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    return int(len(directed) - len(np.unique(directed, axis=0)))

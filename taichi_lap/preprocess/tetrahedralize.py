@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from taichi_lap.core.geometry import SignedDistance, Solid, TriangleMesh
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import tet_volumes, unique_edges
 
 # Outward faces of a positively oriented tet, face k opposite vertex k.
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
@@ -369,13 +369,6 @@ def points_inside(surface: TriangleMesh, points: np.ndarray) -> np.ndarray:
     up_to_line = np.searchsorted(np.sort(crossing_line), line_of[point_at], side="right")
     inside[boxed[point_at]] = (up_to_line - seen[~is_crossing[order]]) % 2 == 1
     return inside
-
-
-def tet_volumes(particles: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Signed volumes ``(T,)`` [m^3], positive for positively oriented tets."""
-    x = particles[tets]
-    d = x[:, 1:] - x[:, :1]
-    return np.einsum("ij,ij->i", np.cross(d[:, 0], d[:, 1]), d[:, 2]) / 6.0
 
 
 def _newton_step(sdf: SignedDistance, x: np.ndarray, h: float) -> np.ndarray:

@@ -1,0 +1,307 @@
+"""The topology validator: one checker of a model's particles, tets, surfaces and
+clusters for tests, benchmarks and the debug option of a run (seed 002 §3.3: after
+removals and cuts the wound surface must stay a closed, outward surface of live
+tissue; docs/architecture.md, "Topology change").
+
+A :class:`Topology` holds the arrays as NumPy, each element with an alive flag (a
+built model has every one alive); :func:`check_topology` lists every
+:class:`TopologyProblem` it finds, :func:`assert_valid` raises them. The checks:
+
+* indices in range (tets and cluster members into particles, triangles into surface
+  vertices, the particles each surface vertex follows);
+* live elements use live particles (tets, clusters, and the particles a live
+  triangle's vertices follow);
+* no degenerate, duplicate or inverted elements: tets of positive rest volume,
+  triangles of non-zero area, no element listed twice;
+* each tet organ's live surface is closed and edge-manifold (every edge in exactly
+  two triangles), its triangles agree in orientation and point outwards (the volume
+  they enclose is positive);
+* no orphans: every live particle of a tet organ is in a live tet, every surface
+  vertex of a live triangle's organ is used by one;
+* cluster membership: every live particle of an organ with clusters is in a live
+  cluster, and no live cluster is empty;
+* volume: the rest volume of the removed tets equals what the dissection reports
+  it removed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_lap.core.mesh import (
+    degenerate_triangles,
+    edge_defects,
+    enclosed_volume,
+    inconsistent_edges,
+    tet_volumes,
+)
+
+VOLUME_TOLERANCE = 1e-9
+"""Relative tolerance of the removed-volume balance (of the organs' rest volume)."""
+
+
+class TopologyError(ValueError):
+    """A topology failed :func:`check_topology`; ``problems`` lists why."""
+
+    def __init__(self, problems: list[TopologyProblem]):
+        self.problems = problems
+        listed = "\n".join(f"  {problem}" for problem in problems)
+        super().__init__(f"invalid topology, {len(problems)} problem(s):\n{listed}")
+
+
+@dataclass(frozen=True)
+class TopologyProblem:
+    """One failed check: ``check`` names it, ``where`` the organ or the array,
+    ``detail`` what was found (counts and the first offending indices)."""
+
+    check: str
+    where: str
+    detail: str
+
+    def __str__(self) -> str:
+        return f"{self.check} ({self.where}): {self.detail}"
+
+
+@dataclass
+class OrganRanges:
+    """Half-open index ranges of one organ in the global arrays."""
+
+    name: str
+    particles: tuple[int, int]
+    tets: tuple[int, int]
+    surface_vertices: tuple[int, int]
+    triangles: tuple[int, int]
+    clusters: tuple[int, int]
+
+
+@dataclass
+class Topology:
+    """A model's topology as NumPy arrays (shapes as in
+    :class:`~taichi_lap.preprocess.model_data.ModelData`), with alive flags.
+
+    ``positions`` (N, 3) [m] are where the particles are now (the surface is checked
+    there), ``rest_positions`` (N, 3) [m] where they were built (tet volumes);
+    ``removed_volume`` [m^3] is the tet volume the dissection reports it removed."""
+
+    rest_positions: np.ndarray
+    positions: np.ndarray
+    tets: np.ndarray
+    surface_index: np.ndarray
+    surface_weight: np.ndarray
+    triangles: np.ndarray
+    cluster_start: np.ndarray
+    cluster_member: np.ndarray
+    organs: list[OrganRanges]
+    particle_alive: np.ndarray | None = None
+    tet_alive: np.ndarray | None = None
+    triangle_alive: np.ndarray | None = None
+    cluster_alive: np.ndarray | None = None
+    removed_volume: float = 0.0
+
+    def __post_init__(self):
+        self.tets = np.asarray(self.tets, dtype=np.int64).reshape(-1, 4)
+        self.triangles = np.asarray(self.triangles, dtype=np.int64).reshape(-1, 3)
+        self.surface_index = np.asarray(self.surface_index, dtype=np.int64).reshape(-1, 4)
+        self.surface_weight = np.asarray(self.surface_weight, dtype=np.float64).reshape(-1, 4)
+        for name, count in (
+            ("particle_alive", len(self.rest_positions)),
+            ("tet_alive", len(self.tets)),
+            ("triangle_alive", len(self.triangles)),
+            ("cluster_alive", len(self.cluster_start) - 1),
+        ):
+            flags = getattr(self, name)
+            if flags is None:
+                flags = np.ones(count, dtype=bool)
+            flags = np.asarray(flags, dtype=bool)
+            if flags.shape != (count,):
+                raise ValueError(f"Topology.{name}: shape ({count},) expected, got {flags.shape}")
+            setattr(self, name, flags)
+
+    @classmethod
+    def of_model(cls, data, positions: np.ndarray | None = None, **alive) -> Topology:
+        """The topology of a built model ``data`` (a ``ModelData``) with its particles
+        at ``positions`` (default: at rest); ``alive``: flags and ``removed_volume``."""
+        organs = [
+            OrganRanges(
+                organ.name,
+                organ.particles,
+                organ.tets,
+                organ.surface_vertices,
+                organ.triangles,
+                organ.clusters,
+            )
+            for organ in data.organs
+        ]
+        return cls(
+            rest_positions=data.rest_position,
+            positions=data.rest_position if positions is None else positions,
+            tets=data.tets,
+            surface_index=data.surface_index,
+            surface_weight=data.surface_weight,
+            triangles=data.surface_triangles,
+            cluster_start=data.cluster_start,
+            cluster_member=data.cluster_member,
+            organs=organs,
+            **alive,
+        )
+
+    def surface_positions(self) -> np.ndarray:
+        """(V, 3) [m]: each surface vertex where its particles put it."""
+        index = np.clip(self.surface_index, 0, len(self.positions) - 1)
+        return (self.surface_weight[..., None] * self.positions[index]).sum(axis=1)
+
+
+def check_topology(topology: Topology) -> list[TopologyProblem]:
+    """Every problem the module docstring's checks find (empty: valid)."""
+    problems: list[TopologyProblem] = []
+
+    def report(check: str, where: str, bad: np.ndarray, what: str):
+        bad = np.flatnonzero(bad)
+        if len(bad):
+            first = ", ".join(str(i) for i in bad[:5])
+            problems.append(TopologyProblem(check, where, f"{len(bad)} {what} (first: {first})"))
+
+    t = topology
+    n = len(t.rest_positions)
+    v = len(t.surface_index)
+    members = np.asarray(t.cluster_member, dtype=np.int64)
+    ranges = [
+        ("tets", t.tets, n),
+        ("triangles", t.triangles, v),
+        ("cluster members", members[:, None], n),  # one per row
+        ("surface vertices", np.where(t.surface_weight != 0.0, t.surface_index, 0), n),
+    ]
+    for name, indices, count in ranges:
+        report("index range", name, ((indices < 0) | (indices >= count)).any(axis=1), name)
+    if problems:
+        return problems  # the checks below index with them
+
+    dead = ~t.particle_alive
+    member_cluster = np.repeat(np.arange(len(t.cluster_start) - 1), np.diff(t.cluster_start))
+    follows_dead = (dead[t.surface_index] & (t.surface_weight != 0.0)).any(axis=1)
+    report("dead reference", "tets", t.tet_alive & dead[t.tets].any(axis=1), "live tets")
+    report(
+        "dead reference",
+        "cluster members",
+        t.cluster_alive[member_cluster] & dead[members],
+        "members of live clusters",
+    )
+    report(
+        "dead reference",
+        "triangles",
+        t.triangle_alive & follows_dead[t.triangles].any(axis=1),
+        "live triangles with a vertex following a removed particle",
+    )
+    report("empty cluster", "clusters", t.cluster_alive & (np.diff(t.cluster_start) == 0), "")
+
+    rest_volume = tet_volumes(t.rest_positions, t.tets)
+    report("inverted tet", "tets", t.tet_alive & (rest_volume <= 0.0), "live tets")
+    report("duplicate", "tets", _duplicates(t.tets, t.tet_alive), "live tets")
+    report("duplicate", "triangles", _duplicates(t.triangles, t.triangle_alive), "live triangles")
+
+    surface = t.surface_positions()
+    degenerate = np.zeros(len(t.triangles), dtype=bool)
+    degenerate[t.triangle_alive] = degenerate_triangles(surface, t.triangles[t.triangle_alive])
+    report("degenerate triangle", "triangles", degenerate, "live triangles")
+    in_cluster = np.zeros(n, dtype=bool)
+    in_cluster[members[t.cluster_alive[member_cluster]]] = True
+    for organ in t.organs:
+        particles = slice(*organ.particles)
+        tets = np.arange(*organ.tets)
+        triangles = np.arange(*organ.triangles)
+        live = triangles[t.triangle_alive[triangles]]
+        if organ.clusters[1] > organ.clusters[0]:
+            report(
+                "not in a cluster",
+                f"organ {organ.name}",
+                t.particle_alive[particles] & ~in_cluster[particles],
+                "live particles",
+            )
+        if not len(tets):
+            continue
+        in_tet = np.zeros(n, dtype=bool)
+        in_tet[t.tets[tets[t.tet_alive[tets]]].ravel()] = True
+        report(
+            "orphan",
+            f"organ {organ.name}",
+            t.particle_alive[particles] & ~in_tet[particles],
+            "live particles in no live tet",
+        )
+        problems.extend(_surface_problems(organ, surface, t.triangles[live]))
+
+    _volume_balance(t, rest_volume, problems)
+    return problems
+
+
+def assert_valid(topology: Topology):
+    """Raise :class:`TopologyError` listing every problem of ``topology``."""
+    problems = check_topology(topology)
+    if problems:
+        raise TopologyError(problems)
+
+
+def _duplicates(elements: np.ndarray, alive: np.ndarray) -> np.ndarray:
+    """(E,) bool: live elements whose vertex set an earlier live element has."""
+    keys = np.sort(np.asarray(elements, dtype=np.int64), axis=1)
+    live = np.flatnonzero(alive)
+    _, first = np.unique(keys[live], axis=0, return_index=True)
+    out = alive.copy()
+    out[live[first]] = False
+    return out
+
+
+def _surface_problems(
+    organ: OrganRanges, surface: np.ndarray, triangles: np.ndarray
+) -> list[TopologyProblem]:
+    """Closed, edge-manifold, consistently and outward oriented (one tet organ's live
+    triangles); a surface vertex of the organ no triangle uses is an orphan."""
+    where = f"organ {organ.name}"
+    out = []
+    if not len(triangles):
+        return [TopologyProblem("open surface", where, "no live surface triangle")]
+    open_edges, fins = edge_defects(triangles)
+    if open_edges or fins:
+        out.append(
+            TopologyProblem(
+                "open surface", where, f"{open_edges} open edges, {fins} non-manifold edges"
+            )
+        )
+    flipped = inconsistent_edges(triangles)
+    if flipped:
+        out.append(
+            TopologyProblem(
+                "orientation", where, f"{flipped} edges whose two triangles run them alike"
+            )
+        )
+    elif not open_edges and not fins and enclosed_volume(surface, triangles) <= 0.0:
+        out.append(TopologyProblem("orientation", where, "the surface's normals point inwards"))
+    used = np.zeros(len(surface), dtype=bool)
+    used[triangles.ravel()] = True
+    unused = ~used[slice(*organ.surface_vertices)]
+    if unused.any():
+        first = ", ".join(str(organ.surface_vertices[0] + i) for i in np.flatnonzero(unused)[:5])
+        out.append(
+            TopologyProblem(
+                "orphan",
+                where,
+                f"{int(unused.sum())} surface vertices in no live triangle (first: {first})",
+            )
+        )
+    return out
+
+
+def _volume_balance(t: Topology, rest_volume: np.ndarray, problems: list[TopologyProblem]):
+    """The rest volume of the removed tets against ``removed_volume``."""
+    removed = float(rest_volume[~t.tet_alive].sum())
+    total = float(np.abs(rest_volume).sum())
+    if abs(removed - t.removed_volume) > VOLUME_TOLERANCE * max(total, 1e-30):
+        problems.append(
+            TopologyProblem(
+                "volume",
+                "tets",
+                f"the removed tets' rest volume is {removed:.6g} m^3, the dissection "
+                f"reports {t.removed_volume:.6g} m^3",
+            )
+        )
