@@ -127,18 +127,22 @@ def lifted_block() -> dict[str, np.ndarray]:
 
 @pytest.mark.vulkan
 def test_grasp_vulkan_matches_cpu():
-    """Both backends take the same particles and lift them alike. The block is lifted
-    15 mm by the jaws while the shaft's static friction holds the tissue around it:
-    friction keeps a difference of rounding where a frictionless contact let it
-    decay, and a few free particles beside the jaws amplify it (two CPU compiles of
-    this code, Taichi's IR optimisation on and off, put 3 of 980 particles 7-12 mm
-    apart and every other within 0.6 mm; 2 cm everywhere when a real error made the
-    backends disagree)."""
+    """Both backends take the same particles, but for at most one (capture is a
+    distance threshold, and a difference of rounding puts a particle either side of
+    it), and lift them alike. The block is lifted 15 mm by the jaws while the shaft's
+    static friction holds the tissue around it: friction keeps a difference of
+    rounding where a frictionless contact let it decay, and a few free particles
+    beside the jaws amplify it (two CPU compiles of this code, Taichi's IR
+    optimisation on and off, put 3 of 980 particles 7-12 mm apart and every other
+    within 0.6 mm; 2 cm everywhere when a real error made the backends disagree)."""
     cpu = lifted_block()
     vulkan = run_on_arch("vulkan", "tests.test_grasp:lifted_block")
-    np.testing.assert_array_equal(cpu["grasp_tool"], vulkan["grasp_tool"])
+    cpu_held, vulkan_held = cpu["grasp_tool"] != FREE, vulkan["grasp_tool"] != FREE
+    assert np.count_nonzero(cpu_held != vulkan_held) <= 1
+    both = cpu_held & vulkan_held
+    assert np.count_nonzero(both) >= 20
     apart = np.linalg.norm(cpu["x"] - vulkan["x"].astype(np.float64), axis=1)
-    assert apart[cpu["grasp_tool"] != FREE].max() < 2e-3
+    assert apart[both].max() < 2e-3
     assert np.count_nonzero(apart > 2e-3) <= 0.01 * len(apart), np.sort(apart)[-10:]
 
 

@@ -56,6 +56,9 @@ from taichi_lap.kernels.collision.tool_shapes import (
     shape_distance,
     side_distance,
     tool_distance,
+    TOOL_FRICTION,
+    TOUCH,
+    coulomb_friction,
 )
 
 from taichi_lap.core.instruments import MAX_TOOL_SHAPES, MAX_TOOLS, SHAPE_BOX
@@ -255,10 +258,12 @@ def surface_tool(
     The shapes act one after the other on a local copy of the corners (Gauss-Seidel,
     two passes: a push out of one shape may end in an overlapping one), and each moved
     corner gets the sum as one contact, so where shapes meet the pushes add up instead
-    of being averaged. (No friction here: the particles' contacts have it. Friction on
-    the corners too held a fast deep press on the surface but made a grasper that
-    appeared in tissue drag the surface down, differently on each backend.) The corners are skinned from p here: tissue pairs may have
-    moved it since the phase's skinning. Returns (contacts, acc, hits)."""
+    of being averaged; Coulomb friction with the tool (:func:`~.tool_shapes.coulomb_friction`)
+    then keeps a pressed corner moving with the tool instead of sliding round its tip
+    (the surface would split over a deep press's tip), except where the tool appeared
+    in the tissue: that push has no side to keep. The corners are skinned from p here:
+    tissue pairs may have moved it since the phase's skinning. Returns (contacts, acc,
+    hits)."""
     v = coll.tri_vertex[t]
     w = ti.Vector([coll.corner_inv_mass[3 * t + j] for j in ti.static(range(3))])
     thickness = ti.Vector([coll.corner_thickness[3 * t + j] for j in ti.static(range(3))])
@@ -266,6 +271,7 @@ def surface_tool(
     x = [coll.vertex_x[v[j]] for j in ti.static(range(3))]
     c = start
     moved = ti.Vector([0, 0, 0])
+    appeared = ti.Vector([0, 0, 0])  # pushed along the fallback: no friction
     count = 0
     for _pass in range(2):
         for s in range(MAX_TOOL_SHAPES):
@@ -293,6 +299,7 @@ def surface_tool(
                         away = -away  # surface pushes it away from its handle's end
                     reach = r + bary.dot(thickness)
                     dist, n = side_distance(on_tri - on_seg, before, reach, away)
+                    on_axis = (on_tri - on_seg).norm() <= TOUCH and before.norm() <= TOUCH
                     denom = (bary * bary * w).sum()
                     if dist < 0.0 and denom > 0.0:
                         lam = -dist / denom
@@ -301,11 +308,19 @@ def surface_tool(
                                 for m in ti.static(range(3)):
                                     c[j, m] += lam * w[j] * bary[j] * n[m]
                                 moved[j] = 1
+                                if on_axis:
+                                    appeared[j] = 1
                         count += 1
     for j in ti.static(range(3)):
         if moved[j]:
-            delta = ti.Vector([c[j, m] - start[j, m] for m in ti.static(range(3))])
-            acc, hits = add_corner(acc, hits, j, delta)
+            corner = ti.Vector([c[j, m] for m in ti.static(range(3))])
+            begin = ti.Vector([start[j, m] for m in ti.static(range(3))])
+            push = corner - begin
+            depth = push.norm()
+            if depth > 0.0 and appeared[j] == 0:
+                limit = TOOL_FRICTION * depth
+                corner = coulomb_friction(corner, x[j], pose.tip - last.tip, push / depth, limit)
+            acc, hits = add_corner(acc, hits, j, corner - begin)
     return count, acc, hits
 
 
