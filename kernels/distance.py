@@ -31,6 +31,25 @@ def distance_delta(pi, pj, wi, wj, rest, stiffness):
 
 
 @ti.func
+def distance_correction(model: ti.template(), positions: ti.template(), i, p):
+    """The sum of the corrections of particle ``i``'s distance constraints at ``p``
+    [m] (their other ends read from ``positions``), and how many there are."""
+    begin, end = model.distance_start[i], model.distance_start[i + 1]
+    delta = ti.Vector([0.0, 0.0, 0.0])
+    for e in range(begin, end):
+        j = model.distance_other[e]
+        delta += distance_delta(
+            p,
+            positions[j],
+            model.inv_mass[i],
+            model.inv_mass[j],
+            model.distance_rest[e],
+            model.distance_stiffness[e],
+        )
+    return delta, end - begin
+
+
+@ti.func
 def finish_particle(
     model: ti.template(), state: ti.template(), control: ti.template(), source: ti.template(), i, p
 ):
@@ -55,22 +74,10 @@ def jacobi_sweep(
     ``source`` and writing ``target`` (both particle position fields)."""
     for i in range(model.particle_count):
         p = source[i]
-        wi = model.inv_mass[i]
-        if wi > 0.0:
-            begin, end = model.distance_start[i], model.distance_start[i + 1]
-            delta = ti.Vector([0.0, 0.0, 0.0])
-            for e in range(begin, end):
-                j = model.distance_other[e]
-                delta += distance_delta(
-                    p,
-                    source[j],
-                    wi,
-                    model.inv_mass[j],
-                    model.distance_rest[e],
-                    model.distance_stiffness[e],
-                )
-            if end > begin:
-                p += over_relaxation * delta / (end - begin)
+        if model.inv_mass[i] > 0.0:
+            delta, count = distance_correction(model, source, i, p)
+            if count > 0:
+                p += over_relaxation * delta / count
             p = finish_particle(model, state, control, source, i, p)
         target[i] = p
 

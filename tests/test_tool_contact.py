@@ -77,12 +77,13 @@ def test_vulkan_agrees_with_cpu():
     assert_vulkan_matches_cpu("tests.test_tool_contact:compute_press_case", 2e-4)
 
 
-def haptic_rows(presses) -> dict[tuple, dict]:
+def haptic_rows(presses, model: str = "tet_clusters") -> dict[tuple, dict]:
     """Per ``(depth [m], inside)`` of ``presses`` the haptic press's rows by metric (the
-    stylus of the scripted device pressed at 5 mm/s, or there from the start, and
-    held, seed 002 §3.4; the press setting of the quick benchmark)."""
+    stylus of the scripted device pressed into the ``model`` body at 5 mm/s, or there
+    from the start, and held, seed 002 §3.4; the press setting of the quick
+    benchmark)."""
     setting = ("off", contact.SOLVERS[0])
-    session, target = contact.press_scene("tet_clusters", setting[0], *setting[1])
+    session, target = contact.press_scene(model, setting[0], *setting[1])
     out = {}
     try:
         for depth, inside in presses:
@@ -114,3 +115,18 @@ def test_a_haptic_stylus_indents_the_tissue_and_feels_it_grow_with_depth():
     assert held["max"] - held["min"] < 0.05 * held["median"]  # settles: no energy gain
     assert rows[0.020, False]["contact_force_n"]["min"] > 0.0
     assert rows[0.004, True]["contact_force_n"]["min"] > 0.01
+
+
+@pytest.mark.parametrize("model", ["fascia_lra", "truss"])
+def test_a_haptic_stylus_indents_a_membrane_and_a_truss_and_feels_them(model):
+    """The coupling of seed 002 §3.4 for the tissues without shape matching: their
+    distance constraints and long-range attachments push the tool back (before: no
+    reaction, and the stylus met a wall)."""
+    from taichi_lap.haptics.servo import ScriptedHapticDevice
+
+    rows = haptic_rows([(0.002, False), (0.006, False)], model)
+    for depth in (0.002, 0.006):
+        measured = rows[depth, False]["faults"]
+        assert measured["indent_mm"] >= 0.7 * measured["stylus_depth_mm"]
+    forces = [rows[d, False]["contact_force_n"]["median"] for d in (0.002, 0.006)]
+    assert 0.0 < forces[0] < forces[1] < ScriptedHapticDevice().max_force

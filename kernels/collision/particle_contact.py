@@ -25,9 +25,7 @@ from taichi_lap.kernels.collision.tool_shapes import (
     push_out_of_tools,
     round_shape,
     side_distance,
-    tool_distance,
 )
-from taichi_lap.kernels.mass_spring import spring_force
 
 from taichi_lap.core.instruments import MAX_TOOL_SHAPES, MAX_TOOLS
 
@@ -132,31 +130,3 @@ def push_tubes_out_of_tools(model: ti.template(), state: ti.template(), control:
     for n in range(model.tube_particle_count):
         i = model.tube_particle[n]
         state.p[i] = state.p_next[i]
-
-
-@ti.kernel
-def measure_tool_reaction(
-    model: ti.template(), state: ti.template(), control: ti.template(), k: ti.i32, h: ti.f32
-):
-    """``control.tool_reaction[k]``: the force [N] the tissue touching tool k pushes it
-    with, the sum over the collided particles near the tool of what pulls them back,
-    weighted 1 up to a particle radius from the tool's contact surface and down to 0
-    a radius further (a particle crossing that edge changes the force smoothly; a hard
-    edge left a 10 % ripple in a held stylus's force): the shape-matching pull of the next prediction (seed 000
-    Alg. 1 line 4, substep ``h`` [s]) as a force on the particle's haptic mass,
-    r m α (g - x) / h² with r the material's ``haptic_mass_ratio`` (seed 002 §3.4 sets
-    the particles' mass per tissue for the feel), plus their springs' force. Reads x,
-    goal, collided (after a step)."""
-    control.tool_reaction[k] = ti.Vector([0.0, 0.0, 0.0])
-    pose = control_pose(control, k)
-    for i in range(model.particle_count):
-        if state.collided[i] and model.inv_mass[i] > 0.0:
-            dist, _ = tool_distance(control, k, pose, state.x[i])
-            reach = model.contact_radius[i] + 2.0 * model.radius[i]
-            weight = ti.min(1.0, (reach - dist) / model.radius[i])
-            if weight > 0.0:
-                pull = model.stiffness[i] * (state.goal[i] - state.x[i]) / (h * h)
-                force = model.haptic_mass_ratio[i] * pull / model.inv_mass[i]
-                if ti.static(model.spring_count > 0):
-                    force += spring_force(model, state, i)
-                control.tool_reaction[k] += weight * force

@@ -22,7 +22,8 @@ stylus and the device force, g (q_h - s), is the tissue's push and grows with th
 indentation. The iteration contracts while κ (1 + k_t / g) < 2, with k_t [N/m] the
 tissue's stiffness under the tool. A move is at most a tool radius per frame. Where
 no tissue pushes the tool it is the servo's graphical tool (the stylus in free
-space, the proxy on the surface at first touch); so it is while the tool's jaws hold
+space, the proxy on the surface at first touch, pressed :data:`TOUCH_DEPTH` into it
+so that the simulation's contact engages); so it is while the tool's jaws hold
 tissue, whose pull the servo renders by Hooke's law over the grasped edges instead.
 
 The simulation publishes its surface every frame (``poses`` is called once per
@@ -57,6 +58,10 @@ COUPLING = 0.5
 """κ: the fraction of the unbalanced force's way the scene tool goes per frame."""
 REACTION_FLOOR = 1e-6
 """[N]: a smaller tissue push leaves the tool uncoupled."""
+TOUCH_DEPTH = 5e-4
+"""[m]: how far past the proxy's resting pose, towards the stylus, the uncoupled
+scene tool goes at a touch, so that the simulation's contact engages (a sheet drawn
+through its particles is touched only when entered) and the coupling can start."""
 
 
 class HapticBridge:
@@ -128,8 +133,9 @@ class HapticBridge:
     def _coupled_tip(self, closed: bool) -> np.ndarray:
         """The scene tool's tip [m]: s' = s + κ ((q_h - s) + F_t / g) while tissue
         pushes it, the move at most a tool radius, else (and while the jaws are
-        ``closed``) the graphical tool (module docstring). Sets ``_coupled`` to the tip
-        the servo couples to, or None."""
+        ``closed``) the graphical tool, at a touch :data:`TOUCH_DEPTH` past it towards
+        the stylus (module docstring). Sets ``_coupled`` to the tip the servo couples
+        to, or None."""
         graphic = self.feedback.graphic_pose[:3, 3].astype(np.float64)
         haptic = self.feedback.haptic_pose[:3, 3].astype(np.float64)
         self._coupled = None
@@ -138,7 +144,9 @@ class HapticBridge:
         reaction = self.session.tool_reaction(self.tool_index)
         touching = np.all(np.isfinite(reaction)) and np.linalg.norm(reaction) > REACTION_FLOOR
         if not touching:
-            return graphic
+            press = haptic - graphic  # zero in free space
+            length = float(np.linalg.norm(press))
+            return graphic + press * min(1.0, TOUCH_DEPTH / length) if length > 0.0 else graphic
         move = COUPLING * ((haptic - self._tip) + reaction / self.proxy.gain)
         length, limit = float(np.linalg.norm(move)), self.geometry.radius
         if length > limit:

@@ -24,7 +24,7 @@ _MATERIAL_FOR_MODEL = {
     "stiffness": CLUSTER_MODELS,
     "recover_rate": CLUSTER_MODELS,
     "eta_on_contact": CLUSTER_MODELS,
-    "haptic_mass_ratio": CLUSTER_MODELS,
+    "haptic_mass_ratio": CLUSTER_MODELS + ("fascia_lra", "truss"),
     "lra_relaxation": ("fascia_lra",),
 }
 

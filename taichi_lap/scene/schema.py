@@ -147,6 +147,14 @@ MESH_PARAMS = {
 
 _MASS = Param("float", 0.5, "total mass", lo=1e-6, hi=100.0, unit="kg")
 _DAMPING = Param("float", 1.0, "velocity damping rate", lo=0.0, hi=1000.0, unit="1/s")
+_HAPTIC_MASS_RATIO = Param(
+    "float",
+    10.0,
+    "the particles' mass in the haptic coupling as a multiple of their mass: how "
+    "stiff the tissue feels to a haptic device (seed 002 §3.4)",
+    lo=0.0,
+    hi=1e4,
+)
 _SHAPE = {
     "mass": _MASS,
     "damping": _DAMPING,
@@ -165,14 +173,7 @@ _SHAPE = {
         hi=1.0,
         unit="m",
     ),
-    "haptic_mass_ratio": Param(
-        "float",
-        10.0,
-        "the particles' mass in the haptic coupling as a multiple of their mass: how "
-        "stiff the tissue feels to a haptic device (seed 002 §3.4)",
-        lo=0.0,
-        hi=1e4,
-    ),
+    "haptic_mass_ratio": _HAPTIC_MASS_RATIO,
     "organ_cluster": Param(
         "bool",
         True,
@@ -204,6 +205,7 @@ MATERIAL_PARAMS = {
         ),
         "lra_relaxation": Param("float", 0.25, "β of Eq. 3 (seed 000 §7: 0.1-0.4)", lo=0.0, hi=1.0),
         "lra_anchors": Param("int", 4, "nearest attached vertices each vertex keeps", lo=1, hi=64),
+        "haptic_mass_ratio": _HAPTIC_MASS_RATIO,
     },
     "truss": {
         "mass": _MASS,
@@ -216,6 +218,7 @@ MATERIAL_PARAMS = {
             "float", math.pi / 3, "θ_threshold (seed 000 §7: π/3)", lo=0.0, hi=math.pi, unit="rad"
         ),
         "min_stiffness": Param("float", 0.05, "k_min (seed 000 §7: 0.05)", lo=0.0, hi=1.0),
+        "haptic_mass_ratio": _HAPTIC_MASS_RATIO,
     },
     "mass_spring": {
         "damping": Param("float", 0.2, "velocity damping rate", lo=0.0, hi=1000.0, unit="1/s"),

@@ -43,6 +43,7 @@ from taichi_lap.core.instruments import JAW_REACH, MAX_TOOLS
 from taichi_lap.kernels import distance, grasp, shape_matching, skinning
 from taichi_lap.kernels.collision import particle_contact
 from taichi_lap.kernels.health import NO_FAULT
+from taichi_lap.kernels.tool_reaction import measure_tool_reaction
 from taichi_lap.scene.schema import SCENE_PARAMS
 from taichi_lap.sim.control import Control
 from taichi_lap.sim.model import Model
@@ -158,9 +159,9 @@ class Solver:
 
     def tool_reaction(self, state: State, control: Control, tool: int, dt: float) -> np.ndarray:
         """The force [N] (3,) the tissue pushed tool ``tool`` with at the end of the last
-        step of ``dt`` [s] (:func:`~taichi_lap.kernels.collision.particle_contact.measure_tool_reaction`)."""
+        step of ``dt`` [s] (:func:`~taichi_lap.kernels.tool_reaction.measure_tool_reaction`)."""
         h = dt / self.settings.substeps
-        particle_contact.measure_tool_reaction(self.model, state, control, tool, h)
+        measure_tool_reaction(self.model, state, control, tool, h)
         return control.tool_reaction.to_numpy()[tool].astype(np.float64)
 
     def reset(self, *, pairs: bool = False):
