@@ -7,7 +7,7 @@ import pytest
 from taichi_lap import scene as scene_mod
 from taichi_lap.core.mesh import tet_volumes
 from taichi_lap.core.topology import (
-    OrganRanges,
+    OrganRecord,
     Topology,
     TopologyError,
     assert_valid,
@@ -55,7 +55,17 @@ def block(cells: int = 2) -> dict:
         triangles=triangles,
         cluster_start=np.arange(0, 8 * len(clusters) + 1, 8),
         cluster_member=np.concatenate(clusters),
-        organs=[OrganRanges("block", (0, n), (0, len(tets)), (0, v), (0, f), (0, 8))],
+        organs=[
+            OrganRecord(
+                "block",
+                "tet_clusters",
+                particles=(0, n),
+                triangles=(0, f),
+                surface_vertices=(0, v),
+                tets=(0, len(tets)),
+                clusters=(0, 8),
+            )
+        ],
     )
 
 

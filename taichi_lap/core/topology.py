@@ -65,15 +65,20 @@ class TopologyProblem:
 
 
 @dataclass
-class OrganRanges:
-    """Half-open index ranges of one organ in the global arrays."""
+class OrganRecord:
+    """Where one organ lives in the global arrays (half-open index ranges), and its
+    tissue model."""
 
     name: str
+    model: str
     particles: tuple[int, int]
-    tets: tuple[int, int]
-    surface_vertices: tuple[int, int]
     triangles: tuple[int, int]
+    surface_vertices: tuple[int, int]
+    tets: tuple[int, int]
     clusters: tuple[int, int]
+    struts: int = 0
+    springs: int = 0
+    row_length: int = 0  # spring sheets: masses per row (row 0 is the intestine)
 
 
 @dataclass
@@ -93,7 +98,7 @@ class Topology:
     triangles: np.ndarray
     cluster_start: np.ndarray
     cluster_member: np.ndarray
-    organs: list[OrganRanges]
+    organs: list[OrganRecord]
     particle_alive: np.ndarray | None = None
     tet_alive: np.ndarray | None = None
     triangle_alive: np.ndarray | None = None
@@ -123,17 +128,6 @@ class Topology:
     def of_model(cls, data, positions: np.ndarray | None = None, **alive) -> Topology:
         """The topology of a built model ``data`` (a ``ModelData``) with its particles
         at ``positions`` (default: at rest); ``alive``: flags and ``removed_volume``."""
-        organs = [
-            OrganRanges(
-                organ.name,
-                organ.particles,
-                organ.tets,
-                organ.surface_vertices,
-                organ.triangles,
-                organ.clusters,
-            )
-            for organ in data.organs
-        ]
         return cls(
             rest_positions=data.rest_position,
             positions=data.rest_position if positions is None else positions,
@@ -143,7 +137,7 @@ class Topology:
             triangles=data.surface_triangles,
             cluster_start=data.cluster_start,
             cluster_member=data.cluster_member,
-            organs=organs,
+            organs=data.organs,
             **alive,
         )
 
@@ -253,7 +247,7 @@ def _duplicates(elements: np.ndarray, alive: np.ndarray) -> np.ndarray:
 
 
 def _surface_problems(
-    organ: OrganRanges, surface: np.ndarray, triangles: np.ndarray
+    organ: OrganRecord, surface: np.ndarray, triangles: np.ndarray
 ) -> list[TopologyProblem]:
     """Closed, edge-manifold, consistently and outward oriented (one tet organ's live
     triangles); a surface vertex of the organ no triangle uses is an orphan."""

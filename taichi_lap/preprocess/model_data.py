@@ -12,6 +12,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from taichi_lap.core.topology import OrganRecord
+
 PARTICLE_MATERIAL = (
     "stiffness",
     "recover_rate",
@@ -21,22 +23,6 @@ PARTICLE_MATERIAL = (
     "lra_relaxation",
 )
 """Per-particle material channels copied from each organ's material table."""
-
-
-@dataclass
-class OrganRecord:
-    """Where one organ lives in the global arrays (half-open index ranges)."""
-
-    name: str
-    model: str
-    particles: tuple[int, int]
-    triangles: tuple[int, int]
-    surface_vertices: tuple[int, int]
-    tets: tuple[int, int]
-    clusters: tuple[int, int]
-    struts: int = 0
-    springs: int = 0
-    row_length: int = 0  # spring sheets: masses per row (row 0 is the intestine)
 
 
 @dataclass
