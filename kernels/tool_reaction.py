@@ -28,8 +28,7 @@ def constraint_pull(model: ti.template(), state: ti.template(), i, h):
     x = state.x[i]
     correction = model.stiffness[i] * (state.goal[i] - x)
     if ti.static(model.distance_count > 0):
-        summed, _ = distance_correction(model, state.x, i, x)
-        correction += summed
+        correction += distance_correction(model, state.x, i, x)[0]
     if ti.static(model.lra_count > 0):
         correction += lra_correction(model, state.x, i, x)
     force = model.haptic_mass_ratio[i] * correction / (model.inv_mass[i] * h * h)
