@@ -151,11 +151,8 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
     """Every problem the module docstring's checks find (empty: valid)."""
     problems: list[TopologyProblem] = []
 
-    def report(check: str, where: str, bad: np.ndarray, what: str):
-        bad = np.flatnonzero(bad)
-        if len(bad):
-            first = ", ".join(str(i) for i in bad[:5])
-            problems.append(TopologyProblem(check, where, f"{len(bad)} {what} (first: {first})"))
+    def report(check: str, where: str, bad: np.ndarray, what: str, first_index: int = 0):
+        problems.extend(_listed(check, where, bad, what, first_index))
 
     t = topology
     n = len(t.rest_positions)
@@ -201,9 +198,10 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
     report("degenerate triangle", "triangles", degenerate, "live triangles")
     in_cluster = np.zeros(n, dtype=bool)
     in_cluster[members[t.cluster_alive[member_cluster]]] = True
+    in_tet = np.zeros(n, dtype=bool)
+    in_tet[t.tets[t.tet_alive].ravel()] = True
     for organ in t.organs:
         particles = slice(*organ.particles)
-        tets = np.arange(*organ.tets)
         triangles = np.arange(*organ.triangles)
         live = triangles[t.triangle_alive[triangles]]
         if organ.clusters[1] > organ.clusters[0]:
@@ -213,10 +211,8 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
                 t.particle_alive[particles] & ~in_cluster[particles],
                 "live particles",
             )
-        if not len(tets):
+        if organ.tets[1] == organ.tets[0]:
             continue
-        in_tet = np.zeros(n, dtype=bool)
-        in_tet[t.tets[tets[t.tet_alive[tets]]].ravel()] = True
         report(
             "orphan",
             f"organ {organ.name}",
@@ -224,6 +220,15 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
             "live particles in no live tet",
         )
         problems.extend(_surface_problems(organ, surface, t.triangles[live]))
+        used = np.zeros(v, dtype=bool)
+        used[t.triangles[live].ravel()] = True
+        report(
+            "orphan",
+            f"organ {organ.name}",
+            ~used[slice(*organ.surface_vertices)],
+            "surface vertices in no live triangle",
+            organ.surface_vertices[0],
+        )
 
     _volume_balance(t, rest_volume, problems)
     return problems
@@ -246,11 +251,23 @@ def _duplicates(elements: np.ndarray, alive: np.ndarray) -> np.ndarray:
     return out
 
 
+def _listed(
+    check: str, where: str, bad: np.ndarray, what: str, first_index: int = 0
+) -> list[TopologyProblem]:
+    """One problem counting the ``bad`` entries (a mask; indices from
+    ``first_index``) with the first few named, or none."""
+    bad = np.flatnonzero(bad)
+    if not len(bad):
+        return []
+    first = ", ".join(str(first_index + i) for i in bad[:5])
+    return [TopologyProblem(check, where, f"{len(bad)} {what} (first: {first})")]
+
+
 def _surface_problems(
     organ: OrganRecord, surface: np.ndarray, triangles: np.ndarray
 ) -> list[TopologyProblem]:
     """Closed, edge-manifold, consistently and outward oriented (one tet organ's live
-    triangles); a surface vertex of the organ no triangle uses is an orphan."""
+    triangles)."""
     where = f"organ {organ.name}"
     out = []
     if not len(triangles):
@@ -271,18 +288,6 @@ def _surface_problems(
         )
     elif not open_edges and not fins and enclosed_volume(surface, triangles) <= 0.0:
         out.append(TopologyProblem("orientation", where, "the surface's normals point inwards"))
-    used = np.zeros(len(surface), dtype=bool)
-    used[triangles.ravel()] = True
-    unused = ~used[slice(*organ.surface_vertices)]
-    if unused.any():
-        first = ", ".join(str(organ.surface_vertices[0] + i) for i in np.flatnonzero(unused)[:5])
-        out.append(
-            TopologyProblem(
-                "orphan",
-                where,
-                f"{int(unused.sum())} surface vertices in no live triangle (first: {first})",
-            )
-        )
     return out
 
 
