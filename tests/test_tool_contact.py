@@ -96,19 +96,27 @@ def haptic_rows(presses, model: str = "tet_clusters") -> dict[tuple, dict]:
     return out
 
 
+def assert_indents_and_grows(rows: dict[tuple, dict], force: str):
+    """The 2 and 6 mm presses of ``rows`` (:func:`haptic_rows`) indent the tissue at
+    least 70 % of the stylus depth, and their ``force`` metric's median grows with the
+    depth, above zero and below the device's maximum."""
+    from taichi_lap.haptics.servo import ScriptedHapticDevice
+
+    for depth in (0.002, 0.006):
+        measured = rows[depth, False]["faults"]
+        assert measured["indent_mm"] >= 0.7 * measured["stylus_depth_mm"]
+    forces = [rows[d, False][force]["median"] for d in (0.002, 0.006)]
+    assert 0.0 < forces[0] < forces[1] < ScriptedHapticDevice().max_force
+
+
 def test_a_haptic_stylus_indents_the_tissue_and_feels_it_grow_with_depth():
     """The tissue gives way under the stylus (at least 70 % of its depth), the device
     force grows with the depth below the device's maximum, a 20 mm press keeps the
     stylus in contact through the whole hold (the force never drops to zero), a
-    stylus held still settles, and one that starts 4 mm inside the tissue is felt (before: no force at all)."""
-    from taichi_lap.haptics.servo import ScriptedHapticDevice
-
+    stylus held still settles, and one that starts 4 mm inside the tissue is felt
+    (before: no force at all)."""
     rows = haptic_rows([(0.002, False), (0.006, False), (0.020, False), (0.004, True)])
-    for depth in (0.002, 0.006):
-        measured = rows[depth, False]["faults"]
-        assert measured["indent_mm"] >= 0.7 * measured["stylus_depth_mm"]
-    forces = [rows[d, False]["force_n"]["median"] for d in (0.002, 0.006)]
-    assert 0.0 < forces[0] < forces[1] < ScriptedHapticDevice().max_force
+    assert_indents_and_grows(rows, "force_n")
     # What the coupling asks for, before the safety filter (whose watchdog fades the
     # force out when a frame stalls past 100 ms, as it may on a loaded test machine).
     held = rows[0.006, False]["contact_force_n"]
@@ -122,11 +130,6 @@ def test_a_haptic_stylus_indents_a_membrane_and_a_truss_and_feels_them(model):
     """The coupling of seed 002 §3.4 for the tissues without shape matching: their
     distance constraints and long-range attachments push the tool back (before: no
     reaction, and the stylus met a wall)."""
-    from taichi_lap.haptics.servo import ScriptedHapticDevice
-
-    rows = haptic_rows([(0.002, False), (0.006, False)], model)
-    for depth in (0.002, 0.006):
-        measured = rows[depth, False]["faults"]
-        assert measured["indent_mm"] >= 0.7 * measured["stylus_depth_mm"]
-    forces = [rows[d, False]["contact_force_n"]["median"] for d in (0.002, 0.006)]
-    assert 0.0 < forces[0] < forces[1] < ScriptedHapticDevice().max_force
+    assert_indents_and_grows(
+        haptic_rows([(0.002, False), (0.006, False)], model), "contact_force_n"
+    )
