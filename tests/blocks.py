@@ -1,0 +1,60 @@
+"""A Kuhn-split tet block as topology arrays, for the tests of the topology validator
+and of dissection (no Taichi)."""
+
+import numpy as np
+
+from taichi_lap.core.mesh import tet_volumes
+from taichi_lap.core.topology import OrganRecord
+from taichi_lap.preprocess.tetrahedralize import TET_FACES
+
+KUHN_TETS = np.array(
+    [[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]]
+)
+"""The six tets of a unit cube around its diagonal 0-7 (corner k at the bits of k)."""
+
+
+def block(cells: int = 2) -> dict:
+    """The arguments of a valid :class:`Topology`: a cube of ``cells``³ Kuhn-split
+    cells of 1 cm, its boundary the surface (a surface vertex on each boundary
+    particle), one cluster per cell."""
+    corner = np.array([[k & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)])
+    side = cells + 1
+    points = np.array([[i, j, k] for k in range(side) for j in range(side) for i in range(side)])
+    index = {tuple(p): n for n, p in enumerate(points)}
+    tets, clusters = [], []
+    for origin in points[(points < cells).all(axis=1)]:
+        ids = np.array([index[tuple(origin + c)] for c in corner])
+        tets.extend(ids[KUHN_TETS])
+        clusters.append(ids)
+    tets = np.array(tets)
+    x = 0.01 * points.astype(np.float64)
+    tets[tet_volumes(x, tets) < 0] = tets[tet_volumes(x, tets) < 0][:, [1, 0, 2, 3]]
+    faces = tets[:, TET_FACES].reshape(-1, 3)
+    keys, count = np.unique(np.sort(faces, axis=1), axis=0, return_counts=True)
+    boundary = {tuple(k) for k in keys[count == 1]}
+    on_surface, triangles = np.unique(
+        [f for f in faces if tuple(sorted(f)) in boundary], return_inverse=True
+    )
+    triangles = triangles.reshape(-1, 3)
+    n, v, f = len(points), len(on_surface), len(triangles)
+    return dict(
+        rest_positions=x,
+        positions=x.copy(),
+        tets=tets,
+        surface_index=np.stack([on_surface] + [np.zeros(v, dtype=int)] * 3, axis=1),
+        surface_weight=np.repeat([[1.0, 0.0, 0.0, 0.0]], v, axis=0),
+        triangles=triangles,
+        cluster_start=np.arange(0, 8 * len(clusters) + 1, 8),
+        cluster_member=np.concatenate(clusters),
+        organs=[
+            OrganRecord(
+                "block",
+                "tet_clusters",
+                particles=(0, n),
+                triangles=(0, f),
+                surface_vertices=(0, v),
+                tets=(0, len(tets)),
+                clusters=(0, 8),
+            )
+        ],
+    )
