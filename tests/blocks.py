@@ -54,7 +54,49 @@ def block(cells: int = 2) -> dict:
                 triangles=(0, f),
                 surface_vertices=(0, v),
                 tets=(0, len(tets)),
-                clusters=(0, 8),
+                clusters=(0, len(clusters)),
             )
         ],
+    )
+
+
+def block_model(cells: int = 4, whole_cluster: bool = False):
+    """The block of :func:`block` as a ``ModelData`` (1 g particles, no constraints
+    besides its clusters, with ``whole_cluster`` also one of every particle) for the
+    dissection tests."""
+    from taichi_lap.preprocess.model_data import PARTICLE_MATERIAL, ModelData
+
+    arguments = block(cells)
+    n = len(arguments["rest_positions"])
+    none = np.zeros(0)
+    start, member = arguments["cluster_start"], arguments["cluster_member"]
+    if whole_cluster:
+        start, member = np.append(start, start[-1] + n), np.concatenate([member, np.arange(n)])
+        organ = arguments["organs"][0]
+        organ.clusters = (0, len(start) - 1)
+    return ModelData(
+        rest_position=arguments["rest_positions"],
+        mass=np.full(n, 1e-3),
+        pinned=np.zeros(n, dtype=bool),
+        radius=np.full(n, 0.005),
+        organ=np.zeros(n, dtype=np.int64),
+        material={name: np.zeros(n) for name in PARTICLE_MATERIAL},
+        cluster_start=start,
+        cluster_member=member,
+        cluster_radius=np.full(len(start) - 1, 0.01),
+        distance_pair=np.zeros((0, 2), dtype=np.int64),
+        distance_rest=none,
+        distance_stiffness=none,
+        lra_particle=np.zeros(0, dtype=np.int64),
+        lra_anchor=np.zeros(0, dtype=np.int64),
+        lra_rest=none,
+        spring_pair=np.zeros((0, 2), dtype=np.int64),
+        spring_rest=none,
+        spring_stiffness=none,
+        spring_damping=none,
+        tets=arguments["tets"],
+        surface_index=arguments["surface_index"],
+        surface_weight=arguments["surface_weight"],
+        surface_triangles=arguments["triangles"],
+        organs=arguments["organs"],
     )

@@ -27,3 +27,12 @@ def both_ends(pairs: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np
     edge = np.concatenate([np.arange(len(pairs)), np.arange(len(pairs))])
     start, rows = incidence(owner, count)
     return start, edge[rows], other[rows]
+
+
+def rows_of(start: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """The row indices ``start[i]:start[i + 1]`` of every ``i`` in ``ids``, in order
+    (a vectorised gather of several compressed rows)."""
+    ids = np.asarray(ids, dtype=np.int64)
+    first, counts = start[ids], start[ids + 1] - start[ids]
+    offsets = np.repeat(first - np.cumsum(counts) + counts, counts)
+    return offsets + np.arange(counts.sum(), dtype=np.int64)

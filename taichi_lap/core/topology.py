@@ -10,7 +10,7 @@ built model has every one alive); :func:`check_topology` lists every
 * indices in range (tets and cluster members into particles, triangles into surface
   vertices, the particles each surface vertex follows);
 * live elements use live particles (tets, clusters, and the particles a live
-  triangle's vertices follow);
+  triangle's vertices follow) and live triangles live vertices;
 * no degenerate, duplicate or inverted elements: tets of positive rest volume,
   triangles of non-zero area, no element listed twice;
 * each tet organ's live surface is closed and edge-manifold (every edge in exactly
@@ -87,8 +87,13 @@ class Topology:
     :class:`~taichi_lap.preprocess.model_data.ModelData`), with alive flags.
 
     ``positions`` (N, 3) [m] are where the particles are now (the surface is checked
-    there), ``rest_positions`` (N, 3) [m] where they were built (tet volumes);
-    ``removed_volume`` [m^3] is the tet volume the dissection reports it removed."""
+    there, or at ``surface_position`` (V, 3) [m] when given: vertices a dissection
+    made follow clusters, not particles, and have all weights 0),
+    ``rest_positions`` (N, 3) [m] where they were built (tet volumes);
+    ``removed_volume`` [m^3] is the tet volume the dissection reports it removed.
+    ``triangle_organ`` and ``vertex_organ`` give each element's organ where a
+    dissection added elements outside the organs' index ranges (default: the
+    ranges)."""
 
     rest_positions: np.ndarray
     positions: np.ndarray
@@ -103,6 +108,10 @@ class Topology:
     tet_alive: np.ndarray | None = None
     triangle_alive: np.ndarray | None = None
     cluster_alive: np.ndarray | None = None
+    vertex_alive: np.ndarray | None = None
+    triangle_organ: np.ndarray | None = None
+    vertex_organ: np.ndarray | None = None
+    surface_position: np.ndarray | None = None
     removed_volume: float = 0.0
 
     def __post_init__(self):
@@ -115,6 +124,7 @@ class Topology:
             ("tet_alive", len(self.tets)),
             ("triangle_alive", len(self.triangles)),
             ("cluster_alive", len(self.cluster_start) - 1),
+            ("vertex_alive", len(self.surface_index)),
         ):
             flags = getattr(self, name)
             if flags is None:
@@ -123,6 +133,15 @@ class Topology:
             if flags.shape != (count,):
                 raise ValueError(f"Topology.{name}: shape ({count},) expected, got {flags.shape}")
             setattr(self, name, flags)
+        for name, count, ranges in (
+            ("triangle_organ", len(self.triangles), [o.triangles for o in self.organs]),
+            ("vertex_organ", len(self.surface_index), [o.surface_vertices for o in self.organs]),
+        ):
+            if getattr(self, name) is None:
+                organ = np.full(count, -1, dtype=np.int64)
+                for k, (begin, end) in enumerate(ranges):
+                    organ[begin:end] = k
+                setattr(self, name, organ)
 
     @classmethod
     def of_model(cls, data, positions: np.ndarray | None = None, **alive) -> Topology:
@@ -142,7 +161,9 @@ class Topology:
         )
 
     def surface_positions(self) -> np.ndarray:
-        """(V, 3) [m]: each surface vertex where its particles put it."""
+        """(V, 3) [m]: each surface vertex where its particles put it (or as given)."""
+        if self.surface_position is not None:
+            return np.asarray(self.surface_position, dtype=np.float64)
         index = np.clip(self.surface_index, 0, len(self.positions) - 1)
         return (self.surface_weight[..., None] * self.positions[index]).sum(axis=1)
 
@@ -151,8 +172,8 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
     """Every problem the module docstring's checks find (empty: valid)."""
     problems: list[TopologyProblem] = []
 
-    def report(check: str, where: str, bad: np.ndarray, what: str, first_index: int = 0):
-        problems.extend(_listed(check, where, bad, what, first_index))
+    def report(check: str, where: str, bad: np.ndarray, what: str):
+        problems.extend(_listed(check, where, bad, what))
 
     t = topology
     n = len(t.rest_positions)
@@ -185,6 +206,12 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
         t.triangle_alive & follows_dead[t.triangles].any(axis=1),
         "live triangles with a vertex following a removed particle",
     )
+    report(
+        "dead reference",
+        "triangles",
+        t.triangle_alive & (~t.vertex_alive[t.triangles]).any(axis=1),
+        "live triangles with a removed vertex",
+    )
     report("empty cluster", "clusters", t.cluster_alive & (np.diff(t.cluster_start) == 0), "")
 
     rest_volume = tet_volumes(t.rest_positions, t.tets)
@@ -200,10 +227,9 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
     in_cluster[members[t.cluster_alive[member_cluster]]] = True
     in_tet = np.zeros(n, dtype=bool)
     in_tet[t.tets[t.tet_alive].ravel()] = True
-    for organ in t.organs:
+    for k, organ in enumerate(t.organs):
         particles = slice(*organ.particles)
-        triangles = np.arange(*organ.triangles)
-        live = triangles[t.triangle_alive[triangles]]
+        live = np.flatnonzero(t.triangle_alive & (t.triangle_organ == k))
         if organ.clusters[1] > organ.clusters[0]:
             report(
                 "not in a cluster",
@@ -211,8 +237,8 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
                 t.particle_alive[particles] & ~in_cluster[particles],
                 "live particles",
             )
-        if organ.tets[1] == organ.tets[0]:
-            continue
+        if organ.tets[1] == organ.tets[0] or not (t.particle_alive[particles].any() or len(live)):
+            continue  # not a tet organ, or one removed whole
         report(
             "orphan",
             f"organ {organ.name}",
@@ -225,9 +251,8 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
         report(
             "orphan",
             f"organ {organ.name}",
-            ~used[slice(*organ.surface_vertices)],
+            t.vertex_alive & (t.vertex_organ == k) & ~used,
             "surface vertices in no live triangle",
-            organ.surface_vertices[0],
         )
 
     _volume_balance(t, rest_volume, problems)
@@ -251,15 +276,13 @@ def _duplicates(elements: np.ndarray, alive: np.ndarray) -> np.ndarray:
     return out
 
 
-def _listed(
-    check: str, where: str, bad: np.ndarray, what: str, first_index: int = 0
-) -> list[TopologyProblem]:
-    """One problem counting the ``bad`` entries (a mask; indices from
-    ``first_index``) with the first few named, or none."""
+def _listed(check: str, where: str, bad: np.ndarray, what: str) -> list[TopologyProblem]:
+    """One problem counting the ``bad`` entries (a mask) with the first few named,
+    or none."""
     bad = np.flatnonzero(bad)
     if not len(bad):
         return []
-    first = ", ".join(str(first_index + i) for i in bad[:5])
+    first = ", ".join(str(i) for i in bad[:5])
     return [TopologyProblem(check, where, f"{len(bad)} {what} (first: {first})")]
 
 

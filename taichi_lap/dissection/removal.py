@@ -1,0 +1,549 @@
+"""Removing particles from tet organs, on the host (seed 002 §3.3): the update of
+tets, wound surface, clusters and fragments that one removal makes.
+
+:class:`MutableTopology` keeps the model's topology as NumPy arrays with alive flags
+and slots that are reused, and :meth:`MutableTopology.remove` changes only what lies
+next to the removed particles:
+
+1. the particles die, and every tet using one; a particle left in no live tet (an
+   orphan) dies with them;
+2. fragments: a small piece of live tissue (:data:`FRAGMENT_PARTICLES`) near the
+   removal that is no longer connected to the rest of its organ (nor pinned) is
+   removed whole and reported with its particle count;
+3. clusters: the live members of every cluster that lost one are split into the
+   connected components of the live tet graph ("remaining tets", breadth-first in
+   seed 002). A part that was connected when the model was built and is no longer
+   becomes a cluster of its own; the largest part of each stays in the cluster (so
+   the clusters that join an organ to another keep joining them);
+4. the wound surface: marching tetrahedra (:mod:`taichi_lap.dissection.marching`)
+   on the tets and surface triangles touching a removed particle replace what they
+   made before. New vertices lie halfway along the cut edges at rest and follow
+   their nearest cluster (linear blend skinning, seed 002 §3.3).
+
+Only organs of tets whose surface vertices are their boundary particles (direct
+binding, the BCC liver of seed 002) can lose particles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from taichi_lap.core.csr import both_ends, incidence, rows_of
+from taichi_lap.core.mesh import tet_volumes, unique_edges
+from taichi_lap.core.topology import Topology
+from taichi_lap.dissection.marching import clipped_triangles, wound_triangles
+
+FRAGMENT_DEPTH = 12
+"""Tet edges from a removal within which a piece cut off from its organ is looked for."""
+LOCAL_CHECK_MEMBERS = 2000
+"""Clusters larger than this (an organ-wide cluster) are first checked near the
+removal (:meth:`MutableTopology._stays_connected`) before all their members are."""
+FRAGMENT_PARTICLES = 40
+"""A piece cut off from its organ with at most this many particles (about a 1 cm cube
+of the liver's 3 mm lattice) is a fragment and is removed; a larger one stays as
+tissue of its own (a transected lobe)."""
+CUT_POINT = 0.5
+"""Where along a cut edge, from its kept end, a wound vertex sits (seed 002: "the
+weight sum of the two endpoints")."""
+
+
+def _none() -> np.ndarray:
+    return np.zeros(0, dtype=np.int64)
+
+
+@dataclass
+class TopologyChange:
+    """What one :meth:`MutableTopology.remove` changed (indices of its arrays)."""
+
+    removed_particles: np.ndarray = field(default_factory=_none)
+    dead_tets: np.ndarray = field(default_factory=_none)
+    removed_volume: float = 0.0  # [m^3] rest volume of the dead tets
+    dead_triangles: np.ndarray = field(default_factory=_none)
+    new_triangles: np.ndarray = field(default_factory=_none)  # slots written (maybe reused)
+    dead_vertices: np.ndarray = field(default_factory=_none)
+    new_vertices: np.ndarray = field(default_factory=_none)
+    clusters: np.ndarray = field(default_factory=_none)  # members changed, new ones included
+    rebound_vertices: np.ndarray = field(default_factory=_none)  # wound, skinned anew
+    fragments: list[int] = field(default_factory=list)  # particles of each fragment
+
+    @property
+    def empty(self) -> bool:
+        return not len(self.removed_particles)
+
+
+class _Slots:
+    """Rows of growable arrays with a free list: dead rows are reused first."""
+
+    def __init__(self, arrays: dict[str, np.ndarray], used: int):
+        self.arrays = arrays
+        self.used = used
+        self.free: list[int] = []
+
+    def take(self, count: int) -> np.ndarray:
+        reused = [self.free.pop() for _ in range(min(count, len(self.free)))]
+        fresh = np.arange(self.used, self.used + count - len(reused))
+        self.used += len(fresh)
+        capacity = len(next(iter(self.arrays.values())))
+        if self.used > capacity:
+            grown = max(self.used, 2 * capacity)
+            for name, values in self.arrays.items():
+                extra = np.zeros((grown - capacity,) + values.shape[1:], values.dtype)
+                self.arrays[name] = np.concatenate([values, extra])
+        return np.concatenate([np.array(reused, dtype=np.int64), fresh])
+
+    def release(self, rows: np.ndarray):
+        self.free.extend(int(r) for r in rows)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+
+class MutableTopology:
+    """The topology of a built model (a ``ModelData``) that particles can be removed
+    from; see the module docstring."""
+
+    def __init__(self, data):
+        self.data = data
+        n = data.particle_count
+        self.rest = np.asarray(data.rest_position, dtype=np.float64)
+        self.organ_of = np.asarray(data.organ, dtype=np.int64)
+        self.pinned = np.asarray(data.pinned, dtype=bool)
+        self.particle_alive = np.ones(n, dtype=bool)
+        self.removed_volume = 0.0
+
+        self.tets = np.asarray(data.tets, dtype=np.int64).reshape(-1, 4)
+        self.tet_alive = np.ones(len(self.tets), dtype=bool)
+        self.tet_start, rows = incidence(self.tets.ravel(), n)
+        self.particle_tet = rows // 4
+        self.live_tets_of = np.bincount(self.tets.ravel(), minlength=n)
+        edges, inverse = unique_edges(self.tets, return_inverse=True)
+        self.tet_edge = inverse.reshape(-1, 6)
+        self.edge_live = np.bincount(inverse, minlength=len(edges))
+        self.adjacency_start, self.adjacency_edge, self.adjacency_other = both_ends(edges, n)
+        self.degree = np.diff(self.adjacency_start)
+        self._mask = np.zeros(n, dtype=bool)  # scratch, left all False
+        self._reached = np.zeros(n, dtype=bool)  # scratch, left all False
+        self._corner = np.zeros(n, dtype=bool)  # scratch, left all False
+
+        self._init_surface(data)
+        self._init_clusters(data)
+
+    # -- set-up ---------------------------------------------------------------------
+
+    def _init_surface(self, data):
+        index = np.asarray(data.surface_index, dtype=np.int64).reshape(-1, 4)
+        weight = np.asarray(data.surface_weight, dtype=np.float64).reshape(-1, 4)
+        triangles = np.asarray(data.surface_triangles, dtype=np.int64).reshape(-1, 3)
+        v, f = len(index), len(triangles)
+        vertex_organ = np.full(v, -1, dtype=np.int64)
+        triangle_organ = np.full(f, -1, dtype=np.int64)
+        self.dissectable = np.zeros(len(data.organs), dtype=bool)
+        for k, organ in enumerate(data.organs):
+            vertex_organ[slice(*organ.surface_vertices)] = k
+            triangle_organ[slice(*organ.triangles)] = k
+            rows = slice(*organ.surface_vertices)
+            self.dissectable[k] = organ.tets[1] > organ.tets[0] and bool(
+                np.all(weight[rows, 0] == 1.0)
+            )
+        self.vertices = _Slots(
+            {
+                "index": index,
+                "weight": weight,
+                "organ": vertex_organ,
+                "alive": np.ones(v, dtype=bool),
+                "rest": (weight[..., None] * self.rest[index]).sum(axis=1),
+                "cluster": np.full(v, -1, dtype=np.int64),  # skinning cluster, wound only
+                "kept": np.full(v, -1, dtype=np.int64),  # kept end, wound only
+                "cut": np.full(v, -1, dtype=np.int64),  # removed end, wound only
+                "uses": np.bincount(triangles.ravel(), minlength=v),
+            },
+            v,
+        )
+        self.triangles = _Slots(
+            {
+                "vertices": triangles,
+                "organ": triangle_organ,
+                "alive": np.ones(f, dtype=bool),
+            },
+            f,
+        )
+        direct = self.dissectable[triangle_organ]
+        self.original = np.flatnonzero(direct)  # triangles that can be clipped
+        self.original_particles = index[triangles[self.original], 0]
+        self.original_start, rows = incidence(self.original_particles.ravel(), len(self.rest))
+        self.particle_original = rows // 3
+        self.original_pieces = {int(t): [int(t)] for t in self.original}
+        self.tet_wound: dict[int, list[int]] = {}
+        self.wound_vertex: dict[tuple[int, int], int] = {}
+        self.particle_vertex = np.full(len(self.rest), -1, dtype=np.int64)
+        bound = self.dissectable[vertex_organ]
+        self.particle_vertex[index[bound, 0]] = np.flatnonzero(bound)
+
+    def _init_clusters(self, data):
+        start = np.asarray(data.cluster_start, dtype=np.int64)
+        member = np.asarray(data.cluster_member, dtype=np.int64)
+        self._built = (start, member)
+        self.cluster_members = [member[a:b] for a, b in zip(start[:-1], start[1:])]
+        self.cluster_alive = np.ones(len(self.cluster_members), dtype=bool)
+        self.membership_start, rows = incidence(member, len(self.rest))
+        owner = np.repeat(np.arange(len(self.cluster_members)), np.diff(start))
+        self.membership_cluster = owner[rows]
+        self._built_parts: dict[int, np.ndarray] = {}  # parts of a cluster as built
+
+    # -- queries --------------------------------------------------------------------
+
+    def clusters_of(self, particles: np.ndarray) -> np.ndarray:
+        """The distinct clusters the ``particles`` are members of."""
+        return np.unique(self.membership_cluster[rows_of(self.membership_start, particles)])
+
+    def built_members(self, c: int) -> np.ndarray:
+        """The members cluster ``c`` (one of the model's) was built with."""
+        start, member = self._built
+        return member[start[c] : start[c + 1]]
+
+    def cluster_rest_center(self, c: int) -> np.ndarray:
+        """(3,) [m] mass centre at rest of cluster ``c``'s members."""
+        members = self.cluster_members[c]
+        mass = self.data.mass[members]
+        return (mass[:, None] * self.rest[members]).sum(axis=0) / max(mass.sum(), 1e-30)
+
+    def topology(self, positions: np.ndarray | None = None) -> Topology:
+        """The validator's view; ``positions`` (N, 3) [m] default to the rest shape,
+        where a wound vertex is at its rest place (else it is skipped from the
+        positions: pass the skinned surface to check a deformed wound)."""
+        v, f = self.vertices, self.triangles
+        sizes = [len(m) for m in self.cluster_members]
+        positions = self.rest if positions is None else positions
+        index, weight = v["index"][: v.used], v["weight"][: v.used]
+        surface = (weight[..., None] * positions[index]).sum(axis=1)
+        wound = v["cluster"][: v.used] >= 0
+        surface[wound] = v["rest"][: v.used][wound]
+        return Topology(
+            rest_positions=self.rest,
+            positions=positions,
+            tets=self.tets,
+            surface_index=index,
+            surface_weight=weight,
+            triangles=f["vertices"][: f.used],
+            cluster_start=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+            cluster_member=np.concatenate(self.cluster_members or [np.zeros(0, np.int64)]),
+            organs=self.data.organs,
+            particle_alive=self.particle_alive,
+            tet_alive=self.tet_alive,
+            triangle_alive=f["alive"][: f.used],
+            cluster_alive=self.cluster_alive,
+            vertex_alive=v["alive"][: v.used],
+            triangle_organ=f["organ"][: f.used],
+            vertex_organ=v["organ"][: v.used],
+            surface_position=surface,
+            removed_volume=self.removed_volume,
+        )
+
+    # -- the update -----------------------------------------------------------------
+
+    def remove(self, particles) -> TopologyChange:
+        """Remove ``particles`` (indices; already removed ones are ignored) and all
+        that goes with them (module docstring). Raises ``ValueError`` for particles
+        of an organ that cannot be dissected."""
+        particles = np.unique(np.asarray(particles, dtype=np.int64))
+        if len(particles) and (particles.min() < 0 or particles.max() >= len(self.rest)):
+            raise ValueError(f"particle indices must lie in [0, {len(self.rest)})")
+        refused = np.unique(self.organ_of[particles][~self.dissectable[self.organ_of[particles]]])
+        if len(refused):
+            names = ", ".join(self.data.organs[k].name for k in refused)
+            raise ValueError(
+                f"organ(s) {names}: only tet organs bound directly to their surface can be dissected"
+            )
+        removed, dead_tets = self._kill(particles[self.particle_alive[particles]])
+        if not len(removed):
+            return TopologyChange()
+        fragments = self._fragments(np.unique(self.tets[dead_tets]))
+        if fragments:
+            more, more_tets = self._kill(np.concatenate(fragments))
+            removed, dead_tets = (
+                np.concatenate([removed, more]),
+                np.concatenate([dead_tets, more_tets]),
+            )
+        volume = float(tet_volumes(self.rest, self.tets[dead_tets]).sum())
+        self.removed_volume += volume
+        clusters = self._split_clusters(removed, dead_tets)
+        surface = self._rebuild_surface(removed)
+        rebound = self._rebind(set(clusters.tolist()))
+        return TopologyChange(
+            removed_particles=removed,
+            dead_tets=dead_tets,
+            removed_volume=volume,
+            clusters=clusters,
+            rebound_vertices=rebound,
+            fragments=[len(piece) for piece in fragments],
+            **surface,
+        )
+
+    def _kill(self, particles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Particles die with their tets, then the orphans those leave."""
+        removed, dead = [], []
+        while len(particles):
+            self.particle_alive[particles] = False
+            removed.append(particles)
+            tets = np.unique(self.particle_tet[rows_of(self.tet_start, particles)])
+            tets = tets[self.tet_alive[tets]]
+            self.tet_alive[tets] = False
+            dead.append(tets)
+            np.subtract.at(self.live_tets_of, self.tets[tets].ravel(), 1)
+            np.subtract.at(self.edge_live, self.tet_edge[tets].ravel(), 1)
+            corners = np.unique(self.tets[tets])
+            particles = corners[self.particle_alive[corners] & (self.live_tets_of[corners] == 0)]
+        empty = np.zeros(0, dtype=np.int64)
+        return np.concatenate(removed or [empty]), np.concatenate(dead or [empty])
+
+    def _neighbours(self, nodes: np.ndarray, live: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(owner, other) of every tet edge at ``nodes``: the live ones, or with
+        ``live=False`` every edge the model was built with."""
+        rows = rows_of(self.adjacency_start, nodes)
+        owner = np.repeat(nodes, self.degree[nodes])
+        if not live:
+            return owner, self.adjacency_other[rows]
+        keep = self.edge_live[self.adjacency_edge[rows]] > 0
+        return owner[keep], self.adjacency_other[rows][keep]
+
+    def _components(self, groups: list[np.ndarray], live: bool = True) -> list[np.ndarray]:
+        """Connected components of the tet graph (live edges, or as built) within each
+        group of particles: a label per particle of each group (labels are distinct
+        across groups). One graph holds all groups, so many small clusters cost one
+        search."""
+        if not groups:
+            return []
+        n = len(self.rest)
+        sizes = [len(g) for g in groups]
+        nodes = np.concatenate(groups)
+        group = np.repeat(np.arange(len(groups)), sizes)
+        key = group * n + nodes
+        order = np.argsort(key)
+        sorted_key = key[order]
+        rows = rows_of(self.adjacency_start, nodes)
+        owner = np.repeat(np.arange(len(nodes)), self.degree[nodes])
+        other_key = group[owner] * n + self.adjacency_other[rows]
+        at = np.minimum(np.searchsorted(sorted_key, other_key), len(key) - 1)
+        inside = sorted_key[at] == other_key
+        if live:
+            inside &= self.edge_live[self.adjacency_edge[rows]] > 0
+        a, b = owner[inside], order[at[inside]]
+        graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(nodes), len(nodes)))
+        labels = connected_components(graph, directed=False)[1]
+        return np.split(labels, np.cumsum(sizes)[:-1])
+
+    def _stays_connected(self, members: np.ndarray, seeds: np.ndarray) -> bool:
+        """Whether the live ``members`` of a cluster are as connected as before a
+        removal, given the ``seeds``, its members at the tets that died: they still
+        reach each other within FRAGMENT_DEPTH live edges inside the cluster (a path
+        broken by the removal entered and left the dead tets through them)."""
+        if len(seeds) <= 1:
+            return True
+        inside, reached = self._mask, self._reached
+        inside[members] = True
+        reached[seeds[0]] = True
+        frontier, visited = seeds[:1], [seeds[:1]]
+        for _ in range(FRAGMENT_DEPTH):
+            _, other = self._neighbours(frontier)
+            frontier = np.unique(other[inside[other] & ~reached[other]])
+            reached[frontier] = True
+            visited.append(frontier)
+            if reached[seeds].all() or not len(frontier):
+                break
+        connected = bool(reached[seeds].all())
+        reached[np.concatenate(visited)] = False
+        inside[members] = False
+        return connected
+
+    def _fragments(self, corners: np.ndarray) -> list[np.ndarray]:
+        """Pieces of live tissue cut off near the dead tets' ``corners``: breadth-first
+        over live tet edges for FRAGMENT_DEPTH steps; the components of what was
+        reached that reach no further, hold at most FRAGMENT_PARTICLES particles and
+        no pinned one."""
+        seeds = corners[self.particle_alive[corners]]
+        reached = np.zeros(len(self.rest), dtype=bool)
+        reached[seeds] = True
+        frontier, order = seeds, [seeds]
+        for _ in range(FRAGMENT_DEPTH):
+            _, other = self._neighbours(frontier)
+            frontier = np.unique(other[~reached[other]])
+            if not len(frontier):
+                break
+            reached[frontier] = True
+            order.append(frontier)
+        region = np.sort(np.concatenate(order))
+        if not len(region):
+            return []
+        (labels,) = self._components([region])
+        reaching_on = set(labels[np.searchsorted(region, frontier)].tolist())
+        pieces = (
+            region[labels == label] for label in range(labels.max() + 1) if label not in reaching_on
+        )
+        return [
+            piece
+            for piece in pieces
+            if len(piece) <= FRAGMENT_PARTICLES and not self.pinned[piece].any()
+        ]
+
+    def _split_clusters(self, removed: np.ndarray, dead_tets: np.ndarray) -> np.ndarray:
+        """Drop the ``removed`` members of their clusters and split the clusters whose
+        built parts came apart where ``dead_tets`` died (a cluster can lose an edge
+        without losing a member); returns the changed clusters, new ones included."""
+        corners = np.unique(self.tets[dead_tets])
+        corners = corners[self.particle_alive[corners]]
+        is_corner = self._corner
+        is_corner[corners] = True
+        candidates = self.clusters_of(np.concatenate([removed, corners]))
+        changed, pending = [], []
+        for c in candidates[self.cluster_alive[candidates]].tolist():
+            members = self.cluster_members[c]
+            alive = self.particle_alive[members]
+            if not alive.all():
+                changed.append(c)
+                self.cluster_members[c] = members[alive]
+                if c in self._built_parts:
+                    self._built_parts[c] = self._built_parts[c][alive]
+                self.cluster_alive[c] = alive.any()
+            members = self.cluster_members[c]
+            if len(members) and not (
+                len(members) > LOCAL_CHECK_MEMBERS
+                and self._stays_connected(members, members[is_corner[members]])
+            ):
+                pending.append(c)
+        is_corner[corners] = False
+        unknown = [c for c in pending if c not in self._built_parts]
+        built = self._components([self.built_members(c) for c in unknown], live=False)
+        for c, labels in zip(unknown, built):
+            self._built_parts[c] = labels[self.particle_alive[self.built_members(c)]]
+        now = self._components([self.cluster_members[c] for c in pending])
+        new = []
+        for c, labels in zip(pending, now):
+            members, built = self.cluster_members[c], self._built_parts[c]
+            keep = np.zeros(len(members), dtype=bool)
+            for part in np.unique(built):
+                pieces, counts = np.unique(labels[built == part], return_counts=True)
+                keep[(built == part) & (labels == pieces[counts.argmax()])] = True
+            if keep.all():
+                continue
+            self.cluster_members[c] = members[keep]
+            self._built_parts[c] = built[keep]
+            for piece in np.unique(labels[~keep]):
+                new.append(self._add_cluster(c, members[~keep & (labels == piece)]))
+            changed.append(c)
+        return np.unique(np.array(changed + new, dtype=np.int64))
+
+    def _add_cluster(self, parent: int, members: np.ndarray) -> int:
+        """A new cluster of ``members`` (all leaving ``parent``); its index."""
+        c = len(self.cluster_members)
+        self.cluster_members.append(members)
+        self.cluster_alive = np.append(self.cluster_alive, True)
+        self._built_parts[c] = np.zeros(len(members), dtype=np.int64)
+        rows = rows_of(self.membership_start, members)
+        rows = rows[self.membership_cluster[rows] == parent]
+        self.membership_cluster[rows] = c
+        return c
+
+    def _rebuild_surface(self, removed: np.ndarray) -> dict[str, np.ndarray]:
+        """Marching tetrahedra on the tets and surface triangles at ``removed``:
+        their old triangles go, the new ones take free slots."""
+        dead_label = ~self.particle_alive
+        tets = np.unique(self.particle_tet[rows_of(self.tet_start, removed)])
+        originals = np.unique(self.particle_original[rows_of(self.original_start, removed)])
+        old = [s for t in tets.tolist() for s in self.tet_wound.pop(t, [])]
+        old += [
+            s for t in originals.tolist() for s in self.original_pieces.pop(int(self.original[t]))
+        ]
+        old = np.array(old, dtype=np.int64)
+        wound, wound_tet = wound_triangles(self.tets[tets], dead_label)
+        clipped, clipped_from = clipped_triangles(self.original_particles[originals], dead_label)
+        named = np.concatenate([wound, clipped])
+        organ = self.organ_of[named[:, 0, 0]]
+
+        f, v = self.triangles, self.vertices
+        f["alive"][old] = False
+        old_vertices = f["vertices"][old].ravel()
+        np.subtract.at(v["uses"], old_vertices, 1)
+        f.release(old)
+        vertices, new_vertices = self._name_vertices(named)
+        slots = f.take(len(named))
+        f["vertices"][slots] = vertices
+        f["organ"][slots] = organ
+        f["alive"][slots] = True
+        np.add.at(v["uses"], vertices.ravel(), 1)
+        for slot, t in zip(slots[: len(wound)].tolist(), tets[wound_tet].tolist()):
+            self.tet_wound.setdefault(t, []).append(slot)
+        pieces_of = self.original[originals[clipped_from]]
+        for slot, t in zip(slots[len(wound) :].tolist(), pieces_of.tolist()):
+            self.original_pieces.setdefault(t, []).append(slot)
+
+        touched = np.unique(np.concatenate([old_vertices, vertices.ravel()]))
+        dead = touched[v["alive"][touched] & (v["uses"][touched] == 0)]
+        v["alive"][dead] = False
+        wound = dead[v["cluster"][dead] >= 0]
+        for key in zip(v["kept"][wound].tolist(), v["cut"][wound].tolist()):
+            del self.wound_vertex[key]
+        v["cluster"][dead] = -1
+        self.particle_vertex[v["index"][dead[v["weight"][dead, 0] == 1.0], 0]] = -1
+        v.release(dead)
+        return dict(
+            dead_triangles=np.setdiff1d(old, slots),
+            new_triangles=slots,
+            dead_vertices=np.setdiff1d(dead, new_vertices),
+            new_vertices=new_vertices,
+        )
+
+    def _name_vertices(self, named: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Vertex slots of the corners ``named`` (K, 3, 2): a kept corner's own
+        vertex, a cut edge's wound vertex (made where it is new); and the new ones."""
+        pairs = named.reshape(-1, 2)
+        out = self.particle_vertex[pairs[:, 0]].copy()
+        cut = pairs[:, 0] != pairs[:, 1]
+        keys, inverse = np.unique(pairs[cut], axis=0, return_inverse=True)
+        slots = np.array(
+            [self.wound_vertex.get((k, r), -1) for k, r in keys.tolist()], dtype=np.int64
+        )
+        fresh = np.flatnonzero(slots < 0)
+        v = self.vertices
+        made = v.take(len(fresh))
+        slots[fresh] = made
+        kept, removed = keys[fresh, 0], keys[fresh, 1]
+        v["index"][made] = 0
+        v["weight"][made] = 0.0
+        v["organ"][made] = self.organ_of[kept]
+        v["alive"][made] = True
+        v["rest"][made] = self.rest[kept] + CUT_POINT * (self.rest[removed] - self.rest[kept])
+        v["kept"][made] = kept
+        v["cut"][made] = removed
+        v["cluster"][made] = -1  # bound by _rebind
+        v["uses"][made] = 0
+        for vertex, key in zip(made.tolist(), keys[fresh].tolist()):
+            self.wound_vertex[tuple(key)] = vertex
+        out[cut] = slots[inverse.reshape(-1)]
+        return out.reshape(-1, 3), made
+
+    def _rebind(self, clusters: set[int]) -> np.ndarray:
+        """Skin every wound vertex that is new or followed one of ``clusters`` to
+        the nearest (by rest centre) live cluster of its kept particle; returns
+        them."""
+        v = self.vertices
+        used = np.arange(v.used)
+        wound = used[v["alive"][: v.used] & (v["kept"][: v.used] >= 0)]
+        bound = v["cluster"][wound]
+        stale = wound[(bound < 0) | np.isin(bound, list(clusters))]
+        centers: dict[int, np.ndarray] = {}
+        for vertex in stale.tolist():
+            kept = int(v["kept"][vertex])
+            rows = slice(self.membership_start[kept], self.membership_start[kept + 1])
+            candidates = [
+                c for c in self.membership_cluster[rows].tolist() if self.cluster_alive[c]
+            ]
+            for c in candidates:
+                if c not in centers:
+                    centers[c] = self.cluster_rest_center(c)
+            distance = [np.sum((centers[c] - v["rest"][vertex]) ** 2) for c in candidates]
+            v["cluster"][vertex] = candidates[int(np.argmin(distance))]
+        return stale
