@@ -14,6 +14,19 @@ def copy_surface(surface: ti.template(), count: ti.i32, positions: ti.template()
 
 
 @ti.kernel
+def copy_surface_triangles(
+    model: ti.template(), triangles: ti.template(), material: ti.template(), owner: ti.template()
+):
+    """The model's surface triangles (flat, 3 per triangle) with their organ as
+    material and object, into the first rows of a drawn mesh."""
+    for t in range(model.surface_triangle_count):
+        for k in ti.static(range(3)):
+            triangles[3 * t + k] = model.surface_triangles[t][k]
+        material[t] = model.surface_triangle_organ[t]
+        owner[t] = model.surface_triangle_organ[t]
+
+
+@ti.kernel
 def gather_points(surface: ti.template(), source: ti.template(), points: ti.template()):
     """points[k] = surface[source[k]]: a tube's centre line [m]."""
     for k in points:

@@ -1,6 +1,7 @@
 """Vertex normals of the deformed surface, gathered per vertex (no float atomics):
-each vertex sums the area-weighted normals of its incident triangles, listed in
-compressed-row form, so the result is deterministic on every backend."""
+each vertex sums the area-weighted normals of its incident triangles, listed in a
+fixed-width table (-1 padded) that dissection can rewrite row by row, so the result
+is deterministic on every backend."""
 
 import taichi as ti
 
@@ -9,21 +10,22 @@ import taichi as ti
 def vertex_normals(
     positions: ti.template(),
     triangles: ti.template(),
-    incident_start: ti.template(),
     incident: ti.template(),
     vertex_count: ti.i32,
     normals: ti.template(),
 ):
-    """normals[v] = normalize(Σ_t (b - a) × (c - a)) over triangles t incident to v.
-    ``triangles`` is a flat index field (3 per triangle); reads positions, writes normals."""
+    """normals[v] = normalize(Σ_t (b - a) × (c - a)) over the triangles t in row v of
+    ``incident`` (a vector field, -1 for none). ``triangles`` is a flat index field
+    (3 per triangle); reads positions, writes normals."""
     for v in range(vertex_count):
         n = ti.Vector([0.0, 0.0, 0.0])
-        for s in range(incident_start[v], incident_start[v + 1]):
-            t = incident[s]
-            a = positions[triangles[3 * t]]
-            b = positions[triangles[3 * t + 1]]
-            c = positions[triangles[3 * t + 2]]
-            n += (b - a).cross(c - a)
+        for k in ti.static(range(incident.n)):
+            t = incident[v][k]
+            if t >= 0:
+                a = positions[triangles[3 * t]]
+                b = positions[triangles[3 * t + 1]]
+                c = positions[triangles[3 * t + 2]]
+                n += (b - a).cross(c - a)
         length = n.norm()
         normal = ti.Vector([0.0, 1.0, 0.0])
         if length > 1e-20:

@@ -82,15 +82,16 @@ def predict(
 @ti.kernel
 def cluster_partial_sums(model: ti.template(), state: ti.template()):
     """Alg. 1 lines 8-10 over each chunk of a cluster's members: Σ m (p - x_cm^0) and
-    Σ m (p - x_cm^0) q^T (any origin works in Eq. 1 because Σ m q = 0). Reads p;
-    writes chunk_first, chunk_moment."""
-    for chunk in range(model.chunk_total):
+    Σ m (p - x_cm^0) q^T (any origin works in Eq. 1 because Σ m q = 0); m is the
+    member's mass in the cluster (0 once dissection took it out). Reads p; writes
+    chunk_first, chunk_moment."""
+    for chunk in range(model.chunk_count[None]):
         rest_center = model.cluster_rest_center[model.chunk_cluster[chunk]]
         first = ti.Vector([0.0, 0.0, 0.0])
         moment = ti.Matrix.zero(ti.f32, 3, 3)
         for k in range(model.chunk_begin[chunk], model.chunk_end[chunk]):
             i = model.cluster_member[k]
-            m = model.mass[i]
+            m = model.cluster_member_mass[k]
             d = state.p[i] - rest_center
             first += m * d
             moment += m * d.outer_product(model.cluster_rest_offset[k])
@@ -103,13 +104,15 @@ def cluster_frames(model: ti.template(), state: ti.template()):
     """Alg. 1 lines 8-11 per cluster: p_cm and R from the chunk sums (in order).
     Reads and writes cluster_quaternion (the warm start); writes cluster_center (p_cm)
     and cluster_rotation (R)."""
-    for c in range(model.cluster_total):
+    for c in range(model.cluster_count[None]):
         first = ti.Vector([0.0, 0.0, 0.0])
         moment = ti.Matrix.zero(ti.f32, 3, 3)
-        for chunk in range(model.cluster_chunk_start[c], model.cluster_chunk_start[c + 1]):
+        for chunk in range(model.cluster_chunk_begin[c], model.cluster_chunk_end[c]):
             first += state.chunk_first[chunk]
             moment += state.chunk_moment[chunk]
-        state.cluster_center[c] = model.cluster_rest_center[c] + first / model.cluster_mass[c]
+        state.cluster_center[c] = model.cluster_rest_center[c] + first / ti.max(
+            model.cluster_mass[c], 1e-30
+        )
         # R is scale-invariant: normalise A so f32 stays accurate for tiny clusters
         q = extract_rotation(
             moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30), state.cluster_quaternion[c]

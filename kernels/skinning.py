@@ -1,5 +1,7 @@
 """Surface vertices follow the particles: direct binding (a liver capsule vertex is a
-tet vertex) or barycentric binding in a tetrahedron (vessels, seed 002 §3.2)."""
+tet vertex) or barycentric binding in a tetrahedron (vessels, seed 002 §3.2); a
+vertex dissection made has no particle and follows its nearest cluster by linear
+blend skinning, v = R (x^0 - x_cm^0) + p_cm (seed 002 §3.3)."""
 
 import taichi as ti
 
@@ -16,6 +18,15 @@ def skin(model: ti.template(), positions: ti.template(), s):
 
 @ti.kernel
 def skin_surface(model: ti.template(), state: ti.template()):
-    """surface_position[s] = Σ_k w[s, k] x[idx[s, k]]. Reads x; writes surface_position."""
+    """surface_position[s] = Σ_k w[s, k] x[idx[s, k]], or for a vertex bound to cluster
+    c: R_c (rest[s] - x_cm^0_c) + p_cm_c with the cluster frames of the last step.
+    Reads x, cluster frames; writes surface_position."""
     for s in range(model.surface_vertex_count):
-        state.surface_position[s] = skin(model, state.x, s)
+        c = model.surface_cluster[s]
+        if c >= 0:
+            state.surface_position[s] = (
+                state.cluster_rotation[c] @ (model.surface_rest[s] - model.cluster_rest_center[c])
+                + state.cluster_center[c]
+            )
+        else:
+            state.surface_position[s] = skin(model, state.x, s)

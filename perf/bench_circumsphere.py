@@ -162,7 +162,7 @@ def scene_cases(quick: bool) -> list[dict]:
         scene_window(session, script, collision, 0, 2, 0)  # compile
         params = {
             "particles": session.model.particle_count,
-            "triangles": session.model.surface_triangle_count,
+            "triangles": len(session.data.surface_triangles),
             "detail": detail,
             "substeps": session.solver.settings.substeps,
             "settle_time_s": scene.settings["settle_time"],
@@ -260,7 +260,7 @@ def main():
         cases.append(("cylinder+self", True, (1, 5, 10)))
     params_base = {
         "particles": session.model.particle_count,
-        "triangles": session.model.surface_triangle_count,
+        "triangles": len(session.data.surface_triangles),
         "radius_m": RADIUS,
     }
     results = []

@@ -36,7 +36,7 @@ def frame_case(name: str, quick: bool, runs: int) -> list[dict]:
     scene = scene_mod.load(name, {"scene.detail": 0.2} if quick else {})
     samples = {"physics": [], "render": [], "vertex": [], "visibility": [], "shading": []}
     with Session(scene, progress=False) as session:
-        renderer = Renderer.for_scene(scene, session.data, size=SIZE)
+        renderer = Renderer.for_scene(scene, session.model, size=SIZE)
         device = scene_script(scene)
         for frame in range(WARMUP + runs):
             now = session.state.time

@@ -67,7 +67,7 @@ def run_headless(
     """Simulate ``frames`` frames and write each rendered frame to ``out``; with
     ``record``, append the session to that recording file."""
     session = Session(scene, use_cache=use_cache)
-    renderer = Renderer.for_scene(scene, session.data, size=size)
+    renderer = Renderer.for_scene(scene, session.model, size=size)
     with (
         _connected(device, session),
         maybe_recording(record, session, device) as recorder,
@@ -94,7 +94,7 @@ def run_window(
     from taichi_lap.viewer import Viewer
 
     session = Session(scene, use_cache=use_cache)
-    viewer = Viewer(session, Renderer.for_scene(scene, session.data, size=size), show_window=True)
+    viewer = Viewer(session, Renderer.for_scene(scene, session.model, size=size), show_window=True)
     window, camera = viewer.window, viewer.renderer.camera
     with _connected(device, session), maybe_recording(record, session, device) as recorder:
         last = time.perf_counter()
@@ -120,6 +120,6 @@ def render_still(scene: Scene, *, frames: int, out: str, size, use_cache: bool =
     device = scene_script(scene)
     for _ in range(frames):
         _advance(session, device, None)
-    renderer = Renderer.for_scene(scene, session.data, size=size)
+    renderer = Renderer.for_scene(scene, session.model, size=size)
     renderer.render(session.state, session.control)
     write_png(out, renderer.image())

@@ -127,6 +127,7 @@ class Session:
         self.events: list[dict] = []
         self.key = session_key(scene)
         self._closed = False
+        self._dissection = None  # a DeviceTopology once tissue was removed
         parts = _take_parked(self.key)
         if parts is not None:
             self.data = parts.model.data
@@ -167,6 +168,7 @@ class Session:
         if self._closed:
             return
         self._closed = True
+        self._restore_topology()
         release_parked()
         _parked = _Parts(
             self.key,
@@ -180,7 +182,8 @@ class Session:
 
     def reset(self):
         """Back to the start state (the rest shape, or the settled one), tools at their
-        scene poses, surface skinned."""
+        scene poses, surface skinned; removed tissue is back."""
+        self._restore_topology()
         if self._start_state is None:
             self.state.reset(self.model)
         else:
@@ -189,6 +192,28 @@ class Session:
         self.solver.reset()
         apply_poses(self.control, self.scene.tools, {})
         skin_surface(self.model, self.state)
+
+    def remove_particles(self, particles):
+        """Dissection between frames (seed 002 §3.3): remove ``particles`` (indices)
+        and what goes with them; returns the
+        :class:`~taichi_lap.dissection.removal.TopologyChange`. A fragment cut off is
+        reported in :attr:`events` (``fragment``, with its particle count)."""
+        from taichi_lap.dissection.device import DeviceTopology
+        from taichi_lap.dissection.removal import MutableTopology
+
+        if self._dissection is None:
+            self._dissection = DeviceTopology(self.model, MutableTopology(self.data))
+        change = self._dissection.topology.remove(particles)
+        if not change.empty:
+            self._dissection.apply(change, self.state)
+        self.events += [{"kind": "fragment", "particles": count} for count in change.fragments]
+        return change
+
+    def _restore_topology(self):
+        """Put the model back as built if tissue was removed."""
+        if self._dissection is not None:
+            self.model.reset_topology()
+            self._dissection = None
 
     def _settled_start(self, frames: int, use_cache: bool) -> dict:
         """The state after ``frames`` frames from the rest state with collision off

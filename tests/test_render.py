@@ -123,7 +123,7 @@ def small_session(name: str) -> Session:
 
 def test_organs_get_their_appearance_and_colour():
     session = small_session("rectum")
-    mesh = SceneMesh(session.scene, session.data)
+    mesh = SceneMesh(session.scene, session.model)
     albedo = mesh.albedo.to_numpy()
     for index, organ in enumerate(session.scene.organs):
         expected = organ.color if organ.color is not None else PRESETS[organ.appearance].albedo
@@ -139,7 +139,7 @@ def objects_seen(renderer: Renderer) -> set[int]:
 
 def test_instrument_is_drawn_where_its_shapes_are_and_hidden_when_inactive():
     session = small_session("rectum")
-    renderer = Renderer.for_scene(session.scene, session.data, size=(160, 120))
+    renderer = Renderer.for_scene(session.scene, session.model, size=(160, 120))
     tool_object = len(session.data.organs)
     tip = session.control.tool_a[0].to_numpy()
     renderer.camera.target = tip  # look straight at the tool tip
@@ -157,7 +157,7 @@ def test_instrument_is_drawn_where_its_shapes_are_and_hidden_when_inactive():
 
 def test_intestine_is_drawn_as_a_generalized_cylinder():
     session = small_session("intestine")
-    renderer = Renderer.for_scene(session.scene, session.data, size=(160, 120))
+    renderer = Renderer.for_scene(session.scene, session.model, size=(160, 120))
     renderer.render(session.state, session.control)
     mesh = renderer.mesh
     first_tube_triangle = mesh.tube_offsets[0][1] // 3
@@ -174,7 +174,9 @@ def window_screenshot() -> dict[str, np.ndarray]:
 
     session = small_session("rectum")
     viewer = Viewer(
-        session, Renderer.for_scene(session.scene, session.data, size=(160, 120)), show_window=False
+        session,
+        Renderer.for_scene(session.scene, session.model, size=(160, 120)),
+        show_window=False,
     )
     viewer.draw()
     rgba = viewer.window.get_image_buffer_as_numpy()  # (W, H, 4) float, origin bottom-left

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from taichi_lap.core.csr import incidence
+
 TRIANGLE_EDGES = np.array([[0, 1], [1, 2], [2, 0]])
 """Edge k of a triangle joins corners k and k + 1."""
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
@@ -54,6 +56,24 @@ def edge_neighbours(triangles: np.ndarray) -> np.ndarray:
     out = np.full(3 * f, -1, dtype=np.int64)
     out[i], out[j] = j // 3, i // 3
     return out.reshape(f, 3)
+
+
+INCIDENT_WIDTH = 24
+"""Triangles a surface vertex can be in (a BCC boundary vertex has up to 12, a wound
+vertex on a cut edge at most two per tet around the edge plus its clipped faces)."""
+
+
+def incident_table(triangles: np.ndarray, vertices: int) -> np.ndarray:
+    """(V, W) the triangles each of ``vertices`` vertices is in, -1 padded (W at least
+    :data:`INCIDENT_WIDTH`): normals gather over a row, and dissection rewrites only
+    the rows of the vertices it touched."""
+    triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    start, rows = incidence(triangles.reshape(-1), vertices)
+    valence = np.diff(start)
+    table = np.full((vertices, max(INCIDENT_WIDTH, int(valence.max(initial=0)))), -1, np.int64)
+    owner = np.repeat(np.arange(vertices), valence)
+    table[owner, np.arange(len(rows)) - start[owner]] = rows // 3
+    return table
 
 
 def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

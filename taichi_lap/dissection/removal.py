@@ -193,6 +193,7 @@ class MutableTopology:
         owner = np.repeat(np.arange(len(self.cluster_members)), np.diff(start))
         self.membership_cluster = owner[rows]
         self._built_parts: dict[int, np.ndarray] = {}  # parts of a cluster as built
+        self.cluster_parent: dict[int, int] = {}  # a split-off cluster's cluster of origin
 
     # -- queries --------------------------------------------------------------------
 
@@ -439,6 +440,7 @@ class MutableTopology:
     def _add_cluster(self, parent: int, members: np.ndarray) -> int:
         """A new cluster of ``members`` (all leaving ``parent``); its index."""
         c = len(self.cluster_members)
+        self.cluster_parent[c] = parent
         self.cluster_members.append(members)
         self.cluster_alive = np.append(self.cluster_alive, True)
         self._built_parts[c] = np.zeros(len(members), dtype=np.int64)

@@ -75,9 +75,10 @@ class Renderer:
         self.timings: dict[str, float] = {}
 
     @classmethod
-    def for_scene(cls, scene, data, *, size=(640, 480)) -> "Renderer":
-        """The renderer of a scene: its organs, tubes and instruments seen from its camera."""
-        return cls(SceneMesh(scene, data), EndoscopeCamera.from_scene(scene.camera), size=size)
+    def for_scene(cls, scene, model, *, size=(640, 480)) -> "Renderer":
+        """The renderer of a scene: the organs of its ``model``, tubes and instruments
+        seen from its camera."""
+        return cls(SceneMesh(scene, model), EndoscopeCamera.from_scene(scene.camera), size=size)
 
     def render(self, state, control):
         """Draw ``state`` (deformed surfaces) and ``control`` (instruments)."""

@@ -3,8 +3,9 @@ to the particles), generalized-cylinder tubes (the intestine, seed 001 §5) and 
 instruments. Each triangle carries a material and an object index.
 
 Layout of the vertex fields: ``[surfaces | instruments | tubes]``; triangles in
-the same order. Tubes are re-tessellated every frame into a fixed capacity, their
-unused triangles degenerate.
+the same order. The surfaces are the model's rows, spare ones included, copied again
+after each dissection (a dead triangle is degenerate); tubes are re-tessellated every
+frame into a fixed capacity, their unused triangles degenerate.
 """
 
 from __future__ import annotations
@@ -14,9 +15,14 @@ from dataclasses import replace
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.csr import incidence
 from taichi_lap.core.fields import FieldGroup
-from taichi_lap.kernels.draw_mesh import copy_surface, gather_points, place_instruments
+from taichi_lap.core.mesh import incident_table
+from taichi_lap.kernels.draw_mesh import (
+    copy_surface,
+    copy_surface_triangles,
+    gather_points,
+    place_instruments,
+)
 from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.tubes import TubeMesh
@@ -35,8 +41,10 @@ class ArrayMesh:
     per vertex), ``triangles`` (flat, 3 per triangle), ``triangle_material`` and
     ``triangle_object`` (per triangle), and the material table ``albedo``,
     ``roughness``, ``metalness``, ``mucus``. Normals of the first
-    ``smooth_count`` vertices are gathered from their triangles by
-    :meth:`update`; the others are written by whoever places them."""
+    ``smooth_count`` vertices are gathered from their triangles (the rows of
+    ``incident``, a field of :func:`~taichi_lap.core.mesh.incident_table`, built
+    from ``triangles`` when not given) by :meth:`update`; the others are written by
+    whoever places them."""
 
     def __init__(
         self,
@@ -48,12 +56,11 @@ class ArrayMesh:
         smooth_count: int,
         triangle_object: np.ndarray | None = None,
         positions: np.ndarray | None = None,
+        incident=None,
     ):
         triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
         self.vertex_count, self.smooth_count = vertex_count, smooth_count
         self.triangle_count = len(triangles)
-        smooth = np.nonzero(np.all(triangles < smooth_count, axis=1))[0]
-        start, rows = incidence(triangles[smooth].reshape(-1), smooth_count)
         table = material_table(materials)
         group = FieldGroup()
         self.positions = group.field(ti.f32, vertex_count, vector=3, values=positions)
@@ -65,8 +72,12 @@ class ArrayMesh:
             self.triangle_count,
             values=(triangle_material if triangle_object is None else triangle_object),
         )
-        self.incident_start = group.field(ti.i32, smooth_count + 1, values=start.astype(np.int32))
-        self.incident = group.field(ti.i32, len(rows), values=smooth[rows // 3].astype(np.int32))
+        if incident is None:
+            smooth = np.flatnonzero(np.all(triangles < smooth_count, axis=1))
+            rows = incident_table(triangles[smooth], smooth_count)
+            rows = np.where(rows >= 0, smooth[rows], -1)
+            incident = group.field(ti.i32, smooth_count, vector=rows.shape[1], values=rows)
+        self.incident = incident
         self.albedo = group.field(ti.f32, len(materials), vector=3, values=table["albedo"])
         self.roughness = group.field(ti.f32, len(materials), values=table["roughness"])
         self.metalness = group.field(ti.f32, len(materials), values=table["metalness"])
@@ -78,7 +89,6 @@ class ArrayMesh:
         vertex_normals(
             self.positions,
             self.triangles,
-            self.incident_start,
             self.incident,
             self.smooth_count,
             self.normals,
@@ -89,15 +99,17 @@ class SceneMesh(ArrayMesh):
     """The drawn mesh of a session: organ surfaces, instruments, then the tubes
     (the centre row of every spring-sheet organ: the intestine) as generalized
     cylinders re-tessellated each frame at ``tube_epsilon`` and ``tube_level``
-    (seed 001 §5)."""
+    (seed 001 §5). The organ surfaces are those of ``model`` (a
+    :class:`~taichi_lap.sim.model.Model`), followed through dissection."""
 
-    def __init__(self, scene, data, *, tube_sides: int = 12, tube_max_level: int = 2):
+    def __init__(self, scene, model, *, tube_sides: int = 12, tube_max_level: int = 2):
+        data = model.data
         specs = {organ.name: organ for organ in scene.organs}
         materials = [organ_material(specs[o.name]) for o in data.organs] + [PRESETS[INSTRUMENT]]
-        self.surface_count = len(data.surface_index)
-        surface_material = np.zeros(len(data.surface_triangles), np.int32)
-        for index, organ in enumerate(data.organs):
-            surface_material[organ.triangles[0] : organ.triangles[1]] = index
+        self.model, self._version = model, model.topology_version
+        self.surface_count = model.surface_vertex_count
+        surface_triangles = model.surface_triangles.to_numpy()
+        surface_material = model.surface_triangle_organ.to_numpy()
         tools = instrument_arrays(scene.tools)
         self.instrument_count = len(tools["position"])
         instrument_material = np.full(len(tools["triangles"]), len(data.organs), np.int32)
@@ -110,7 +122,7 @@ class SceneMesh(ArrayMesh):
         ]
         self.tube_epsilon, self.tube_level = 0.1, tube_max_level
         base = self.surface_count + self.instrument_count
-        first_triangle = len(data.surface_triangles) + len(tools["triangles"])
+        first_triangle = len(surface_triangles) + len(tools["triangles"])
         self.tube_offsets = []  # (vertex offset, index offset) of each tube's region
         for mesh in self.tubes:
             self.tube_offsets.append((base, 3 * first_triangle))
@@ -126,7 +138,7 @@ class SceneMesh(ArrayMesh):
         super().__init__(
             np.concatenate(
                 [
-                    data.surface_triangles,
+                    surface_triangles,
                     tools["triangles"] + self.surface_count,
                     np.zeros((len(tube_material), 3), np.int32),
                 ]
@@ -136,6 +148,7 @@ class SceneMesh(ArrayMesh):
             triangle_object=np.concatenate([surface_material, instrument_object, tube_material]),
             vertex_count=base,
             smooth_count=self.surface_count,
+            incident=model.surface_incident,
         )
 
         group = FieldGroup()
@@ -162,7 +175,12 @@ class SceneMesh(ArrayMesh):
 
     def update(self, state, control):
         """Deformed surfaces with gathered normals, instruments at their poses,
-        tubes re-tessellated."""
+        tubes re-tessellated; the surfaces' triangles again after a dissection."""
+        if self._version != self.model.topology_version:
+            copy_surface_triangles(
+                self.model, self.triangles, self.triangle_material, self.triangle_object
+            )
+            self._version = self.model.topology_version
         copy_surface(state.surface_position, self.surface_count, self.positions)
         super().update()
         if self.instrument_count:

@@ -1,8 +1,12 @@
-"""The static model on the device: rest shape, masses, materials, clusters,
-constraints, surfaces and environment colliders (the Warp/Newton ``Model``).
+"""The model on the device: rest shape, masses, materials, clusters, constraints,
+surfaces and environment colliders (the Warp/Newton ``Model``).
 
-Built once from :class:`taichi_lap.preprocess.model_data.ModelData`; kernels receive it
-as a ``ti.template()`` argument and only read it.
+Built from :class:`taichi_lap.preprocess.model_data.ModelData`; kernels receive it as
+a ``ti.template()`` argument and only read it. Dissection changes it between steps
+(:mod:`taichi_lap.dissection.device`): the cluster tables have spare rows (members,
+chunks and clusters are appended, counts live in fields), a cluster drops a member by
+the member's weight in it (``cluster_member_mass``), a removed particle gets inverse
+mass 0. :meth:`Model.reset_topology` puts back the model as built.
 """
 
 from __future__ import annotations
@@ -12,10 +16,19 @@ import taichi as ti
 
 from taichi_lap.core.csr import both_ends, incidence
 from taichi_lap.core.fields import FieldGroup, FieldOwner
+from taichi_lap.core.mesh import incident_table
 from taichi_lap.preprocess.model_data import ModelData
 
 CHUNK = 128
 """Cluster members summed by one thread in the cluster-matching reduction."""
+SURFACE_SPARE = 1.5
+"""Spare surface rows of a model with tets, as a fraction of its surface."""
+
+
+def spare_rows(count: int, dissectable: bool, spare: float = 0.5) -> int:
+    """Rows to allocate for ``count`` rows that dissection may append to: ``spare``
+    times as many again (at least 64) for a model with tets, none otherwise."""
+    return count + (int(spare * count) + 64 if dissectable else 0)
 
 
 def iteration_stiffness(stiffness: np.ndarray, iterations: int) -> np.ndarray:
@@ -39,6 +52,62 @@ def greedy_colors(pairs: np.ndarray, count: int) -> np.ndarray:
     return colors
 
 
+def _padded(values: np.ndarray, rows: int, fill=0) -> np.ndarray:
+    """``values`` with rows of ``fill`` appended up to ``rows``."""
+    if len(values) >= rows:
+        return values
+    return np.concatenate(
+        [values, np.full((rows - len(values),) + values.shape[1:], fill, values.dtype)]
+    )
+
+
+def cluster_tables(
+    rest: np.ndarray, mass: np.ndarray, start: np.ndarray, member: np.ndarray
+) -> dict:
+    """Seed 000 Alg. 1 rest data of clusters ``start``/``member`` (compressed rows):
+    per member its mass and rest offset q = x0 - x0_cm, per cluster its mass and rest
+    mass centre x0_cm [m], and the particle-major memberships."""
+    c = len(start) - 1
+    owner = np.repeat(np.arange(c), np.diff(start))
+    m = mass[member]
+    cmass = np.bincount(owner, weights=m, minlength=c)
+    center = (
+        np.stack(
+            [np.bincount(owner, weights=m * rest[member, a], minlength=c) for a in range(3)], axis=1
+        )
+        / np.maximum(cmass, 1e-12)[:, None]
+    )
+    offset = rest[member] - center[owner]
+    mstart, mrows = incidence(member, len(rest))
+    return {
+        "member_mass": m,
+        "offset": offset,
+        "center": center,
+        "mass": cmass,
+        "membership_start": mstart,
+        "membership_cluster": owner[mrows],
+        "membership_offset": offset[mrows],
+    }
+
+
+def member_chunks(start: np.ndarray, first_row: int = 0) -> dict:
+    """Chunks of at most :data:`CHUNK` members of each cluster ``start`` (compressed
+    rows): ``first`` (C + 1,) each cluster's first chunk (from ``first_row``), and
+    per chunk its cluster, ``begin`` and ``end`` member rows."""
+    sizes = np.diff(start)
+    per_cluster = np.maximum(-(-sizes // CHUNK), 1)
+    first = np.concatenate([[0], np.cumsum(per_cluster)])
+    owner = np.repeat(np.arange(len(sizes)), per_cluster)
+    rank = np.arange(first[-1]) - first[owner]
+    begin = start[owner] + rank * CHUNK
+    return {
+        "first": first + first_row,
+        "cluster": owner,
+        "begin": begin,
+        "end": np.minimum(begin + CHUNK, start[owner + 1]),
+    }
+
+
 @ti.data_oriented
 class Model(FieldOwner):
     """Device copy of a :class:`ModelData` plus the environment planes.
@@ -58,79 +127,118 @@ class Model(FieldOwner):
         self.cluster_total = data.cluster_count
         self.constraint_solver = constraint_solver
 
+        self.dissectable = len(data.tets) > 0
         self.rest_position = self._floats(data.rest_position, vector=3)
         self.mass = self._floats(data.mass)
-        self.inv_mass = self._floats(data.inverse_mass())
         self.radius = self._floats(data.radius)
         self.contact_radius = self._floats(data.contact_radius())
         for name, values in data.material.items():
             setattr(self, name, self._floats(values))
 
-        self._init_clusters(data, n)
+        self._init_clusters(data)
         self._init_distance(data, n, iterations)
         self._init_lra(data, n)
         self._init_springs(data, n)
-        self._init_surface(data)
         self._init_tubes(data)
         self._init_planes(planes)
         self._group.finalize()
+        self.finalize_counts()
 
-    def _ints(self, values, vector: int = 0):
-        """An i32 field holding ``values`` (one entry per row)."""
+    def _ints(self, values, vector: int = 0, rows: int = 0):
+        """An i32 field holding ``values`` (one entry per row; ``rows`` at least)."""
         values = np.asarray(values, dtype=np.int32)
-        return self._group.field(ti.i32, len(values), vector=vector, values=values)
-
-    def _floats(self, values, vector: int = 0):
-        """An f32 field holding ``values`` (one entry per row)."""
-        values = np.asarray(values, dtype=np.float32)
-        return self._group.field(ti.f32, len(values), vector=vector, values=values)
-
-    def _init_clusters(self, data: ModelData, n: int):
-        """Cluster tables of seed 000 Alg. 1: members, rest offsets q = x0 - x0_cm,
-        masses, and for every particle its clusters and rest offsets in them (the
-        memberships it gathers goals from)."""
-        c = data.cluster_count
-        start, member = data.cluster_start, data.cluster_member
-        owner = np.repeat(np.arange(c), np.diff(start))
-        m = data.mass[member]
-        cmass = np.bincount(owner, weights=m, minlength=c)
-        rest = data.rest_position
-        center = (
-            np.stack(
-                [np.bincount(owner, weights=m * rest[member, a], minlength=c) for a in range(3)],
-                axis=1,
-            )
-            / np.maximum(cmass, 1e-12)[:, None]
+        return self._group.field(
+            ti.i32, max(len(values), rows), vector=vector, values=_padded(values, rows)
         )
-        offset = rest[member] - center[owner]
-        mstart, mrows = incidence(member, n)
 
-        self.cluster_start = self._ints(start)
-        self.cluster_member = self._ints(member)
-        self.cluster_rest_offset = self._floats(offset, vector=3)
-        self.cluster_rest_center = self._floats(center, vector=3)
-        self.cluster_mass = self._floats(cmass)
-        self.membership_start = self._ints(mstart)
-        # particle-major copies: a particle's goal gather reads contiguous memory
-        self.membership_cluster = self._ints(owner[mrows])
-        self.membership_offset = self._floats(offset[mrows], vector=3)
-        self._init_chunks(start)
+    def _floats(self, values, vector: int = 0, rows: int = 0):
+        """An f32 field holding ``values`` (one entry per row; ``rows`` at least)."""
+        values = np.asarray(values, dtype=np.float32)
+        return self._group.field(
+            ti.f32, max(len(values), rows), vector=vector, values=_padded(values, rows)
+        )
 
-    def _init_chunks(self, start: np.ndarray):
-        """Split each cluster's members into chunks of at most :data:`CHUNK`, summed in
-        parallel then per cluster in order: balanced work for clusters of any size (a
-        whole-organ cluster has ~10^5 members), still deterministic."""
-        sizes = np.diff(start)
-        per_cluster = np.maximum(-(-sizes // CHUNK), 1)
-        chunk_start = np.concatenate([[0], np.cumsum(per_cluster)])
-        owner = np.repeat(np.arange(len(sizes)), per_cluster)
-        rank = np.arange(chunk_start[-1]) - chunk_start[owner]
-        begin = start[owner] + rank * CHUNK
-        self.chunk_total = int(chunk_start[-1])
-        self.cluster_chunk_start = self._ints(chunk_start)
-        self.chunk_cluster = self._ints(owner)
-        self.chunk_begin = self._ints(begin)
-        self.chunk_end = self._ints(np.minimum(begin + CHUNK, start[owner + 1]))
+    def _init_clusters(self, data: ModelData):
+        """Cluster tables of seed 000 Alg. 1 (:func:`cluster_tables`), chunked
+        (:func:`member_chunks`), and the inverse masses: the fields dissection
+        changes, with their spare rows."""
+        self.cluster_count = self._group.field(ti.i32, None)
+        self.chunk_count = self._group.field(ti.i32, None)
+        for name, (values, rows, fill) in self._as_built(data).items():
+            make = self._ints if values.dtype.kind in "iu" else self._floats
+            values = _padded(values, rows, fill)
+            setattr(self, name, make(values, vector=values.shape[1] if values.ndim > 1 else 0))
+        self.cluster_capacity = self.cluster_mass.shape[0]
+        self.member_capacity = self.cluster_member.shape[0]
+        self.chunk_capacity = self.chunk_cluster.shape[0]
+        self.surface_vertex_count = self.surface_index.shape[0]  # rows, spare ones included
+        self.surface_triangle_count = self.surface_triangles.shape[0]
+        self.topology_version = 0  # counts the changes written to the model
+
+    def _as_built(self, data: ModelData) -> dict[str, tuple[np.ndarray, int, int]]:
+        """Field name -> (values as built, rows to allocate, value of the spare rows) of
+        what dissection changes: the surface (each vertex follows four particles, or
+        with a ``surface_cluster`` >= 0 that cluster from its ``surface_rest``
+        place; the triangles, (0, 0, 0) when dead, their organ, and each vertex's
+        triangles in ``surface_incident``, -1 padded), and
+        members with their mass in the cluster, rest offsets q = x0 - x0_cm, cluster
+        masses and rest centres, every particle's clusters and offsets in them (the
+        memberships it gathers goals from, particle-major so the gather reads
+        contiguous memory), and chunks of at most :data:`CHUNK` members summed in
+        parallel then per cluster in order (balanced work for clusters of any size, a
+        whole-organ cluster has ~10^5 members, still deterministic)."""
+        tables = cluster_tables(
+            data.rest_position, data.mass, data.cluster_start, data.cluster_member
+        )
+        chunks = member_chunks(data.cluster_start)
+        self.cluster_total = data.cluster_count
+        self.chunk_total = len(chunks["cluster"])
+        members = spare_rows(len(data.cluster_member), self.dissectable)
+        clusters = spare_rows(self.cluster_total, self.dissectable)
+        chunk_rows = spare_rows(self.chunk_total, self.dissectable)
+        # a wound across a whole organ adds about as much surface as it had
+        vertices = spare_rows(len(data.surface_index), self.dissectable, SURFACE_SPARE)
+        triangles = spare_rows(len(data.surface_triangles), self.dissectable, SURFACE_SPARE)
+        organ = np.zeros(len(data.surface_triangles), dtype=np.int64)
+        for k, record in enumerate(data.organs):
+            organ[record.triangles[0] : record.triangles[1]] = k
+        return {
+            "surface_index": (data.surface_index, vertices, 0),
+            "surface_weight": (data.surface_weight, vertices, 0),
+            "surface_cluster": (np.full(len(data.surface_index), -1), vertices, -1),
+            "surface_rest": (np.zeros((len(data.surface_index), 3)), vertices, 0),
+            "surface_triangles": (data.surface_triangles.reshape(-1, 3), triangles, 0),
+            "surface_triangle_organ": (organ, triangles, 0),
+            "surface_incident": (incident_table(data.surface_triangles, vertices), vertices, -1),
+            "inv_mass": (data.inverse_mass(), 0, 0),
+            "cluster_member": (data.cluster_member, members, 0),
+            "cluster_member_mass": (tables["member_mass"], members, 0),
+            "cluster_rest_offset": (tables["offset"], members, 0),
+            "cluster_rest_center": (tables["center"], clusters, 0),
+            "cluster_mass": (tables["mass"], clusters, 0),
+            "membership_start": (tables["membership_start"], 0, 0),
+            "membership_cluster": (tables["membership_cluster"], 0, 0),
+            "membership_offset": (tables["membership_offset"], 0, 0),
+            "cluster_chunk_begin": (chunks["first"][:-1], clusters, 0),
+            "cluster_chunk_end": (chunks["first"][1:], clusters, 0),
+            "chunk_cluster": (chunks["cluster"], chunk_rows, 0),
+            "chunk_begin": (chunks["begin"], chunk_rows, 0),
+            "chunk_end": (chunks["end"], chunk_rows, 0),
+        }
+
+    def reset_topology(self):
+        """Put back every field dissection changes as it was built (off the frame's
+        path: whole fields are written)."""
+        for name, (values, rows, fill) in self._as_built(self.data).items():
+            dtype = np.int32 if values.dtype.kind in "iu" else np.float32
+            getattr(self, name).from_numpy(_padded(values.astype(dtype), rows, fill))
+        self.finalize_counts()
+        self.topology_version += 1
+
+    def finalize_counts(self):
+        """Write the Python-side counts of clusters and chunks to their fields."""
+        self.cluster_count[None] = self.cluster_total
+        self.chunk_count[None] = self.chunk_total
 
     def _init_distance(self, data: ModelData, n: int, iterations: int):
         """Distance constraints (struts, sheet edges): per-particle lists for the
@@ -173,14 +281,6 @@ class Model(FieldOwner):
         self.spring_rest = self._floats(data.spring_rest[edge])
         self.spring_stiffness = self._floats(data.spring_stiffness[edge])
         self.spring_damping = self._floats(data.spring_damping[edge])
-
-    def _init_surface(self, data: ModelData):
-        """Render/collision surface bound to particles (direct or barycentric)."""
-        self.surface_vertex_count = len(data.surface_index)
-        self.surface_triangle_count = len(data.surface_triangles)
-        self.surface_index = self._ints(data.surface_index, vector=4)
-        self.surface_weight = self._floats(data.surface_weight, vector=4)
-        self.surface_triangles = self._ints(data.surface_triangles.reshape(-1))
 
     def _init_tubes(self, data: ModelData):
         """Tubes drawn around a row of masses (row 0 of a spring sheet, seed 001): the

@@ -42,7 +42,7 @@ class State(FieldOwner):
 
     def __init__(self, model: Model):
         n = model.particle_count
-        c = model.cluster_total
+        c = model.cluster_capacity
         group = FieldGroup()
         self.x = group.field(ti.f32, n, vector=3)
         self.v = group.field(ti.f32, n, vector=3)
@@ -54,8 +54,8 @@ class State(FieldOwner):
         self.cluster_rotation = group.field(ti.f32, c, matrix=(3, 3))
         self.cluster_quaternion = group.field(ti.f32, c, vector=4)
         self.cluster_center = group.field(ti.f32, c, vector=3)
-        self.chunk_first = group.field(ti.f32, model.chunk_total, vector=3)
-        self.chunk_moment = group.field(ti.f32, model.chunk_total, matrix=(3, 3))
+        self.chunk_first = group.field(ti.f32, model.chunk_capacity, vector=3)
+        self.chunk_moment = group.field(ti.f32, model.chunk_capacity, matrix=(3, 3))
         self.grasp_tool = group.field(ti.i32, n)
         self.grasp_local = group.field(ti.f32, n, vector=3)
         self.surface_position = group.field(ti.f32, model.surface_vertex_count, vector=3)

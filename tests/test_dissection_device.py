@@ -1,0 +1,115 @@
+"""Removals written to the device model (seed 002 §3.3): after the neck of a
+dumbbell is cut its halves move independently, while joined they pull each other;
+removed particles stay where they were."""
+
+import numpy as np
+import pytest
+
+from taichi_lap.core.topology import check_topology
+from taichi_lap.dissection.device import DeviceTopology
+from taichi_lap.dissection.removal import MutableTopology
+from taichi_lap.kernels.skinning import skin_surface
+from taichi_lap.scene import from_tables
+from taichi_lap.session import Session
+from tests.helpers import BOX, simulation
+
+SHIFT = 0.005  # [m] the left half is moved this far along z
+
+
+def rotation_about_x(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def displaced_dumbbell(cut_neck: bool, frames: int = 30) -> dict:
+    """The test block carved into a dumbbell (a 6 mm slab across its length removed
+    but for a neck), with or without the neck then cut; the left half moved by
+    SHIFT (positions and goals), then ``frames`` frames without gravity."""
+    _, data, model, state, control, solver = simulation([BOX], gravity=[0, 0, 0])
+    topology = MutableTopology(data)
+    device = DeviceTopology(model, topology)
+    rest = data.rest_position
+    slab = np.abs(rest[:, 0]) < 0.003
+    neck = slab & (np.abs(rest[:, 1]) < 0.005) & (np.abs(rest[:, 2]) < 0.005)
+    device.apply(topology.remove(np.flatnonzero(slab & ~neck)), state)
+    if cut_neck:
+        change = topology.remove(np.flatnonzero(neck))
+        assert change.fragments == [] and len(change.clusters) > 0
+        device.apply(change, state)
+    left = topology.particle_alive & (rest[:, 0] < 0)
+    right = topology.particle_alive & (rest[:, 0] > 0)
+    for name in ("x", "p", "goal"):
+        values = getattr(state, name).to_numpy()
+        values[left, 2] += SHIFT
+        getattr(state, name).from_numpy(values)
+    before = state.x.to_numpy()
+    for _ in range(frames):
+        solver.step(state, control, 1.0 / 60.0)
+    after = state.x.to_numpy()
+    moved = after - rest
+    return {
+        "left": moved[left, 2].mean(),
+        "right": np.abs(moved[right]).max(),
+        "removed": np.abs(after - before)[~topology.particle_alive].max(),
+        "finite": bool(np.isfinite(moved).all()),
+    }
+
+
+def test_a_cut_neck_lets_the_halves_of_a_dumbbell_move_independently():
+    cut = displaced_dumbbell(cut_neck=True)
+    joined = displaced_dumbbell(cut_neck=False)
+
+    assert cut["finite"] and joined["finite"]
+    assert cut["left"] == pytest.approx(SHIFT, abs=2e-4)  # moved rigidly, stays
+    assert cut["right"] < 1e-4  # the other half does not follow
+    assert joined["right"] > 5e-4 and joined["left"] < SHIFT - 5e-4  # joined: they pull
+    assert cut["removed"] == 0.0 and joined["removed"] == 0.0
+
+
+def test_the_drawn_wound_follows_the_body_and_stays_closed_and_outward():
+    """A ball removed from the block's top, then the body turned 30° about x: the
+    device's surface rows are the host's, and the skinned surface (wound vertices by
+    their clusters) is the turned rest surface, closed and outward."""
+    session = Session(from_tables([BOX], gravity=[0, 0, 0]), use_cache=False, progress=False)
+    rest = session.data.rest_position
+    top = np.array([0.0, 0.0, rest[:, 2].max()])
+    change = session.remove_particles(np.flatnonzero(np.linalg.norm(rest - top, axis=1) < 0.007))
+    assert len(change.new_vertices) > 0
+
+    turn = rotation_about_x(np.radians(30.0))
+    for name in ("x", "p", "goal"):
+        getattr(session.state, name).from_numpy((rest @ turn.T).astype(np.float32))
+    for _ in range(5):
+        session.step()
+    skin_surface(session.model, session.state)
+
+    topology = session._dissection.topology
+    used, live = topology.vertices.used, topology.triangles["alive"]
+    device = session.model.surface_triangles.to_numpy()[: len(live)]
+    assert (
+        device[live[: len(device)]]
+        == topology.triangles["vertices"][: len(device)][live[: len(device)]]
+    ).all()
+    assert (device[~live[: len(device)]] == 0).all()
+    skinned = session.state.surface_position.to_numpy()[:used]
+    view = topology.topology()  # the rest surface, wound vertices at their rest place
+    expected = view.surface_position @ turn.T
+    alive = view.vertex_alive
+    assert np.abs(skinned[alive] - expected[alive]).max() < 2e-5
+    view.surface_position = skinned
+    assert check_topology(view) == []
+
+
+def test_a_reset_puts_the_removed_tissue_back():
+    session = Session(from_tables([BOX], gravity=[0, 0, 0]), use_cache=False, progress=False)
+    built = {
+        name: getattr(session.model, name).to_numpy()
+        for name in ("inv_mass", "surface_triangles", "cluster_member_mass")
+    }
+    rest = session.data.rest_position
+    session.remove_particles(np.flatnonzero(np.linalg.norm(rest - rest[0], axis=1) < 0.009))
+    assert (session.model.inv_mass.to_numpy() == 0).sum() > (built["inv_mass"] == 0).sum()
+    session.reset()
+    for name, values in built.items():
+        assert (getattr(session.model, name).to_numpy() == values).all(), name
+    assert session.model.cluster_count[None] == session.model.data.cluster_count
