@@ -206,6 +206,10 @@ class Session:
         change = self._dissection.topology.remove(particles)
         if not change.empty:
             self._dissection.apply(change, self.state)
+            if self.solver.collision is not None:
+                self.solver.collision.retire(
+                    np.union1d(change.dead_triangles, change.new_triangles)
+                )
         self.events += [{"kind": "fragment", "particles": count} for count in change.fragments]
         return change
 
@@ -213,6 +217,8 @@ class Session:
         """Put the model back as built if tissue was removed."""
         if self._dissection is not None:
             self.model.reset_topology()
+            if self.solver.collision is not None:
+                self.solver.collision.revive()
             self._dissection = None
 
     def _settled_start(self, frames: int, use_cache: bool) -> dict:

@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 
 from taichi_lap.core.topology import check_topology
+from taichi_lap.devices import ScriptedDevice
+from taichi_lap.perf.bench_contact import PROBE_RADIUS, press_scene
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import MutableTopology
+from taichi_lap.kernels.collision import spheres
 from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
@@ -113,3 +116,34 @@ def test_a_reset_puts_the_removed_tissue_back():
     for name, values in built.items():
         assert (getattr(session.model, name).to_numpy() == values).all(), name
     assert session.model.cluster_count[None] == session.model.data.cluster_count
+
+
+def test_a_probe_in_a_removed_hole_touches_nothing_the_removal_left():
+    """A hole of radius 8 mm removed from the top of the test block (circumsphere
+    collision on); a probe of radius 3 mm going 6 mm down, 3 mm off its middle (2 mm
+    from the nearest kept particle): the collision no longer has the removed
+    surface triangles, so no tissue is pushed."""
+    session, target = press_scene("tet_clusters", collision="circumsphere")
+    rest = session.data.rest_position
+    centre = np.array([target.x, target.height, target.z])
+    change = session.remove_particles(np.flatnonzero(np.linalg.norm(rest - centre, axis=1) < 0.008))
+    assert (session.solver.collision.tri_live.to_numpy() == 0).sum() > 0
+    start = np.add(session.scene.tools[0]["tip"], [0.003, 0.0, 0.0]).tolist()
+    end = [target.x + 0.003, target.height - 0.006 + PROBE_RADIUS, target.z]
+    frames = [
+        {"time": 0.0, "tool": "probe", "tip": list(start)},
+        {"time": 1.0, "tool": "probe", "tip": end},
+    ]
+    device = ScriptedDevice.from_tables("press", frames, session.scene.tools)
+    before = session.state.x.to_numpy()
+    contacts = 0
+    tool_contacts = list(spheres.COUNTERS).index("tool_contacts")
+    for _ in range(int(round(1.0 / session.dt))):
+        session.step(device.poses(session.state.time), device.buttons(session.state.time))
+        contacts += session.solver.collision.counter.to_numpy()[tool_contacts]
+    assert contacts == 0  # before the removed triangles were retired: over 10^6
+    moved = np.linalg.norm(session.state.x.to_numpy() - before, axis=1)
+    alive = np.ones(len(moved), dtype=bool)
+    alive[change.removed_particles] = False
+    assert moved[~alive].max() == 0.0
+    assert moved[alive].max() < 1e-4

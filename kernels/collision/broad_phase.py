@@ -164,7 +164,7 @@ def update_bounds(
                 coll.broad[B_STALE] = 1
             if sphere[3] > coll.reach_bound:
                 ti.atomic_add(coll.broad[B_OVERSIZE], 1)
-        if any_tool_near(coll, sphere):
+        if coll.tri_live[t] != 0 and any_tool_near(coll, sphere):
             coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
         else:
             coll.tool_held[t] = 0
@@ -206,11 +206,12 @@ def excluded(coll: ti.template(), t, u):
 
 @ti.func
 def broad_overlap(coll: ti.template(), t, u, margin):
-    """Broad spheres at most ``margin`` [m] apart."""
+    """Broad spheres at most ``margin`` [m] apart, of two live triangles (a triangle a
+    dissection removed is no one's partner)."""
     a, b = coll.broad_sphere[t], coll.broad_sphere[u]
     reach = a[3] + b[3] + margin
     d = xyz(b) - xyz(a)
-    return d.dot(d) <= reach * reach
+    return coll.tri_live[t] != 0 and coll.tri_live[u] != 0 and d.dot(d) <= reach * reach
 
 
 @ti.func

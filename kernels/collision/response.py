@@ -216,7 +216,12 @@ def tissue_contacts(coll: ti.template(), rows: ti.template(), t, acc, hits):
         held = 0
         if ti.static(not coll.method_tools):
             held = coll.tool_held[t] | coll.tool_held[u]
-        if not held and bounding_overlap(coll, t, u) and facing_pair(coll, t, u):
+        if (
+            not held
+            and coll.tri_live[u] != 0
+            and bounding_overlap(coll, t, u)
+            and facing_pair(coll, t, u)
+        ):
             bounding += 1
             if ti.static(coll.method == POLYGON):
                 n, acc, hits = polygon_pair(coll, t, u, acc, hits)

@@ -37,6 +37,7 @@ from taichi_lap.core.instruments import FAR, MAX_TOOLS
 from taichi_lap.core.mesh import edge_neighbours
 from taichi_lap.kernels.collision import broad_phase, response, spheres
 from taichi_lap.kernels.collision.spatial_hash import SpatialHash
+from taichi_lap.kernels.scatter import scatter
 
 log = logging.getLogger("taichi_lap")
 
@@ -172,6 +173,7 @@ class TissueCollision:
         self.tri_vertex = group.field(ti.i32, f, vector=3, values=triangles)
         self.tri_neighbour = group.field(ti.i32, f, vector=3, values=edge_neighbours(triangles))
         self.tri_organ = group.field(ti.i32, f, values=organ)
+        self.tri_live = group.field(ti.i32, f, values=np.ones(f, dtype=np.int32))
         self.broad_sphere = group.field(ti.f32, f, vector=4)
         self.rest_sphere = group.field(ti.f32, f, vector=4, values=rest_sphere)
         self.rest_normal = group.field(ti.f32, f, vector=3, values=rest_normal)
@@ -242,6 +244,17 @@ class TissueCollision:
         for owner in (self.grid, self.rows, self.spare, self.found, *self._retired):
             if owner is not None:
                 owner.close()
+
+    def retire(self, triangles: np.ndarray):
+        """Stop colliding the model's surface ``triangles`` (rows a dissection removed
+        or wrote anew): they are no one's partner and no tool's contact."""
+        triangles = np.asarray(triangles, dtype=np.int64)
+        triangles = triangles[triangles < self.triangle_count]
+        scatter(self.tri_live, triangles, np.zeros(len(triangles)))
+
+    def revive(self):
+        """Collide every triangle again (the model was put back as built)."""
+        self.tri_live.fill(1)
 
     def reset(self, *, pairs: bool = False):
         """Forget the lazy-update state (every circumsphere is recomputed at the next
