@@ -83,10 +83,12 @@ def predict(
 def cluster_partial_sums(model: ti.template(), state: ti.template()):
     """Alg. 1 lines 8-10 over each chunk of a cluster's members: Σ m (p - x_cm^0) and
     Σ m (p - x_cm^0) q^T (any origin works in Eq. 1 because Σ m q = 0); m is the
-    member's mass in the cluster (0 once dissection took it out). Reads p; writes
-    chunk_first, chunk_moment."""
+    member's mass in the cluster (0 once dissection took it out), q its stored
+    offset plus the cluster's ``cluster_rest_shift`` (0 until members leave). Reads
+    p; writes chunk_first, chunk_moment."""
     for chunk in range(model.chunk_count[None]):
-        rest_center = model.cluster_rest_center[model.chunk_cluster[chunk]]
+        c = model.chunk_cluster[chunk]
+        rest_center, shift = model.cluster_rest_center[c], model.cluster_rest_shift[c]
         first = ti.Vector([0.0, 0.0, 0.0])
         moment = ti.Matrix.zero(ti.f32, 3, 3)
         for k in range(model.chunk_begin[chunk], model.chunk_end[chunk]):
@@ -94,7 +96,7 @@ def cluster_partial_sums(model: ti.template(), state: ti.template()):
             m = model.cluster_member_mass[k]
             d = state.p[i] - rest_center
             first += m * d
-            moment += m * d.outer_product(model.cluster_rest_offset[k])
+            moment += m * d.outer_product(model.cluster_rest_offset[k] + shift)
         state.chunk_first[chunk] = first
         state.chunk_moment[chunk] = moment
 
@@ -137,9 +139,8 @@ def averaged_cluster_goal(model: ti.template(), state: ti.template(), i, p):
         total = ti.Vector([0.0, 0.0, 0.0])
         for j in range(begin, end):
             c = model.membership_cluster[j]
-            total += (
-                state.cluster_rotation[c] @ model.membership_offset[j] + state.cluster_center[c]
-            )
+            offset = model.membership_offset[j] + model.cluster_rest_shift[c]
+            total += state.cluster_rotation[c] @ offset + state.cluster_center[c]
         goal = total / (end - begin)
     return goal
 

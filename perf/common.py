@@ -12,6 +12,8 @@ import subprocess
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def gpu() -> str | None:
     """The NVIDIA GPU and its driver (``nvidia-smi``), or None where there is none."""
@@ -72,6 +74,7 @@ def result(case: str, params: dict, metric: str, samples: list[float]) -> dict:
         "params": params,
         "metric": metric,
         "median": statistics.median(samples),
+        "p95": float(np.percentile(samples, 95)),
         "min": min(samples),
         "max": max(samples),
         "runs": len(samples),
@@ -86,11 +89,15 @@ def report(benchmark: str, arch: str, results: list[dict], path: str):
     host = machine(arch)
     gpu_text = f", GPU {host['gpu']}" if host["gpu"] else ""
     print(f"\n{benchmark} on {host['cpu']} ({host['cores']} cores{gpu_text}), backend {arch}")
-    print(f"{'case':<{width}}{'metric':<22}{'median':>12}{'min':>12}{'max':>12}{'runs':>6}  params")
+    print(
+        f"{'case':<{width}}{'metric':<22}{'median':>12}{'p95':>12}{'min':>12}{'max':>12}"
+        f"{'runs':>6}  params"
+    )
     for r in results:
         params = ", ".join(f"{k}={v}" for k, v in r["params"].items())
         print(
-            f"{r['case']:<{width}}{r['metric']:<22}{r['median']:>12.4g}{r['min']:>12.4g}"
+            f"{r['case']:<{width}}{r['metric']:<22}{r['median']:>12.4g}"
+            f"{r.get('p95', r['median']):>12.4g}{r['min']:>12.4g}"
             f"{r['max']:>12.4g}{r['runs']:>6}  {params}"
         )
     out = {

@@ -24,6 +24,45 @@ def rotation_about_x(angle: float) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
+def assert_device_clusters_match(model, topology: MutableTopology):
+    """The device's cluster tables, as written change by change, hold what the
+    topology's clusters give from scratch: per live cluster its members' mass and
+    mass centre, and every weighted member's and membership's offset (stored offset
+    plus the cluster's shift) is x0 - x0_cm."""
+    count = model.cluster_count[None]
+    assert count == len(topology.cluster_members)
+    mass, rest = model.data.mass, topology.rest
+    member = model.cluster_member.to_numpy()
+    weight = model.cluster_member_mass.to_numpy()
+    offset = model.cluster_rest_offset.to_numpy() + 0.0
+    shift = model.cluster_rest_shift.to_numpy()
+    center = model.cluster_rest_center.to_numpy()
+    begin, end = model.cluster_chunk_begin.to_numpy(), model.cluster_chunk_end.to_numpy()
+    chunk_begin, chunk_end = model.chunk_begin.to_numpy(), model.chunk_end.to_numpy()
+    for c, members in enumerate(topology.cluster_members):
+        if not topology.cluster_alive[c]:
+            continue
+        rows = np.concatenate(
+            [np.arange(chunk_begin[k], chunk_end[k]) for k in range(begin[c], end[c])]
+        )
+        weighted = rows[weight[rows] > 0]
+        assert sorted(member[weighted]) == sorted(members.tolist())
+        expected = (mass[members, None] * rest[members]).sum(axis=0) / mass[members].sum()
+        assert np.abs(center[c] - expected).max() < 1e-6
+        assert model.cluster_mass[c] == pytest.approx(mass[members].sum(), rel=1e-5)
+        q = offset[weighted] + shift[c]
+        assert np.abs(q - (rest[member[weighted]] - expected)).max() < 1e-6
+    start = topology.membership_start
+    cluster = model.membership_cluster.to_numpy()
+    alive = np.flatnonzero(topology.particle_alive)
+    for i in alive[:: max(1, len(alive) // 200)].tolist():
+        for j in range(start[i], start[i + 1]):
+            c = cluster[j]
+            assert c == topology.membership_cluster[j]
+            q = model.membership_offset[j].to_numpy() + shift[c]
+            assert np.abs(q - (rest[i] - center[c])).max() < 1e-6
+
+
 def displaced_dumbbell(cut_neck: bool, frames: int = 30) -> dict:
     """The test block carved into a dumbbell (a 6 mm slab across its length removed
     but for a neck), with or without the neck then cut; the left half moved by
@@ -39,6 +78,7 @@ def displaced_dumbbell(cut_neck: bool, frames: int = 30) -> dict:
         change = topology.remove(np.flatnonzero(neck))
         assert change.fragments == [] and len(change.clusters) > 0
         device.apply(change, state)
+    assert_device_clusters_match(model, topology)
     left = topology.particle_alive & (rest[:, 0] < 0)
     right = topology.particle_alive & (rest[:, 0] > 0)
     for name in ("x", "p", "goal"):
@@ -87,6 +127,7 @@ def test_the_drawn_wound_follows_the_body_and_stays_closed_and_outward():
     skin_surface(session.model, session.state)
 
     topology = session._dissection.topology
+    assert_device_clusters_match(session.model, topology)
     used, live = topology.vertices.used, topology.triangles["alive"]
     device = session.model.surface_triangles.to_numpy()[: len(live)]
     assert (

@@ -154,7 +154,7 @@ def update_bounds(
         )
         sphere = ti.Vector([center[0], center[1], center[2], ti.sqrt(far) + motion.norm()])
         coll.broad_sphere[t] = sphere
-        if ti.static(coll.tissue_pairs):
+        if ti.static(coll.tissue_pairs):  # a retired triangle may hold anything
             ref, held = coll.ref_sphere[t], coll.hash_sphere[t]
             moved = (center - xyz(ref)).norm() + ti.abs(sphere[3] - ref[3]) > coll.rescan_drift
             coll.moved[t] = ti.cast(moved, ti.i32)
@@ -162,7 +162,7 @@ def update_bounds(
                 ti.atomic_add(coll.broad[B_MOVED], 1)
             if (center - xyz(held)).norm() + ti.abs(sphere[3] - held[3]) > coll.hash_slack:
                 coll.broad[B_STALE] = 1
-            if sphere[3] > coll.reach_bound:
+            if sphere[3] > coll.reach_bound and coll.tri_live[t] != 0:
                 ti.atomic_add(coll.broad[B_OVERSIZE], 1)
         if coll.tri_live[t] != 0 and any_tool_near(coll, sphere):
             coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t

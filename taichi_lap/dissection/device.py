@@ -5,8 +5,11 @@ update ... followed by mesh skinning"): the host's :class:`MutableTopology` deci
 * removed particles get inverse mass 0 (they no longer move; no contact touches
   them) and are let go by a grasp;
 * a changed cluster keeps its member rows: a member that left gets weight 0 in it,
-  and the rest data (mass centre x0_cm, offsets q = x0 - x0_cm, mass) is computed
-  again from the members that stay (Alg. 1 with the remaining particles);
+  and the cluster's mass and rest mass centre x0_cm follow (Alg. 1 with the
+  remaining particles); the offsets q stay relative to the centre the cluster had
+  when its rows were written, and ``cluster_rest_shift`` (that centre - x0_cm)
+  makes them x0 - x0_cm again, so a change costs what it removed, not the size of
+  the clusters it touched;
 * a split-off cluster is appended: member rows, chunks, and its frame warm-started
   from the cluster it came from; the particles that moved gather their goals from it
   (the particle-major membership rows are rewritten);
@@ -29,6 +32,13 @@ from taichi_lap.kernels.scatter import scatter
 from taichi_lap.sim.model import Model, member_chunks
 
 
+def _owners(topology: MutableTopology, particles: np.ndarray) -> np.ndarray:
+    """For the membership rows ``rows_of(membership_start, particles)``: the index
+    into ``particles`` each belongs to."""
+    counts = np.diff(topology.membership_start)[particles]
+    return np.repeat(np.arange(len(particles)), counts)
+
+
 class CapacityError(RuntimeError):
     """The model's spare rows ran out (the model must be built with more)."""
 
@@ -40,10 +50,20 @@ class DeviceTopology:
         self.model, self.topology = model, topology
         data = model.data
         start = np.asarray(data.cluster_start, dtype=np.int64)
-        self.cluster_rows = [(int(a), int(b)) for a, b in zip(start[:-1], start[1:])]
-        self.row_particle = np.zeros(model.member_capacity, dtype=np.int64)
-        self.row_particle[: len(data.cluster_member)] = data.cluster_member
-        self.rows_used = len(data.cluster_member)
+        member = np.asarray(data.cluster_member, dtype=np.int64)
+        n, c = data.particle_count, data.cluster_count
+        self.cluster_count = c
+        keys = np.repeat(np.arange(c), np.diff(start)) * n + member
+        order = np.argsort(keys, kind="stable")
+        self.row_key, self.row_of_key = keys[order], order  # (cluster, particle) -> row
+        self.rows_used = len(member)
+        self.row_mass = np.zeros(model.member_capacity)
+        self.row_mass[: len(member)] = data.mass[member]
+        self.mass = np.zeros(model.cluster_capacity)
+        self.center = np.zeros((model.cluster_capacity, 3))
+        self.mass[:c] = model.cluster_mass.to_numpy()[:c]
+        self.center[:c] = model.cluster_rest_center.to_numpy()[:c]
+        self.origin = self.center.copy()  # the centre each cluster's offsets are from
         self.triangles = model.surface_triangles.to_numpy().astype(np.int64)
         self.triangle_live = np.zeros(len(self.triangles), dtype=bool)
         self.triangle_live[: len(data.surface_triangles)] = True
@@ -52,17 +72,112 @@ class DeviceTopology:
     def apply(self, change: TopologyChange, state):
         """Write ``change`` (just made by the topology) to the model, and release the
         removed particles from grasps in ``state``."""
-        model, removed = self.model, change.removed_particles
+        model, topology, removed = self.model, self.topology, change.removed_particles
         scatter(model.inv_mass, removed, np.zeros(len(removed)))
         held = removed[state.grasp_tool.to_numpy()[removed] != FREE]
         scatter(state.grasp_tool, held, np.full(len(held), FREE))
-        for c in change.clusters.tolist():
-            if c >= len(self.cluster_rows):
-                self._append_cluster(c, state)
-        self._write_rest_data(change.clusters)
+        rows = rows_of(topology.membership_start, removed)
+        left = [(topology.membership_cluster[rows], removed[_owners(topology, removed)])]
+        new = [c for c in change.clusters.tolist() if c >= self.cluster_count]
+        for c in new:
+            members = topology.cluster_members[c]
+            left.append((np.full(len(members), topology.cluster_parent[c]), members))
+        self._drop_members(
+            np.concatenate([a for a, _ in left]), np.concatenate([b for _, b in left])
+        )
+        for c in new:
+            self._append_cluster(c, state)
         model.finalize_counts()
         self._write_surface(change)
         model.topology_version += 1
+
+    def _drop_members(self, clusters: np.ndarray, particles: np.ndarray):
+        """Members ``particles`` leave ``clusters`` (pairs): their rows weigh 0, and
+        each cluster's mass and rest centre follow; its offsets stay and the kernels
+        add ``cluster_rest_shift`` = origin - centre (q = x0 - x0_cm again)."""
+        model = self.model
+        n = len(self.topology.rest)
+        keys = clusters * n + particles
+        at = np.minimum(np.searchsorted(self.row_key, keys), len(self.row_key) - 1)
+        if (self.row_key[at] != keys).any():
+            raise RuntimeError("a cluster member left that has no row in its cluster")
+        rows = self.row_of_key[at]
+        weight = self.row_mass[rows]
+        self.row_mass[rows] = 0.0
+        changed, which = np.unique(clusters, return_inverse=True)
+        lost = np.bincount(which, weights=weight, minlength=len(changed))
+        rest = self.topology.rest[particles]
+        moment = np.stack(
+            [
+                np.bincount(which, weights=weight * rest[:, a], minlength=len(changed))
+                for a in range(3)
+            ],
+            axis=1,
+        )
+        total = self.mass[changed] - lost
+        kept = total > 1e-12 * np.maximum(self.mass[changed], 1e-30)
+        center = self.center[changed].copy()
+        center[kept] = (self.mass[changed][kept, None] * center[kept] - moment[kept]) / total[
+            kept, None
+        ]
+        self.mass[changed] = np.where(kept, total, 0.0)
+        self.center[changed] = center
+        scatter(model.cluster_member_mass, rows, np.zeros(len(rows)))
+        scatter(model.cluster_mass, changed, self.mass[changed])
+        scatter(model.cluster_rest_center, changed, center)
+        scatter(model.cluster_rest_shift, changed, self.origin[changed] - center)
+
+    def _append_cluster(self, c: int, state):
+        """Rows, chunks, rest data and a warm-started frame for split-off cluster
+        ``c``; its members gather their goals from it."""
+        model, topology = self.model, self.topology
+        members = topology.cluster_members[c]
+        first, count = self.rows_used, len(members)
+        chunks = member_chunks(np.array([first, first + count]), model.chunk_total)
+        chunk_rows = np.arange(model.chunk_total, model.chunk_total + len(chunks["cluster"]))
+        if (
+            first + count > model.member_capacity
+            or chunk_rows[-1] >= model.chunk_capacity
+            or c >= model.cluster_capacity
+        ):
+            raise CapacityError(
+                f"cluster {c}: the model's spare cluster rows ran out ({model.cluster_capacity} "
+                f"clusters, {model.member_capacity} members, {model.chunk_capacity} chunks)"
+            )
+        rows = np.arange(first, first + count)
+        n = len(topology.rest)
+        self.row_key = np.concatenate([self.row_key, c * n + members])
+        self.row_of_key = np.concatenate([self.row_of_key, rows])
+        self.rows_used += count
+        self.cluster_count = c + 1
+        mass = model.data.mass[members]
+        rest = topology.rest[members]
+        self.row_mass[rows] = mass
+        self.mass[c] = mass.sum()
+        self.center[c] = self.origin[c] = (mass[:, None] * rest).sum(axis=0) / max(
+            mass.sum(), 1e-30
+        )
+        scatter(model.cluster_member, rows, members)
+        scatter(model.cluster_member_mass, rows, mass)
+        scatter(model.cluster_rest_offset, rows, rest - self.center[c])
+        scatter(model.cluster_mass, [c], [self.mass[c]])
+        scatter(model.cluster_rest_center, [c], self.center[c][None])
+        scatter(model.cluster_rest_shift, [c], np.zeros((1, 3)))
+        scatter(model.chunk_cluster, chunk_rows, np.full(len(chunk_rows), c))
+        scatter(model.chunk_begin, chunk_rows, chunks["begin"])
+        scatter(model.chunk_end, chunk_rows, chunks["end"])
+        scatter(model.cluster_chunk_begin, [c], chunks["first"][:1])
+        scatter(model.cluster_chunk_end, [c], chunks["first"][1:])
+        parent = topology.cluster_parent[c]
+        scatter(state.cluster_quaternion, [c], state.cluster_quaternion.to_numpy()[[parent]])
+        model.cluster_total = c + 1
+        model.chunk_total += len(chunk_rows)
+        membership = rows_of(topology.membership_start, members)
+        owner = members[_owners(topology, members)]
+        mine = topology.membership_cluster[membership] == c
+        membership, owner = membership[mine], owner[mine]
+        scatter(model.membership_cluster, membership, np.full(len(membership), c))
+        scatter(model.membership_offset, membership, topology.rest[owner] - self.center[c])
 
     def _write_surface(self, change: TopologyChange):
         """The triangles and vertices ``change`` touched, and the incident rows of
@@ -112,62 +227,3 @@ class DeviceTopology:
         if (rank >= (rows == -1).sum(axis=1)[which]).any():
             raise CapacityError(f"a surface vertex is in more than {rows.shape[1]} triangles")
         self.incident[vertices, free[which, rank]] = triangles
-
-    def _append_cluster(self, c: int, state):
-        """Rows, chunks and a warm-started frame for split-off cluster ``c``."""
-        model, members = self.model, self.topology.cluster_members[c]
-        first, count = self.rows_used, len(members)
-        chunks = member_chunks(np.array([first, first + count]), model.chunk_total)
-        chunk_rows = np.arange(model.chunk_total, model.chunk_total + len(chunks["cluster"]))
-        if (
-            first + count > model.member_capacity
-            or chunk_rows[-1] >= model.chunk_capacity
-            or c >= model.cluster_capacity
-        ):
-            raise CapacityError(
-                f"cluster {c}: the model's spare cluster rows ran out ({model.cluster_capacity} "
-                f"clusters, {model.member_capacity} members, {model.chunk_capacity} chunks)"
-            )
-        rows = np.arange(first, first + count)
-        self.row_particle[rows] = members
-        self.rows_used += count
-        self.cluster_rows.append((first, first + count))
-        scatter(model.cluster_member, rows, members)
-        scatter(model.chunk_cluster, chunk_rows, np.full(len(chunk_rows), c))
-        scatter(model.chunk_begin, chunk_rows, chunks["begin"])
-        scatter(model.chunk_end, chunk_rows, chunks["end"])
-        scatter(model.cluster_chunk_begin, [c], chunks["first"][:1])
-        scatter(model.cluster_chunk_end, [c], chunks["first"][1:])
-        parent = self.topology.cluster_parent[c]
-        scatter(state.cluster_quaternion, [c], state.cluster_quaternion.to_numpy()[[parent]])
-        model.cluster_total = c + 1
-        model.chunk_total += len(chunk_rows)
-
-    def _write_rest_data(self, clusters: np.ndarray):
-        """Member weights, rest offsets, centres and masses of ``clusters``, and the
-        membership rows of their members."""
-        model, topology = self.model, self.topology
-        rest, mass = topology.rest, model.data.mass
-        centers = {}
-        for c in clusters.tolist():
-            begin, end = self.cluster_rows[c]
-            rows = np.arange(begin, end)
-            particles = self.row_particle[rows]
-            weight = np.where(np.isin(particles, topology.cluster_members[c]), mass[particles], 0.0)
-            total = weight.sum()
-            center = (weight[:, None] * rest[particles]).sum(axis=0) / max(total, 1e-30)
-            centers[c] = center
-            scatter(model.cluster_member_mass, rows, weight)
-            scatter(model.cluster_rest_offset, rows, rest[particles] - center)
-            scatter(model.cluster_rest_center, [c], center[None])
-            scatter(model.cluster_mass, [c], [total])
-        members = [topology.cluster_members[c] for c in centers]
-        particles = np.unique(np.concatenate(members or [np.zeros(0, np.int64)]))
-        rows = rows_of(topology.membership_start, particles)
-        cluster = topology.membership_cluster[rows]
-        keep = np.isin(cluster, list(centers))
-        rows, cluster = rows[keep], cluster[keep]
-        owner = np.repeat(particles, np.diff(topology.membership_start)[particles])[keep]
-        center = np.array([centers[c] for c in cluster.tolist()]).reshape(-1, 3)
-        scatter(model.membership_cluster, rows, cluster)
-        scatter(model.membership_offset, rows, rest[owner] - center)

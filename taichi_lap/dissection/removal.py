@@ -37,7 +37,7 @@ from taichi_lap.core.mesh import tet_volumes, unique_edges
 from taichi_lap.core.topology import Topology
 from taichi_lap.dissection.marching import clipped_triangles, wound_triangles
 
-FRAGMENT_DEPTH = 12
+FRAGMENT_DEPTH = 8
 """Tet edges from a removal within which a piece cut off from its organ is looked for."""
 LOCAL_CHECK_MEMBERS = 2000
 """Clusters larger than this (an organ-wide cluster) are first checked near the
@@ -206,12 +206,6 @@ class MutableTopology:
         start, member = self._built
         return member[start[c] : start[c + 1]]
 
-    def cluster_rest_center(self, c: int) -> np.ndarray:
-        """(3,) [m] mass centre at rest of cluster ``c``'s members."""
-        members = self.cluster_members[c]
-        mass = self.data.mass[members]
-        return (mass[:, None] * self.rest[members]).sum(axis=0) / max(mass.sum(), 1e-30)
-
     def topology(self, positions: np.ndarray | None = None) -> Topology:
         """The validator's view; ``positions`` (N, 3) [m] default to the rest shape,
         where a wound vertex is at its rest place (else it is skipped from the
@@ -323,15 +317,16 @@ class MutableTopology:
         nodes = np.concatenate(groups)
         group = np.repeat(np.arange(len(groups)), sizes)
         key = group * n + nodes
-        order = np.argsort(key)
+        order = np.argsort(key, kind="stable")  # groups of sorted particles: in order
         sorted_key = key[order]
         rows = rows_of(self.adjacency_start, nodes)
         owner = np.repeat(np.arange(len(nodes)), self.degree[nodes])
+        if live:
+            keep = self.edge_live[self.adjacency_edge[rows]] > 0
+            rows, owner = rows[keep], owner[keep]
         other_key = group[owner] * n + self.adjacency_other[rows]
         at = np.minimum(np.searchsorted(sorted_key, other_key), len(key) - 1)
         inside = sorted_key[at] == other_key
-        if live:
-            inside &= self.edge_live[self.adjacency_edge[rows]] > 0
         a, b = owner[inside], order[at[inside]]
         graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(nodes), len(nodes)))
         labels = connected_components(graph, directed=False)[1]
@@ -529,23 +524,42 @@ class MutableTopology:
 
     def _rebind(self, clusters: set[int]) -> np.ndarray:
         """Skin every wound vertex that is new or followed one of ``clusters`` to
-        the nearest (by rest centre) live cluster of its kept particle; returns
-        them."""
+        the nearest (by rest centre) live cluster of its kept particle, an organ-wide
+        one (over LOCAL_CHECK_MEMBERS) only where there is no other; returns them."""
         v = self.vertices
         used = np.arange(v.used)
         wound = used[v["alive"][: v.used] & (v["kept"][: v.used] >= 0)]
         bound = v["cluster"][wound]
         stale = wound[(bound < 0) | np.isin(bound, list(clusters))]
-        centers: dict[int, np.ndarray] = {}
-        for vertex in stale.tolist():
-            kept = int(v["kept"][vertex])
-            rows = slice(self.membership_start[kept], self.membership_start[kept + 1])
-            candidates = [
-                c for c in self.membership_cluster[rows].tolist() if self.cluster_alive[c]
-            ]
-            for c in candidates:
-                if c not in centers:
-                    centers[c] = self.cluster_rest_center(c)
-            distance = [np.sum((centers[c] - v["rest"][vertex]) ** 2) for c in candidates]
-            v["cluster"][vertex] = candidates[int(np.argmin(distance))]
+        if not len(stale):
+            return stale
+        kept = v["kept"][stale]
+        rows = rows_of(self.membership_start, kept)
+        owner = np.repeat(np.arange(len(stale)), np.diff(self.membership_start)[kept])
+        candidate = self.membership_cluster[rows]
+        live = self.cluster_alive[candidate]
+        size = np.array([len(self.cluster_members[c]) for c in candidate.tolist()], dtype=np.int64)
+        local = live & (size <= LOCAL_CHECK_MEMBERS)
+        has_local = np.bincount(owner[local], minlength=len(stale)) > 0
+        keep = local | (live & ~has_local[owner])
+        owner, candidate = owner[keep], candidate[keep]
+        distinct, which = np.unique(candidate, return_inverse=True)
+        centers = self._rest_centers(distinct)[which]
+        distance = ((centers - v["rest"][stale][owner]) ** 2).sum(axis=1)
+        order = np.lexsort((distance, owner))
+        first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+        v["cluster"][stale[owner[first]]] = candidate[first]
         return stale
+
+    def _rest_centers(self, clusters: np.ndarray) -> np.ndarray:
+        """(C, 3) [m] rest mass centres of the live members of ``clusters``."""
+        members = [self.cluster_members[c] for c in clusters.tolist()]
+        which = np.repeat(np.arange(len(members)), [len(m) for m in members])
+        members = np.concatenate(members)
+        mass = self.data.mass[members]
+        total = np.bincount(which, weights=mass, minlength=len(clusters))
+        moment = [
+            np.bincount(which, weights=mass * self.rest[members, a], minlength=len(clusters))
+            for a in range(3)
+        ]
+        return np.stack(moment, axis=1) / np.maximum(total, 1e-30)[:, None]

@@ -177,7 +177,8 @@ class Model(FieldOwner):
 
     def _as_built(self, data: ModelData) -> dict[str, tuple[np.ndarray, int, int]]:
         """Field name -> (values as built, rows to allocate, value of the spare rows) of
-        what dissection changes: the surface (each vertex follows four particles, or
+        what dissection changes (``cluster_rest_shift``: :mod:`taichi_lap.dissection.device`):
+        the surface (each vertex follows four particles, or
         with a ``surface_cluster`` >= 0 that cluster from its ``surface_rest``
         place; the triangles, (0, 0, 0) when dead, their organ, and each vertex's
         triangles in ``surface_incident``, -1 padded), and
@@ -216,6 +217,7 @@ class Model(FieldOwner):
             "cluster_rest_offset": (tables["offset"], members, 0),
             "cluster_rest_center": (tables["center"], clusters, 0),
             "cluster_mass": (tables["mass"], clusters, 0),
+            "cluster_rest_shift": (np.zeros((data.cluster_count, 3)), clusters, 0),
             "membership_start": (tables["membership_start"], 0, 0),
             "membership_cluster": (tables["membership_cluster"], 0, 0),
             "membership_offset": (tables["membership_offset"], 0, 0),
