@@ -88,6 +88,8 @@ EVENT_KINDS = (
     "session_end",
     "grasp",
     "release",
+    "dissect",
+    "fragment",
     *RESERVED_EVENT_KINDS,
 )
 CHECKSUM_FIELDS = ("x", "v", "goal", "eta", "collided")

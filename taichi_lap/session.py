@@ -13,8 +13,10 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap import runtime
-from taichi_lap.core.instruments import tool_geometry
+from taichi_lap.core.instruments import DISSECTOR_REACH, MAX_TOOLS, tool_geometry
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
+from taichi_lap.dissection.device import DeviceTopology
+from taichi_lap.dissection.removal import MutableTopology
 from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.preprocess.cache import (
     build_model,
@@ -198,9 +200,6 @@ class Session:
         and what goes with them; returns the
         :class:`~taichi_lap.dissection.removal.TopologyChange`. A fragment cut off is
         reported in :attr:`events` (``fragment``, with its particle count)."""
-        from taichi_lap.dissection.device import DeviceTopology
-        from taichi_lap.dissection.removal import MutableTopology
-
         if self._dissection is None:
             self._dissection = DeviceTopology(self.model, MutableTopology(self.data))
         change = self._dissection.topology.remove(particles)
@@ -212,6 +211,38 @@ class Session:
                 )
         self.events += [{"kind": "fragment", "particles": count} for count in change.fragments]
         return change
+
+    def _dissect(self):
+        """Blunt dissection (seed 002 §3.3: "physical particles are removed
+        directly"): each dissector removes the particles of dissectable organs its
+        tip presses on (within DISSECTOR_REACH shaft radii of its tip's centre);
+        event ``dissect`` with the tool and the particles removed."""
+        dissectors = [
+            (k, tool)
+            for k, tool in enumerate(self.scene.tools[:MAX_TOOLS])
+            if tool["kind"] == "dissector"
+        ]
+        if not dissectors or not self.model.dissectable:
+            return
+        x = self.state.x.to_numpy()
+        tips = self.control.tool_a.to_numpy()
+        for k, tool in dissectors:
+            reach = DISSECTOR_REACH * tool["radius"]
+            near = np.flatnonzero(((x - tips[k]) ** 2).sum(axis=1) < reach * reach)
+            near = near[self._dissectable(near)]
+            if len(near):
+                change = self.remove_particles(near)
+                count = len(change.removed_particles)
+                self.events.append({"kind": "dissect", "tool": tool["name"], "particles": count})
+
+    def _dissectable(self, particles: np.ndarray) -> np.ndarray:
+        """(P,) bool: ``particles`` alive and of an organ that can lose particles."""
+        if self._dissection is None:
+            self._dissection = DeviceTopology(self.model, MutableTopology(self.data))
+        topology = self._dissection.topology
+        return (
+            topology.particle_alive[particles] & topology.dissectable[topology.organ_of[particles]]
+        )
 
     def _restore_topology(self):
         """Put the model back as built if tissue was removed."""
@@ -268,6 +299,7 @@ class Session:
         self.timings["physics"] = (time.perf_counter() - start) * 1e3
         names = [tool["name"] for tool in self.scene.tools]
         self.events = [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
+        self._dissect()
 
     def tool_reaction(self, tool: int) -> np.ndarray:
         """The force [N] (3,) the tissue pushed scene tool ``tool`` (an index) with at

@@ -7,7 +7,7 @@ import pytest
 
 from taichi_lap.core.topology import check_topology
 from taichi_lap.devices import ScriptedDevice
-from taichi_lap.perf.bench_contact import PROBE_RADIUS, press_scene
+from taichi_lap.perf.bench_contact import HALF, PROBE_RADIUS, organ_table, press_scene
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import MutableTopology
 from taichi_lap.kernels.collision import spheres
@@ -188,3 +188,56 @@ def test_a_probe_in_a_removed_hole_touches_nothing_the_removal_left():
     alive[change.removed_particles] = False
     assert moved[~alive].max() == 0.0
     assert moved[alive].max() < 1e-4
+
+
+def dissection_run() -> dict:
+    """A blunt dissector (radius 3 mm) pushed 6 mm into the top of the test block
+    (fixed at its base, 2 mm particles) over 1 s and back out."""
+    top = HALF[1]
+    tool = {
+        "name": "dissector",
+        "kind": "dissector",
+        "radius": PROBE_RADIUS,
+        "length": 0.1,
+        "tip": [0.0, top + 0.001 + PROBE_RADIUS, 0.0],
+        "direction": [0.0, 1.0, 0.0],
+    }
+    scene = from_tables(
+        [organ_table("tet_clusters", 6.0, 0.7)], tools=[tool], gravity=[0.0, 0.0, 0.0]
+    )
+    session = Session(scene, use_cache=False, progress=False)
+    frames = [
+        {"time": 0.0, "tool": "dissector", "tip": tool["tip"]},
+        {"time": 1.0, "tool": "dissector", "tip": [0.0, top - 0.006 + PROBE_RADIUS, 0.0]},
+        {"time": 1.5, "tool": "dissector", "tip": tool["tip"]},
+    ]
+    device = ScriptedDevice.from_tables("dissect", frames, session.scene.tools)
+    events = []
+    for _ in range(int(round(1.5 / session.dt))):
+        session.step(device.poses(session.state.time), device.buttons(session.state.time))
+        events += session.events
+    skin_surface(session.model, session.state)
+    topology = session._dissection.topology
+    view = topology.topology(session.state.x.to_numpy().astype(np.float64))
+    view.surface_position = session.state.surface_position.to_numpy()[: topology.vertices.used]
+    return {
+        "removed": np.flatnonzero(~topology.particle_alive),
+        "events": events,
+        "problems": check_topology(view),
+        "x": session.state.x.to_numpy(),
+        "rest": session.data.rest_position,
+    }
+
+
+def test_a_dissector_pushed_into_tissue_removes_what_its_tip_presses_on():
+    run = dissection_run()
+    removed, rest = run["removed"], run["rest"]
+
+    assert len(removed) > 10
+    assert sum(e["particles"] for e in run["events"] if e["kind"] == "dissect") == len(removed)
+    # only under the tip: within its radius of the axis, down to the deepest point
+    assert np.hypot(rest[removed, 0], rest[removed, 2]).max() < 1.5 * PROBE_RADIUS + 0.002
+    assert rest[removed, 1].min() > HALF[1] - 0.006 - 1.5 * PROBE_RADIUS - 0.002
+    assert run["problems"] == []  # the wound is closed and outward as the body deforms
+    again = dissection_run()
+    assert (again["removed"] == removed).all() and (again["x"] == run["x"]).all()

@@ -277,11 +277,21 @@ def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scen
         )
         recorder.stream.append(encode_record(ord("Z"), b"a record type of a later writer"))
         recorder.record_event("release", tool="probe")
+        recorder.record_event("dissect", tool="probe", particles=12)
+        recorder.record_event("fragment", particles=7)
         with pytest.raises(ValueError, match="event kind"):
             recorder.record_event("grasp_typo")
     recording = read_recording(path)
     kinds = [e["kind"] for e in recording.events]
-    assert kinds == ["session_start", "device", "grasp", "release", "session_end"]
+    assert kinds == [
+        "session_start",
+        "device",
+        "grasp",
+        "release",
+        "dissect",
+        "fragment",
+        "session_end",
+    ]
     assert recording.events[2] == {
         "kind": "grasp",
         "time": 0.0,

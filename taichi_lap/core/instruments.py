@@ -33,7 +33,7 @@ MAX_TOOLS = 4
 MAX_TOOL_SHAPES = 4
 """Shapes one tool's union holds."""
 
-TOOL_KINDS = ("probe", "grasper", "scissors", "hook")
+TOOL_KINDS = ("probe", "grasper", "scissors", "hook", "dissector")
 JAW_KINDS = ("grasper", "scissors")
 """Instruments with two closed jaws ahead of the tip (seed 002 §3.4)."""
 JAW_LENGTH = 4.0
@@ -42,6 +42,9 @@ JAW_REACH = 1.5
 """How far from their axis the open jaws take tissue, in shaft radii."""
 JAW_RADIUS = 0.7
 """Radius of the closed jaws' capsule, in shaft radii."""
+DISSECTOR_REACH = 1.5
+"""A blunt dissector removes the tissue particles within this many shaft radii of its
+tip's centre: those its tip presses on (contact keeps them at one radius)."""
 
 SHAPE_NONE, SHAPE_SHAFT, SHAPE_SPHERE, SHAPE_CAPSULE, SHAPE_BOX, SHAPE_JAWS = range(6)
 SHAPE_KINDS = {
