@@ -207,9 +207,10 @@ class MutableTopology:
         return member[start[c] : start[c + 1]]
 
     def topology(self, positions: np.ndarray | None = None) -> Topology:
-        """The validator's view; ``positions`` (N, 3) [m] default to the rest shape,
-        where a wound vertex is at its rest place (else it is skipped from the
-        positions: pass the skinned surface to check a deformed wound)."""
+        """The validator's view at the particle ``positions`` (N, 3) [m] (default: the
+        rest shape). Wound vertices follow clusters, not particles: the view puts
+        them at their rest place, so to check a deformed wound set its
+        ``surface_position`` to the skinned surface."""
         v, f = self.vertices, self.triangles
         sizes = [len(m) for m in self.cluster_members]
         positions = self.rest if positions is None else positions
