@@ -24,9 +24,12 @@ def _render(session: Session, renderer: Renderer):
     session.timings["render"] = (time.perf_counter() - start) * 1e3
 
 
-def _advance(session: Session, device, recorder: SessionRecorder | None):
+def _advance(
+    session: Session, device, recorder: SessionRecorder | None, check_topology: bool = False
+):
     """One frame: read the device (poses first: a replay advances on them), record
-    what it gave, step, record the step's events."""
+    what it gave, step, record the step's events; with ``check_topology`` run the
+    topology validator when the step removed tissue."""
     time = session.state.time
     poses = device.poses(time) if device else None
     buttons = device.buttons(time) if hasattr(device, "buttons") else None
@@ -38,6 +41,8 @@ def _advance(session: Session, device, recorder: SessionRecorder | None):
     if recorder is not None:
         for event in session.events:
             recorder.record_event(**event)
+    if check_topology:
+        session.check_topology()
 
 
 @contextmanager
@@ -63,10 +68,14 @@ def run_headless(
     size,
     use_cache: bool = True,
     record: str | None = None,
+    check_topology: bool = False,
 ) -> Session:
     """Simulate ``frames`` frames and write each rendered frame to ``out``; with
-    ``record``, append the session to that recording file."""
+    ``record``, append the session to that recording file; with ``check_topology``
+    validate the topology (:meth:`Session.check_topology`)."""
     session = Session(scene, use_cache=use_cache)
+    if check_topology:
+        session.check_topology()
     renderer = Renderer.for_scene(scene, session.model, size=size)
     with (
         _connected(device, session),
@@ -74,7 +83,7 @@ def run_headless(
         FrameWriter(out, fps=1.0 / session.dt) as writer,
     ):
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
-            _advance(session, device, recorder)
+            _advance(session, device, recorder, check_topology)
             _render(session, renderer)
             writer.write(renderer.image())
     return session
@@ -88,12 +97,16 @@ def run_window(
     size,
     use_cache: bool = True,
     record: str | None = None,
+    check_topology: bool = False,
 ) -> Session:
     """The interactive window: mouse-driven tool, endoscope on keys and right button;
-    with ``record``, append the session to that recording file."""
+    with ``record``, append the session to that recording file; with
+    ``check_topology`` validate the topology (:meth:`Session.check_topology`)."""
     from taichi_lap.viewer import Viewer
 
     session = Session(scene, use_cache=use_cache)
+    if check_topology:
+        session.check_topology()
     viewer = Viewer(session, Renderer.for_scene(scene, session.model, size=size), show_window=True)
     window, camera = viewer.window, viewer.renderer.camera
     with _connected(device, session), maybe_recording(record, session, device) as recorder:
@@ -104,7 +117,7 @@ def run_window(
             if hasattr(device, "update"):
                 device.update(window, camera.eye, camera.target, camera.fov, now - last)
             if not viewer.paused:
-                _advance(session, device, recorder)
+                _advance(session, device, recorder, check_topology)
             session.timings["frame"] = (now - last) * 1e3
             last = now
             start = time.perf_counter()

@@ -64,6 +64,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--size", default="1280x720", help="image size WxH")
     run.add_argument("--threads", type=int, default=None, help="CPU threads (reproducible runs)")
+    run.add_argument(
+        "--check-topology",
+        action="store_true",
+        help="debug: run the topology validator at the start and after every frame that "
+        "removed tissue (a problem ends the run with status 1)",
+    )
 
     render = sub.add_parser("render", help="write one still image")
     scene_args(render)
@@ -294,6 +300,7 @@ def cmd_run(args) -> int:
             size=size,
             use_cache=not args.no_cache,
             record=args.record,
+            check_topology=args.check_topology,
         )
         print(f"wrote {out}")
     else:
@@ -304,6 +311,7 @@ def cmd_run(args) -> int:
             size=size,
             use_cache=not args.no_cache,
             record=args.record,
+            check_topology=args.check_topology,
         )
     if args.record is not None:
         print(f"recorded {args.record}")

@@ -13,7 +13,10 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap import runtime
+from taichi_lap.core.errors import SimulationFault
 from taichi_lap.core.instruments import DISSECTOR_REACH, MAX_TOOLS, tool_geometry
+from taichi_lap.core.topology import Topology, TopologyError
+from taichi_lap.core.topology import check_topology as topology_problems
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import MutableTopology
@@ -130,6 +133,7 @@ class Session:
         self.key = session_key(scene)
         self._closed = False
         self._dissection = None  # a DeviceTopology once tissue was removed
+        self._checked_version = None  # what check_topology last validated
         parts = _take_parked(self.key)
         if parts is not None:
             self.data = parts.model.data
@@ -243,6 +247,25 @@ class Session:
         return (
             topology.particle_alive[particles] & topology.dissectable[topology.organ_of[particles]]
         )
+
+    def check_topology(self):
+        """Run the topology validator (:mod:`taichi_lap.core.topology`) on the tissue
+        as it is now (the skinned surface) when it was not checked since the last
+        change; raises SimulationFault listing the problems."""
+        if self._checked_version == (id(self._dissection), self.model.topology_version):
+            return
+        self._checked_version = (id(self._dissection), self.model.topology_version)
+        skin_surface(self.model, self.state)
+        x = self.state.x.to_numpy().astype(np.float64)
+        surface = self.state.surface_position.to_numpy().astype(np.float64)
+        if self._dissection is None:
+            view = Topology.of_model(self.data, x)
+        else:
+            view = self._dissection.topology.topology(x)
+        view.surface_position = surface[: len(view.surface_index)]
+        problems = topology_problems(view)
+        if problems:
+            raise SimulationFault(f"frame {self.state.frame}: {TopologyError(problems)}")
 
     def _restore_topology(self):
         """Put the model back as built if tissue was removed."""

@@ -5,8 +5,11 @@ removed particles stay where they were."""
 import numpy as np
 import pytest
 
+from taichi_lap.cli import main
+from taichi_lap.core.errors import SimulationFault
 from taichi_lap.core.topology import check_topology
 from taichi_lap.devices import ScriptedDevice
+from taichi_lap.replay import read_recording
 from taichi_lap.perf.bench_contact import HALF, PROBE_RADIUS, organ_table, press_scene
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import MutableTopology
@@ -241,3 +244,59 @@ def test_a_dissector_pushed_into_tissue_removes_what_its_tip_presses_on():
     assert run["problems"] == []  # the wound is closed and outward as the body deforms
     again = dissection_run()
     assert (again["removed"] == removed).all() and (again["x"] == run["x"]).all()
+
+
+def test_the_topology_check_of_a_session_passes_a_dissection_and_names_a_broken_surface():
+    session = Session(from_tables([BOX], gravity=[0, 0, 0]), use_cache=False, progress=False)
+    session.check_topology()  # as built
+    rest = session.data.rest_position
+    session.remove_particles(np.flatnonzero(np.linalg.norm(rest - rest[0], axis=1) < 0.009))
+    session.step()
+    session.check_topology()  # the wound, deformed
+    triangles = session.model.surface_triangles.to_numpy()
+    live = np.flatnonzero(triangles.any(axis=1))
+    triangles[live[0]] = triangles[live[0]][::-1]  # one triangle turned inside out
+    session.model.surface_triangles.from_numpy(triangles)
+    session._dissection.topology.triangles["vertices"][live[0]] = triangles[live[0]]
+    session.model.topology_version += 1
+    with pytest.raises(SimulationFault, match="orientation"):
+        session.check_topology()
+
+
+SCENE = """
+[scene]
+name = "dissect"
+gravity = [0.0, 0.0, 0.0]
+
+[[tools]]
+name = "dissector"
+kind = "dissector"
+radius = 0.003
+length = 0.1
+tip = [0.0, 0.016, 0.0]
+script = [
+  {{ time = 0.0, tip = [0.0, 0.016, 0.0] }},
+  {{ time = 0.5, tip = [0.0, {low}, 0.0] }},
+]
+
+[[organs]]
+name = "block"
+model = "tet_clusters"
+geometry = {{ generator = "box", half_extents = [0.02, 0.012, 0.015] }}
+material = {{ particle_spacing = 0.002 }}
+attachments = [ {{ kind = "fixed", box_min = [-1, -1, -1], box_max = [1, -0.011, 1] }} ]
+"""
+
+
+def test_run_checks_the_topology_of_every_frame_that_removed_tissue(tmp_path, capsys):
+    scene = tmp_path / "dissect.toml"
+    scene.write_text(SCENE.format(low=HALF[1] - 0.004 + PROBE_RADIUS))
+    argv = ["run", str(scene), "--headless", "--frames", "40", "--size", "64x48"]
+    record = tmp_path / "dissect.tlap"
+    status = main(
+        [*argv, "--out", str(tmp_path / "a"), "--check-topology", "--record", str(record)]
+    )
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    removed = [e["particles"] for e in read_recording(record).events if e["kind"] == "dissect"]
+    assert len(removed) > 3 and sum(removed) > 10  # frames that removed tissue were checked

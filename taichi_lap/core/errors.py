@@ -29,7 +29,8 @@ class InputError(Exception):
 
 
 class SimulationFault(RuntimeError):
-    """The simulation produced non-finite or exploding values.
+    """The simulation produced non-finite or exploding values (or, checked on request,
+    an invalid topology).
 
     Raised (or reported) by the solver's health check; nothing derived from a
     faulty state is ever sent to a haptic device.
