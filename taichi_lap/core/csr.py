@@ -36,3 +36,10 @@ def rows_of(start: np.ndarray, ids: np.ndarray) -> np.ndarray:
     first, counts = start[ids], start[ids + 1] - start[ids]
     offsets = np.repeat(first - np.cumsum(counts) + counts, counts)
     return offsets + np.arange(counts.sum(), dtype=np.int64)
+
+
+def owners_of(start: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """For the rows :func:`rows_of` gives for ``ids``: the position in ``ids`` each
+    belongs to."""
+    ids = np.asarray(ids, dtype=np.int64)
+    return np.repeat(np.arange(len(ids)), start[ids + 1] - start[ids])

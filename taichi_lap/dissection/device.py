@@ -25,18 +25,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from taichi_lap.core.csr import rows_of
+from taichi_lap.core.csr import owners_of, rows_of
 from taichi_lap.dissection.removal import MutableTopology, TopologyChange
 from taichi_lap.kernels.collision.particle_contact import FREE
 from taichi_lap.kernels.scatter import scatter
 from taichi_lap.sim.model import Model, member_chunks
-
-
-def _owners(topology: MutableTopology, particles: np.ndarray) -> np.ndarray:
-    """For the membership rows ``rows_of(membership_start, particles)``: the index
-    into ``particles`` each belongs to."""
-    counts = np.diff(topology.membership_start)[particles]
-    return np.repeat(np.arange(len(particles)), counts)
 
 
 class CapacityError(RuntimeError):
@@ -52,7 +45,6 @@ class DeviceTopology:
         start = np.asarray(data.cluster_start, dtype=np.int64)
         member = np.asarray(data.cluster_member, dtype=np.int64)
         n, c = data.particle_count, data.cluster_count
-        self.cluster_count = c
         keys = np.repeat(np.arange(c), np.diff(start)) * n + member
         order = np.argsort(keys, kind="stable")
         self.row_key, self.row_of_key = keys[order], order  # (cluster, particle) -> row
@@ -77,8 +69,13 @@ class DeviceTopology:
         held = removed[state.grasp_tool.to_numpy()[removed] != FREE]
         scatter(state.grasp_tool, held, np.full(len(held), FREE))
         rows = rows_of(topology.membership_start, removed)
-        left = [(topology.membership_cluster[rows], removed[_owners(topology, removed)])]
-        new = [c for c in change.clusters.tolist() if c >= self.cluster_count]
+        left = [
+            (
+                topology.membership_cluster[rows],
+                removed[owners_of(topology.membership_start, removed)],
+            )
+        ]
+        new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
         for c in new:
             members = topology.cluster_members[c]
             left.append((np.full(len(members), topology.cluster_parent[c]), members))
@@ -149,14 +146,11 @@ class DeviceTopology:
         self.row_key = np.concatenate([self.row_key, c * n + members])
         self.row_of_key = np.concatenate([self.row_of_key, rows])
         self.rows_used += count
-        self.cluster_count = c + 1
         mass = model.data.mass[members]
         rest = topology.rest[members]
         self.row_mass[rows] = mass
         self.mass[c] = mass.sum()
-        self.center[c] = self.origin[c] = (mass[:, None] * rest).sum(axis=0) / max(
-            mass.sum(), 1e-30
-        )
+        self.center[c] = self.origin[c] = topology.rest_centers(np.array([c]))[0]
         scatter(model.cluster_member, rows, members)
         scatter(model.cluster_member_mass, rows, mass)
         scatter(model.cluster_rest_offset, rows, rest - self.center[c])
@@ -173,7 +167,7 @@ class DeviceTopology:
         model.cluster_total = c + 1
         model.chunk_total += len(chunk_rows)
         membership = rows_of(topology.membership_start, members)
-        owner = members[_owners(topology, members)]
+        owner = members[owners_of(topology.membership_start, members)]
         mine = topology.membership_cluster[membership] == c
         membership, owner = membership[mine], owner[mine]
         scatter(model.membership_cluster, membership, np.full(len(membership), c))

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from taichi_lap.core.csr import both_ends, incidence, rows_of
+from taichi_lap.core.csr import both_ends, incidence, owners_of, rows_of
 from taichi_lap.core.mesh import tet_volumes, unique_edges
 from taichi_lap.core.topology import Topology
 from taichi_lap.dissection.marching import clipped_triangles, wound_triangles
@@ -124,7 +124,6 @@ class MutableTopology:
         self.tet_edge = inverse.reshape(-1, 6)
         self.edge_live = np.bincount(inverse, minlength=len(edges))
         self.adjacency_start, self.adjacency_edge, self.adjacency_other = both_ends(edges, n)
-        self.degree = np.diff(self.adjacency_start)
         self._mask = np.zeros(n, dtype=bool)  # scratch, left all False
         self._reached = np.zeros(n, dtype=bool)  # scratch, left all False
         self._corner = np.zeros(n, dtype=bool)  # scratch, left all False
@@ -300,7 +299,7 @@ class MutableTopology:
         """(owner, other) of every tet edge at ``nodes``: the live ones, or with
         ``live=False`` every edge the model was built with."""
         rows = rows_of(self.adjacency_start, nodes)
-        owner = np.repeat(nodes, self.degree[nodes])
+        owner = nodes[owners_of(self.adjacency_start, nodes)]
         if not live:
             return owner, self.adjacency_other[rows]
         keep = self.edge_live[self.adjacency_edge[rows]] > 0
@@ -321,7 +320,7 @@ class MutableTopology:
         order = np.argsort(key, kind="stable")  # groups of sorted particles: in order
         sorted_key = key[order]
         rows = rows_of(self.adjacency_start, nodes)
-        owner = np.repeat(np.arange(len(nodes)), self.degree[nodes])
+        owner = owners_of(self.adjacency_start, nodes)
         if live:
             keep = self.edge_live[self.adjacency_edge[rows]] > 0
             rows, owner = rows[keep], owner[keep]
@@ -536,7 +535,7 @@ class MutableTopology:
             return stale
         kept = v["kept"][stale]
         rows = rows_of(self.membership_start, kept)
-        owner = np.repeat(np.arange(len(stale)), np.diff(self.membership_start)[kept])
+        owner = owners_of(self.membership_start, kept)
         candidate = self.membership_cluster[rows]
         live = self.cluster_alive[candidate]
         size = np.array([len(self.cluster_members[c]) for c in candidate.tolist()], dtype=np.int64)
@@ -545,14 +544,14 @@ class MutableTopology:
         keep = local | (live & ~has_local[owner])
         owner, candidate = owner[keep], candidate[keep]
         distinct, which = np.unique(candidate, return_inverse=True)
-        centers = self._rest_centers(distinct)[which]
+        centers = self.rest_centers(distinct)[which]
         distance = ((centers - v["rest"][stale][owner]) ** 2).sum(axis=1)
         order = np.lexsort((distance, owner))
         first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
         v["cluster"][stale[owner[first]]] = candidate[first]
         return stale
 
-    def _rest_centers(self, clusters: np.ndarray) -> np.ndarray:
+    def rest_centers(self, clusters: np.ndarray) -> np.ndarray:
         """(C, 3) [m] rest mass centres of the live members of ``clusters``."""
         members = [self.cluster_members[c] for c in clusters.tolist()]
         which = np.repeat(np.arange(len(members)), [len(m) for m in members])
