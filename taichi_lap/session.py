@@ -204,9 +204,7 @@ class Session:
         and what goes with them; returns the
         :class:`~taichi_lap.dissection.removal.TopologyChange`. A fragment cut off is
         reported in :attr:`events` (``fragment``, with its particle count)."""
-        if self._dissection is None:
-            self._dissection = DeviceTopology(self.model, MutableTopology(self.data))
-        change = self._dissection.topology.remove(particles)
+        change = self._dissected().topology.remove(particles)
         if not change.empty:
             self._dissection.apply(change, self.state)
             if self.solver.collision is not None:
@@ -241,12 +239,16 @@ class Session:
 
     def _dissectable(self, particles: np.ndarray) -> np.ndarray:
         """(P,) bool: ``particles`` alive and of an organ that can lose particles."""
-        if self._dissection is None:
-            self._dissection = DeviceTopology(self.model, MutableTopology(self.data))
-        topology = self._dissection.topology
+        topology = self._dissected().topology
         return (
             topology.particle_alive[particles] & topology.dissectable[topology.organ_of[particles]]
         )
+
+    def _dissected(self) -> DeviceTopology:
+        """The session's mutable topology, made at its first use."""
+        if self._dissection is None:
+            self._dissection = DeviceTopology(self.model, MutableTopology(self.data))
+        return self._dissection
 
     def check_topology(self):
         """Run the topology validator (:mod:`taichi_lap.core.topology`) on the tissue
