@@ -8,6 +8,7 @@ from scipy.special import erfc
 from taichi_lap.core.mesh import tet_volumes
 from taichi_lap.dissection.heat import (
     HeatField,
+    HeatSource,
     edge_conductance,
     heat_capacity,
     stable_time_step,
@@ -34,8 +35,11 @@ def bar(cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, tets, mass
 
 
-def bar_heat(cells: int, cooling_rate: float = 0.0) -> tuple[HeatField, np.ndarray, np.ndarray]:
-    """A :class:`HeatField` on :func:`bar`, with its positions and capacities [J/K]."""
+def bar_heat(
+    cells: int, cooling_rate: float = 0.0, **thresholds
+) -> tuple[HeatField, np.ndarray, np.ndarray]:
+    """A :class:`HeatField` on :func:`bar` (``thresholds``: its ablation and damage
+    temperatures), with its positions and capacities [J/K]."""
     x, tets, mass = bar(cells)
     heat = HeatField(
         x,
@@ -45,12 +49,19 @@ def bar_heat(cells: int, cooling_rate: float = 0.0) -> tuple[HeatField, np.ndarr
         specific_heat=SPECIFIC_HEAT,
         body_temperature=BODY,
         cooling_rate=cooling_rate,
+        **thresholds,
     )
     return heat, x, heat_capacity(mass, SPECIFIC_HEAT)
 
 
 def no_source(heat: HeatField, dt: float):
-    heat.step(dt, (0.0, 0.0, 0.0), 0.0, 0.0)
+    heat.step(dt)
+
+
+def end_source(power: float, x: float = 0.0) -> list[HeatSource]:
+    """A point source of ``power`` [W] on the 4 particles of the slab at ``x`` [m]."""
+    center = (x, SPACING / 2, SPACING / 2)
+    return [HeatSource(center, center, 0.8 * SPACING, power)]
 
 
 def test_conductance_is_the_cotangent_formula_and_clipped():
@@ -110,8 +121,7 @@ def test_constant_power_at_the_end_of_a_long_bar():
     0.64 % at half the spacing; f32 adds ~1e-6); the heat put in is P t within 1e-5."""
     heat, x, capacity = bar_heat(80)
     power, time = 0.002, 300.0  # [W], [s]
-    center, radius = (0.0, SPACING / 2, SPACING / 2), 0.8 * SPACING  # the 4 end particles
-    heat.step(time, center, radius, power)
+    heat.step(time, end_source(power))  # into the 4 end particles
     q = power / SPACING**2
     r = x[:, 0] / (2.0 * np.sqrt(ALPHA * time))
     exact = 2 * q / KAPPA * np.sqrt(ALPHA * time) * (np.exp(-(r**2)) / np.sqrt(np.pi) - r * erfc(r))
@@ -163,22 +173,52 @@ def test_the_stable_step_is_a_real_bound(factor):
 def test_removed_particles_neither_gain_nor_pass_heat():
     """Slab 10 of a 20-cell bar removed, hot: the left part keeps its heat (and mixes),
     the right part stays at body temperature, the dead keep theirs, a source over only
-    dead particles adds nothing, and ``above`` lists only alive particles."""
-    heat, x, capacity = bar_heat(20)
+    dead particles adds nothing, and only alive particles are ablated."""
+    heat, x, capacity = bar_heat(20, ablation_temperature=60.0)
     slab = np.round(x[:, 0] / SPACING)
     dead, left = np.flatnonzero(slab == 10), slab < 10
     start = np.select([slab < 5, slab < 10, slab == 10], [80.0, 50.0, 80.0], BODY)
     heat.temperature.from_numpy(start.astype(np.float32))
     heat.remove(dead)
-    heat.step(200.0, (10 * SPACING, SPACING / 2, SPACING / 2), 0.8 * SPACING, 1.0)
+    heat.step(200.0, end_source(1.0, 10 * SPACING))
     t = heat.temperatures()
     assert np.array_equal(t[dead], start[dead])
     assert np.array_equal(t[slab > 10], start[slab > 10])
     assert capacity[left] @ t[left] == pytest.approx(capacity[left] @ start[left], rel=1e-5)
     assert np.ptp(t[left]) < 0.5 * 30.0
-    hot = heat.above(60.0)
+    hot = heat.ablated()
     assert len(hot) and np.array_equal(hot, np.flatnonzero(left & (heat.peaks() >= 60.0)))
-    assert heat.peaks()[dead].min() == 80.0 and len(heat.above(81.0)) == 0
+    assert heat.peaks()[dead].min() == 80.0
+    assert heat.hottest[None] == pytest.approx(t[~np.isin(np.arange(len(t)), dead)].max())
+
+
+def test_sources_share_their_power_along_a_segment():
+    """A segment source along the axis of slabs 5 to 8 (16 particles within its radius)
+    and a point source on slab 15: each particle near a source gets an equal share of
+    its power, none elsewhere, and the heat put in is (P1 + P2) dt."""
+    heat, x, capacity = bar_heat(20)
+    axis = (SPACING / 2, SPACING / 2)
+    segment = HeatSource((5 * SPACING, *axis), (8 * SPACING, *axis), 0.8 * SPACING, 0.4)
+    sources = [segment, *end_source(0.1, 15 * SPACING)]
+    heat.step(2.0, sources)
+    slab = np.round(x[:, 0] / SPACING)
+    expected = np.select([(slab >= 5) & (slab <= 8), slab == 15], [0.4 / 16, 0.1 / 4], 0.0)
+    assert np.allclose(heat.power.to_numpy(), expected, rtol=1e-6, atol=0.0)
+    assert capacity @ (heat.temperatures() - BODY) == pytest.approx(0.5 * 2.0, rel=1e-5)
+
+
+def test_damage_is_reported_once_per_particle():
+    """Particles are listed by ``newly_damaged`` the first time their peak reaches the
+    damage temperature, never again; those further away join as the heat spreads."""
+    heat, x, _ = bar_heat(20, damage_temperature=45.0)
+    heat.step(20.0, end_source(0.05))
+    first = heat.newly_damaged()
+    assert len(first) and np.array_equal(first, np.flatnonzero(heat.peaks() >= 45.0))
+    assert len(heat.newly_damaged()) == 0
+    heat.step(40.0, end_source(0.05))
+    later = heat.newly_damaged()
+    assert len(later) and not np.isin(later, first).any()
+    assert np.array_equal(np.union1d(first, later), np.flatnonzero(heat.peaks() >= 45.0))
 
 
 def compute_diffusion(steps: int = 20) -> dict:
@@ -186,7 +226,7 @@ def compute_diffusion(steps: int = 20) -> dict:
     heat, _, _ = bar_heat(12, cooling_rate=0.01)
     heat.remove(np.arange(24, 28))
     for _ in range(steps):
-        heat.step(1.0, (0.0, SPACING / 2, SPACING / 2), 0.8 * SPACING, 0.01)
+        heat.step(1.0, end_source(0.01))
     return {"temperature": heat.temperatures(), "peak": heat.peaks()}
 
 

@@ -11,6 +11,7 @@ like the continuum; the explicit step is bounded so the maximum principle holds.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
@@ -19,6 +20,9 @@ from taichi_lap.core.csr import both_ends
 from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.mesh import TET_EDGES, unique_edges
 from taichi_lap.kernels import heat as kernels
+
+FAR_HOT = 1e30
+"""A threshold no temperature reaches [°C] (an infinite one, stored in f32)."""
 
 
 def edge_conductance(
@@ -59,15 +63,15 @@ def heat_capacity(mass: np.ndarray, specific_heat) -> np.ndarray:
 
 
 def stable_time_step(
-    conductance: np.ndarray, edges: np.ndarray, capacity: np.ndarray, cooling_rate: float
+    conductance: np.ndarray, edges: np.ndarray, capacity: np.ndarray, cooling_rate
 ) -> float:
     """The longest explicit Euler step [s] of :mod:`taichi_lap.kernels.heat` that keeps
-    the maximum principle: min_i C_i / (Σ_j g_ij + C_i r) for conductances ``g`` [W/K]
-    on ``edges``, capacities ``C`` [J/K] and cooling rate ``r`` [1/s] (inf when nothing
-    conducts or cools).
+    the maximum principle: min_i C_i / (Σ_j g_ij + C_i r_i) for conductances ``g``
+    [W/K] on ``edges``, capacities ``C`` [J/K] and cooling rates ``r`` [1/s] (scalar or
+    per particle; inf when nothing conducts or cools).
 
-    The step is T_i' = (1 - h (Σ_j g_ij / C_i + r)) T_i + h Σ_j g_ij / C_i T_j +
-    h r T_body + h P_i / C_i. With g_ij >= 0 and h at most this bound every weight is
+    The step is T_i' = (1 - h (Σ_j g_ij / C_i + r_i)) T_i + h Σ_j g_ij / C_i T_j +
+    h r_i T_body + h P_i / C_i. With g_ij >= 0 and h at most this bound every weight is
     non-negative and they sum to 1: without the source each new temperature is a convex
     combination of old ones and T_body, so none leaves their range (maximum principle)
     and the scheme is stable in the max norm; removing particles only lowers Σ_j g_ij.
@@ -81,8 +85,20 @@ def stable_time_step(
     total = np.bincount(
         edges.reshape(-1), weights=np.repeat(conductance, 2), minlength=len(capacity)
     )
-    rate = float((total / capacity).max(initial=0.0)) + cooling_rate
+    rate = float((total / capacity + cooling_rate).max(initial=0.0))
     return 1.0 / rate if rate > 0.0 else math.inf
+
+
+@dataclass(frozen=True)
+class HeatSource:
+    """Heat put into the tissue: ``power`` [W] shared equally by the alive particles
+    that reach within ``radius`` [m] of the segment ``a``-``b`` [m] (a hook's
+    electrode) with their own radius."""
+
+    a: tuple[float, float, float]
+    b: tuple[float, float, float]
+    radius: float
+    power: float
 
 
 @ti.data_oriented
@@ -91,13 +107,15 @@ class HeatField(FieldOwner):
     §3.3, the equation of :mod:`taichi_lap.kernels.heat`).
 
     ``rest_positions`` (N, 3) [m], ``tets`` (T, 4), ``masses`` (N,) [kg]; material
-    ``conductivity`` [W/(m K)] (scalar or per tet), ``specific_heat`` [J/(kg K)]
-    (scalar or per particle), ``body_temperature`` [°C] (the start and the cooling
-    target) and ``cooling_rate`` [1/s]. Fields: ``temperature`` and ``peak`` (the
-    highest so far) [°C], ``alive`` (particles in no tet are dead from the start: other
-    organs take no heat), the edges of each particle in compressed rows with their
-    conductances, and scratch of a step. ``max_step`` [s] is
-    :func:`stable_time_step`, computed once."""
+    ``conductivity`` [W/(m K)] (scalar or per tet), ``specific_heat`` [J/(kg K)],
+    ``cooling_rate`` [1/s], ``ablation_temperature`` and ``damage_temperature`` [°C]
+    (scalars or per particle; inf: never), ``body_temperature`` [°C] (the start and
+    the cooling target), ``particle_radius`` [m] (scalar or per particle: how far a
+    particle reaches towards a source). Fields: ``temperature`` and ``peak`` (the highest so far)
+    [°C], ``alive`` (particles in no tet are dead from the start: other organs take no
+    heat), the edges of each particle in compressed rows with their conductances, the
+    thresholds, ``hottest`` (the highest alive temperature after the last step) and
+    scratch of a step. ``max_step`` [s] is :func:`stable_time_step`, computed once."""
 
     def __init__(
         self,
@@ -108,7 +126,10 @@ class HeatField(FieldOwner):
         conductivity,
         specific_heat,
         body_temperature: float,
-        cooling_rate: float,
+        cooling_rate,
+        ablation_temperature=math.inf,
+        damage_temperature=math.inf,
+        particle_radius=0.0,
     ):
         n = len(rest_positions)
         edges, conductance = edge_conductance(rest_positions, tets, conductivity)
@@ -116,10 +137,10 @@ class HeatField(FieldOwner):
         self.max_step = stable_time_step(conductance, edges, capacity, cooling_rate)
         self.particle_count = n
         self.body_temperature = float(body_temperature)
-        self.cooling_rate = float(cooling_rate)
         start, edge, other = both_ends(edges, n)
         alive = np.zeros(n, dtype=np.int32)
         alive[np.unique(tets)] = 1
+        self._alive_at_start = alive
         warm = np.full(n, self.body_temperature)
 
         group = FieldGroup()
@@ -129,6 +150,18 @@ class HeatField(FieldOwner):
         self.edge_other = group.field(ti.i32, len(other), values=other)
         self.edge_conductance = group.field(ti.f32, len(other), values=conductance[edge])
         self.alive = group.field(ti.i32, n, values=alive)
+        per_particle = {
+            "cooling_rate": cooling_rate,
+            "ablation_temperature": ablation_temperature,
+            "damage_temperature": damage_temperature,
+            "particle_radius": particle_radius,
+        }
+        for name, value in per_particle.items():
+            values = np.broadcast_to(np.asarray(value, dtype=np.float64), (n,))
+            setattr(self, name, group.field(ti.f32, n, values=np.minimum(values, FAR_HOT)))
+        self.damaged = group.field(ti.i32, n)
+        self.power = group.field(ti.f32, n)
+        self.hottest = group.field(ti.f32, None)
         self.temperature = group.field(ti.f32, n, values=warm)
         self.temperature_next = group.field(ti.f32, n, values=warm)
         self.peak = group.field(ti.f32, n, values=warm)
@@ -137,31 +170,36 @@ class HeatField(FieldOwner):
         self.hit = group.field(ti.i32, n)
         self.hit_count = group.field(ti.i32, None)
         group.finalize()
+        self.hottest[None] = self.body_temperature
         self._group = group
 
-    def step(
-        self,
-        dt: float,
-        source_center,
-        source_radius: float,
-        power: float,
-        positions=None,
-    ):
-        """Advance ``dt`` [s] in the fewest equal substeps of at most ``max_step``; the
-        source puts ``power`` [W], shared equally, into the alive particles closer than
-        ``source_radius`` [m] to ``source_center`` [m] (none: no heat). ``positions`` is
-        a field of the N particle positions [m] (e.g. ``State.x``, so the source meets
-        the deformed tissue); the rest positions by default."""
+    def step(self, dt: float, sources=(), positions=None):
+        """Advance ``dt`` [s] in the fewest equal substeps of at most ``max_step``, with
+        the :class:`HeatSource` s ``sources`` found at ``positions`` (a field of the N
+        particle positions [m], e.g. ``State.x``, so a source meets the deformed
+        tissue; the rest positions by default) at the start."""
         substeps = max(1, math.ceil(dt / self.max_step))
-        kernels.mark_source(
-            self,
-            self.rest_position if positions is None else positions,
-            ti.math.vec3(*source_center),
-            source_radius,
-        )
+        kernels.clear_power(self)
+        for source in sources:
+            kernels.deposit(
+                self,
+                self.rest_position if positions is None else positions,
+                ti.math.vec3(*source.a),
+                ti.math.vec3(*source.b),
+                source.radius,
+                source.power,
+            )
         for _ in range(substeps):
-            kernels.diffuse(self, dt / substeps, power)
+            kernels.diffuse(self, dt / substeps)
             kernels.commit(self)
+
+    def reset(self):
+        """Back to the start: body temperature (and peak) everywhere, the particles of
+        the tets alive, nothing damaged."""
+        for field in (self.temperature, self.temperature_next, self.peak, self.hottest):
+            field.fill(self.body_temperature)
+        self.alive.from_numpy(self._alive_at_start)
+        self.damaged.fill(0)
 
     def remove(self, indices: np.ndarray):
         """The particles ``indices`` die: they neither gain nor pass heat from now on
@@ -178,12 +216,21 @@ class HeatField(FieldOwner):
         """(N,) highest temperatures so far [°C], a NumPy copy."""
         return self.peak.to_numpy()
 
-    def above(self, threshold: float) -> np.ndarray:
+    def ablated(self) -> np.ndarray:
         """Sorted indices (int64) of the alive particles whose peak temperature reached
-        ``threshold`` [°C] (to ablate). Compacted on the device with an atomic counter;
-        the host reads the count (one scalar, a sync) and only when it is not zero
-        the list."""
-        kernels.collect_above(self, threshold)
+        their ablation temperature (to remove)."""
+        return self._collected(kernels.collect_ablated)
+
+    def newly_damaged(self) -> np.ndarray:
+        """Sorted indices (int64) of the particles whose peak temperature reached their
+        damage temperature since the last call."""
+        return self._collected(kernels.collect_damaged)
+
+    def _collected(self, collect) -> np.ndarray:
+        """The particles ``collect`` lists, compacted on the device with an atomic
+        counter; the host reads the count (one scalar, a sync) and only when it is not
+        zero the list."""
+        collect(self)
         count = int(self.hit_count[None])
         if count == 0:
             return np.zeros(0, dtype=np.int64)
