@@ -6,7 +6,7 @@ direction from the tip towards the handle; a device with buttons also gives
 ``buttons(time)``, a bitmask per tool (bit k set while button k+1 is pressed).
 :func:`apply_poses` turns poses into the capsules of
 :class:`~taichi_lap.sim.control.Control`; button 1 (``GRASP_BUTTON``) closes a
-grasper's jaws.
+grasper's jaws, button 2 (``CAUTERY_BUTTON``) energises a hook (the session heats).
 
 Script files (``--device script:PATH``) are TOML::
 
@@ -17,9 +17,10 @@ Script files (``--device script:PATH``) are TOML::
     tip = [0.0, 0.1, 0.0] # m
     direction = [0, 1, 0] # optional, kept from the previous keyframe
     grasp = true          # optional: jaws closed from here on (kept; open at first)
+    cautery = true        # optional: hook energised from here on (kept; off at first)
 
-Between keyframes the tip moves linearly; after the last it stays. The jaws change
-at a keyframe's time.
+Between keyframes the tip moves linearly; after the last it stays. The jaws and the
+hook's current change at a keyframe's time.
 """
 
 from __future__ import annotations
@@ -31,13 +32,10 @@ from pathlib import Path
 import numpy as np
 
 from taichi_lap.core.errors import InputError
-from taichi_lap.core.instruments import MAX_TOOLS, tool_geometry
+from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON, MAX_TOOLS, tool_geometry
 from taichi_lap.core.params import REQUIRED, Param, check_table
-from taichi_lap.scene.keyframes import read_keyframes, unit
+from taichi_lap.scene.keyframes import Keyframe, read_keyframes, unit
 from taichi_lap.sim.control import Control
-
-GRASP_BUTTON = 1
-"""Bitmask of the button that closes a grasper's jaws (button 1, as on a stylus)."""
 
 
 @dataclass
@@ -51,11 +49,7 @@ class Pose:
 class ScriptedDevice:
     """Poses interpolated from keyframes per tool; ``source`` names the script."""
 
-    def __init__(
-        self,
-        keyframes: dict[str, list[tuple[float, np.ndarray, np.ndarray, bool]]],
-        source: str = "",
-    ):
+    def __init__(self, keyframes: dict[str, list[Keyframe]], source: str = ""):
         self.keyframes = keyframes
         self.source = source
 
@@ -93,9 +87,9 @@ class ScriptedDevice:
         return int(np.searchsorted([frame[0] for frame in track], time, side="right"))
 
     def buttons(self, time: float) -> dict[str, int]:
-        """Per tool the grasp button of the last keyframe at or before ``time``."""
+        """Per tool the buttons of the last keyframe at or before ``time``."""
         return {
-            name: GRASP_BUTTON if track[max(self._after(track, time) - 1, 0)][3] else 0
+            name: track[max(self._after(track, time) - 1, 0)][3]
             for name, track in self.keyframes.items()
         }
 
@@ -118,13 +112,14 @@ class ScriptedDevice:
 class MouseDevice:
     """Moves one tool in the camera's image plane with the cursor while the left
     button is held; ``q`` / ``e`` push and pull it along the view direction; ``g``
-    closes or opens a grasper's jaws."""
+    closes or opens a grasper's jaws; a hook is energised while ``c`` is held."""
 
     def __init__(self, tool: dict, speed: float = 0.1):
         self.name = tool["name"]
         self.pose = Pose(tip=np.asarray(tool["tip"], float), direction=unit(tool["direction"]))
         self.speed = speed  # [m/s] along the view axis
         self.grasp = False
+        self.cautery = False
         self._last_cursor = None
         self._grasp_key_down = False
 
@@ -149,6 +144,7 @@ class MouseDevice:
         if window.is_pressed("e"):
             self.pose.tip = self.pose.tip - forward * self.speed * dt
         self.toggle_grasp(window.is_pressed("g"))
+        self.cautery = window.is_pressed("c")
 
     def toggle_grasp(self, key_down: bool):
         """Flip the jaws when the grasp key goes down."""
@@ -157,7 +153,9 @@ class MouseDevice:
         self._grasp_key_down = key_down
 
     def buttons(self, time: float) -> dict[str, int]:
-        return {self.name: GRASP_BUTTON if self.grasp else 0}
+        return {
+            self.name: (GRASP_BUTTON if self.grasp else 0) | (CAUTERY_BUTTON if self.cautery else 0)
+        }
 
     def poses(self, time: float) -> dict[str, Pose]:
         return {self.name: self.pose}

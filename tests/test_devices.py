@@ -3,7 +3,7 @@
 import numpy as np
 import taichi as ti
 
-from taichi_lap.devices import GRASP_BUTTON, MouseDevice
+from taichi_lap.devices import CAUTERY_BUTTON, GRASP_BUTTON, MouseDevice
 
 TOOL = {"name": "forceps", "tip": [0.0, 0.05, 0.0], "direction": [0.0, 1.0, 0.0]}
 EYE, TARGET, FOV = [0.0, 0.05, 0.2], [0.0, 0.05, 0.0], 60.0
@@ -55,3 +55,13 @@ def test_key_g_closes_and_opens_the_jaws_once_per_press():
         mouse.update(window, EYE, TARGET, FOV, 0.016)
         states.append(mouse.buttons(0.0)["forceps"])
     assert states == [0, GRASP_BUTTON, GRASP_BUTTON, GRASP_BUTTON, 0, 0]
+
+
+def test_key_c_energises_a_hook_while_held():
+    mouse, window = MouseDevice(TOOL), FakeWindow()
+    states = []
+    for keys in (set(), {"c"}, {"c", "g"}, set()):
+        window.keys = keys
+        mouse.update(window, EYE, TARGET, FOV, 0.016)
+        states.append(mouse.buttons(0.0)["forceps"])
+    assert states == [0, CAUTERY_BUTTON, CAUTERY_BUTTON | GRASP_BUTTON, GRASP_BUTTON]

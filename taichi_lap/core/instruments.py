@@ -45,6 +45,22 @@ JAW_RADIUS = 0.7
 DISSECTOR_REACH = 1.5
 """A blunt dissector removes the tissue particles within this many shaft radii of its
 tip's centre: those its tip presses on (contact keeps them at one radius)."""
+HOOK_STEM = 2.5
+"""An electrocautery hook's electrode runs this many shaft radii ahead of the tip (a
+5 mm L-hook's wire reaches about 6 mm beyond its insulated shaft) ..."""
+HOOK_FOOT = 1.5
+"""... then bends by a right angle, along the tool frame's x, for this many shaft radii
+(the L's foot, about 4 mm)."""
+HOOK_WIRE = 0.3
+"""Radius of the hook's electrode wire, in shaft radii (under 1 mm)."""
+HOOK_HEAT_GAP = 0.2
+"""An energised hook heats the tissue particles whose cell (half the lattice spacing
+around them) reaches within this many shaft radii of its electrode's surface (stem
+and foot): those the wire touches, where it rests on the surface between them."""
+GRASP_BUTTON = 1
+"""Bitmask of the button that closes a grasper's jaws (button 1, as on a stylus)."""
+CAUTERY_BUTTON = 2
+"""Bitmask of the button that energises a hook (button 2: the foot pedal's role)."""
 
 SHAPE_NONE, SHAPE_SHAFT, SHAPE_SPHERE, SHAPE_CAPSULE, SHAPE_BOX, SHAPE_JAWS = range(6)
 SHAPE_KINDS = {
@@ -148,7 +164,8 @@ class ToolGeometry:
 
 def tool_geometry(tool) -> ToolGeometry:
     """The shapes of a scene tool (a ``[[tools]]`` table: ``kind``, shaft ``radius``
-    and ``length`` [m]): the jaws of graspers and scissors, then the shaft."""
+    and ``length`` [m]): the jaws of graspers and scissors, or the L-shaped electrode
+    of a hook (:func:`hook_electrode`, wire of HOOK_WIRE radii), then the shaft."""
     kind, radius, length = tool["kind"], float(tool["radius"]), float(tool["length"])
     if kind in JAW_KINDS:
         return ToolGeometry(
@@ -158,7 +175,24 @@ def tool_geometry(tool) -> ToolGeometry:
             JAW_LENGTH * radius,
             JAW_RADIUS * radius,
         )
+    if kind == "hook":
+        stem, foot = hook_electrode(radius)
+        wire = HOOK_WIRE * radius
+        return ToolGeometry(
+            (ToolShape.capsule(*foot, wire), ToolShape.capsule(*stem, wire), ToolShape("shaft")),
+            length,
+            radius,
+        )
     return ToolGeometry((ToolShape("shaft"),), length, radius)
+
+
+def hook_electrode(radius: float) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """The L-shaped electrode of a hook of shaft ``radius`` [m] as two segments in the
+    tool frame: the stem from the tip straight ahead (-z) for HOOK_STEM radii, then the
+    foot along +x for HOOK_FOOT radii."""
+    bend = np.array([0.0, 0.0, -HOOK_STEM * radius])
+    foot_end = bend + np.array([HOOK_FOOT * radius, 0.0, 0.0])
+    return (np.zeros(3), bend), (bend, foot_end)
 
 
 def tool_distance(

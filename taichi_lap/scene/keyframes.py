@@ -1,8 +1,9 @@
 """Tool keyframes, as a scene's inline ``script`` or a script file holds them.
 
 Each keyframe gives a tool's tip [m] at a time [s], optionally its direction from the
-tip towards the handle (kept from the previous keyframe, first from the tool) and
-whether a grasper's jaws are closed from then on (kept; open at first).
+tip towards the handle (kept from the previous keyframe, first from the tool),
+whether a grasper's jaws are closed from then on and whether a hook is energised from
+then on (both kept; off at first). The two are the stylus buttons a keyframe holds.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from taichi_lap.core.errors import InputError
+from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON
 from taichi_lap.core.params import REQUIRED, Param, check_table
 
 KEYFRAME_PARAMS = {
@@ -18,10 +20,13 @@ KEYFRAME_PARAMS = {
     "tip": Param("vec3", REQUIRED, "tip position", lo=-100, hi=100, unit="m"),
     "direction": Param("vec3", None, "from the tip towards the handle", lo=-1e3, hi=1e3),
     "grasp": Param("bool", None, "a grasper's jaws closed from this keyframe on"),
+    "cautery": Param("bool", None, "a hook energised from this keyframe on"),
 }
+BUTTON_KEYS = {"grasp": GRASP_BUTTON, "cautery": CAUTERY_BUTTON}
+"""The keyframe keys that hold a button, and its bitmask."""
 
-Keyframe = tuple[float, np.ndarray, np.ndarray, bool]
-"""(time [s], tip [m], unit direction, jaws closed)."""
+Keyframe = tuple[float, np.ndarray, np.ndarray, int]
+"""(time [s], tip [m], unit direction, buttons held: a bitmask)."""
 
 
 def unit(v) -> np.ndarray:
@@ -58,8 +63,9 @@ def read_keyframes(source: str, frames: list, tools: list[dict]) -> dict[str, li
         direction = frame["direction"] or (
             track[-1][2] if track else names[frame["tool"]]["direction"]
         )
-        closed = (
-            frame["grasp"] if frame["grasp"] is not None else (track[-1][3] if track else False)
-        )
-        track.append((frame["time"], np.asarray(frame["tip"], float), unit(direction), closed))
+        buttons = track[-1][3] if track else 0
+        for name, bit in BUTTON_KEYS.items():
+            if frame[name] is not None:
+                buttons = buttons | bit if frame[name] else buttons & ~bit
+        track.append((frame["time"], np.asarray(frame["tip"], float), unit(direction), buttons))
     return keyframes

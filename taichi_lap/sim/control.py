@@ -65,7 +65,8 @@ class Control(FieldOwner):
     tip-to-handle); the shape table (``shape_kind``, ``shape_a``, ``shape_b``,
     ``shape_size``, :data:`MAX_TOOL_SHAPES` rows per tool, in the tool frame) and
     ``tool_reach`` [m], how far from the tip the shapes placed in the frame reach; per
-    tool on the Python side ``grasp`` (jaws closed) and ``jaw_length`` [m]. Every tool
+    tool on the Python side ``tips`` [m] and ``frames`` (as last placed), ``grasp``
+    (jaws closed) and ``jaw_length`` [m]. Every tool
     starts as jaws and shaft (the jaws are nothing while ``tool_jaw_radius`` is 0).
 
     A tool moves within a step: :meth:`set_tool` keeps the pose it leaves
@@ -99,6 +100,7 @@ class Control(FieldOwner):
         group.finalize()
         self._group = group
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
+        self.tips = [np.zeros(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
         self.jaw_length = [0.0] * MAX_TOOLS
         self._jump = [True] * MAX_TOOLS
@@ -124,6 +126,7 @@ class Control(FieldOwner):
         if np.linalg.norm(tail - tip) > 0.0:
             self.frames[index] = frame_towards(self.frames[index], tail - tip)
         frame = self.frames[index]
+        self.tips[index] = tip
         place_tool(
             self,
             index,
@@ -166,5 +169,6 @@ class Control(FieldOwner):
     def reset(self):
         """Forget the tools' frames and motion and open every grasper."""
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
+        self.tips = [np.zeros(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
         self._jump = [True] * MAX_TOOLS
