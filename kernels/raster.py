@@ -383,6 +383,7 @@ def rasterize_visibility_by_pixel(
 def resolve_gbuffer(
     positions: ti.template(),
     normals: ti.template(),
+    char: ti.template(),
     triangles: ti.template(),
     visibility: ti.template(),
     eye: ti.math.vec3,
@@ -390,6 +391,7 @@ def resolve_gbuffer(
     gbuffer_depth: ti.template(),
     gbuffer_position: ti.template(),
     gbuffer_normal: ti.template(),
+    gbuffer_char: ti.template(),
     gbuffer_triangle: ti.template(),
 ):
     """Per pixel: the winning triangle t of ``visibility`` (or background), intersected
@@ -398,7 +400,8 @@ def resolve_gbuffer(
     renormalised, so slivers and edge-on hits stay on the triangle). Writes
     ``gbuffer_depth`` = |hit - eye| [m] (BACKGROUND_DEPTH if none), ``gbuffer_position``
     = hit [m] (0), ``gbuffer_normal`` = the barycentric mix of ``normals``, normalised
-    and flipped to face the eye (0; the geometric normal if the mix vanishes) and
+    and flipped to face the eye (0; the geometric normal if the mix vanishes),
+    ``gbuffer_char`` = the same mix of the vertices' ``char`` (0) and
     ``gbuffer_triangle`` = t (-1). The ray direction is the cross product of the
     clip planes x = ndc_x w and y = ndc_y w, pointing to increasing w."""
     width, height = ti.static(visibility.shape)
@@ -407,6 +410,7 @@ def resolve_gbuffer(
         key = visibility[x, y]
         triangle, depth = -1, BACKGROUND_DEPTH
         position, normal = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
+        charred = 0.0
         if key != ti.i64(VISIBILITY_CLEAR):
             triangle = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
             ndc_x = (x + 0.5) * (2.0 / width) - 1.0
@@ -438,17 +442,19 @@ def resolve_gbuffer(
             normal = mix.normalized()
             if normal.dot(hit) > 0.0:
                 normal = -normal
+            charred = b0 * char[i0] + b1 * char[i1] + b2 * char[i2]
         gbuffer_triangle[x, y], gbuffer_depth[x, y] = triangle, depth
         gbuffer_position[x, y], gbuffer_normal[x, y] = position, normal
+        gbuffer_char[x, y] = charred
 
 
 class GBuffer:
     """Visibility buffer and G-buffer of a ``width`` x ``height`` image, fields of shape
     ``(width, height)`` indexed ``[x, y]`` (origin bottom-left), in one SNode tree:
     ``visibility`` (i64 keys) and the outputs of :func:`resolve_gbuffer`: ``depth``
-    (f32 [m]), ``position`` (vec3 [m]), ``normal`` (unit vec3) and ``triangle`` (i32,
-    -1 for background). ``by_pixel`` picks :func:`rasterize_visibility_by_pixel` (default:
-    on every backend but the CPU)."""
+    (f32 [m]), ``position`` (vec3 [m]), ``normal`` (unit vec3), ``char`` (f32, 0 fresh
+    to 1 charred tissue) and ``triangle`` (i32, -1 for background). ``by_pixel`` picks
+    :func:`rasterize_visibility_by_pixel` (default: on every backend but the CPU)."""
 
     def __init__(self, width: int, height: int, *, by_pixel: bool | None = None):
         if width < 1 or height < 1 or max(width, height) > 16384:
@@ -461,19 +467,30 @@ class GBuffer:
         self.depth = ti.field(ti.f32)
         self.position = ti.Vector.field(3, ti.f32)
         self.normal = ti.Vector.field(3, ti.f32)
+        self.char = ti.field(ti.f32)
         self.triangle = ti.field(ti.i32)
         builder = ti.FieldsBuilder()  # the i64 field last (see BoxPixels)
-        for f in (self.depth, self.position, self.normal, self.triangle, self.visibility):
+        fields = (self.depth, self.position, self.normal, self.char, self.triangle)
+        for f in fields + (self.visibility,):
             builder.dense(ti.ij, (self.width, self.height)).place(f)
         self.tree = builder.finalize()
 
     def render(
-        self, positions, normals, triangles, triangle_count: int, eye, view_projection, near: float
+        self,
+        positions,
+        normals,
+        char,
+        triangles,
+        triangle_count: int,
+        eye,
+        view_projection,
+        near: float,
     ) -> None:
         """Rasterize ``triangle_count`` triangles of ``positions`` [m] (flat vertex ids in
         ``triangles``) seen from ``eye`` [m] through ``view_projection`` (4x4, see
         :func:`camera_matrices`), clipped at view depth ``near`` [m], and resolve the
-        G-buffer. Two kernel launches."""
+        G-buffer, interpolating the vertex ``normals`` and ``char``. Two kernel
+        launches."""
         if not near > 0.0:
             raise ValueError(f"near must be > 0, got {near}")
         matrix = np.asarray(view_projection, dtype=np.float32)
@@ -490,6 +507,7 @@ class GBuffer:
         resolve_gbuffer(
             positions,
             normals,
+            char,
             triangles,
             self.visibility,
             np.asarray(eye, np.float32),
@@ -497,5 +515,6 @@ class GBuffer:
             self.depth,
             self.position,
             self.normal,
+            self.char,
             self.triangle,
         )

@@ -3,15 +3,28 @@ per pixel, the material of the visible triangle lit by the endoscope headlight a
 by image-based lighting (seed 000 §6.2), then exposure, tone mapping and sRGB.
 
 The headlight is a spotlight at the scope tip along the view axis with inverse
-square falloff, the dominant light in laparoscopy. Debug views show one G-buffer
+square falloff, the dominant light in laparoscopy. Tissue the electrocautery charred
+is drawn with the wound's own look: each pixel's material blends towards dark, dry,
+rough char by the G-buffer's ``char`` (seed 002 §3.3). Debug views show one G-buffer
 channel instead of the shaded colour.
 """
 
 import taichi as ti
 from taichi_lap.kernels.brdf import surface_brdf_cos
 from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
+from taichi_lap.scene.materials import CHAR_ALBEDO, CHAR_ROUGHNESS
 
-VIEWS = ("shaded", "albedo", "normal", "depth", "roughness", "metalness", "mucus", "object")
+VIEWS = (
+    "shaded",
+    "albedo",
+    "normal",
+    "depth",
+    "roughness",
+    "metalness",
+    "mucus",
+    "object",
+    "char",
+)
 """What :func:`shade` writes: the image or one G-buffer channel."""
 
 
@@ -55,14 +68,18 @@ def shade(
 
     ``light`` holds the camera: ``eye`` [m], ``forward``, ``intensity`` of the
     headlight [W/sr], its cone ``cos_inner``/``cos_outer``, ``ambient`` (IBL
-    scale), ``exposure``, ``far`` [m] for the depth view and ``background``."""
+    scale), ``exposure``, ``far`` [m] for the depth view and ``background``. The
+    material of a pixel with char c is blended towards the charred wound: albedo to
+    CHAR_ALBEDO and roughness to CHAR_ROUGHNESS by c, the mucus film scaled by
+    1 - c (the wound is dry), metalness kept."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
         colour = light.background[None]
         if triangle >= 0:
-            m = materials.triangle_material[triangle]
-            albedo, roughness = materials.albedo[m], materials.roughness[m]
-            metalness, mucus = materials.metalness[m], materials.mucus[m]
+            m, c = materials.triangle_material[triangle], gbuffer.char[x, y]
+            albedo = ti.math.mix(materials.albedo[m], ti.Vector(CHAR_ALBEDO), c)
+            roughness = ti.math.mix(materials.roughness[m], CHAR_ROUGHNESS, c)
+            metalness, mucus = materials.metalness[m], materials.mucus[m] * (1.0 - c)
             p, n = gbuffer.position[x, y], gbuffer.normal[x, y]
             to_eye = light.eye[None] - p
             distance = to_eye.norm(1e-9)
@@ -92,6 +109,8 @@ def shade(
                 colour = ti.Vector([metalness, metalness, metalness])
             elif view == 6:
                 colour = ti.Vector([mucus, mucus, mucus])
-            else:
+            elif view == 7:
                 colour = object_colour(materials.triangle_object[triangle])
+            else:
+                colour = ti.Vector([c, c, c])
         frame[x, y] = colour

@@ -17,14 +17,16 @@ EYE = np.zeros(3)
 
 
 class Mesh:
-    """Positions [m], normals and flat triangle ids in one SNode tree, refilled per test."""
+    """Positions [m], normals, char (zeros) and flat triangle ids in one SNode tree,
+    refilled per test."""
 
     def __init__(self):
         self.positions = ti.Vector.field(3, ti.f32)
         self.normals = ti.Vector.field(3, ti.f32)
+        self.char = ti.field(ti.f32)
         self.triangles = ti.field(ti.i32)
         builder = ti.FieldsBuilder()
-        builder.dense(ti.i, VERTEX_CAPACITY).place(self.positions, self.normals)
+        builder.dense(ti.i, VERTEX_CAPACITY).place(self.positions, self.normals, self.char)
         builder.dense(ti.i, 3 * TRIANGLE_CAPACITY).place(self.triangles)
         self.tree = builder.finalize()
 
@@ -68,7 +70,14 @@ def render(vertices, faces, *, normals=None, near=0.01, by_pixel=False) -> dict:
     count = mesh().load(vertices, faces, normals)
     target = gbuffer(by_pixel)
     target.render(
-        mesh().positions, mesh().normals, mesh().triangles, count, EYE, camera(near), near
+        mesh().positions,
+        mesh().normals,
+        mesh().char,
+        mesh().triangles,
+        count,
+        EYE,
+        camera(near),
+        near,
     )
     return {
         "triangle": target.triangle.to_numpy(),
@@ -394,7 +403,14 @@ def compute_gbuffer() -> dict:
     faces = np.concatenate([sphere_faces, [[len(sphere), len(sphere) + 1, len(sphere) + 2]]])
     target, count = GBuffer(WIDTH, HEIGHT), mesh().load(vertices, faces)
     target.render(
-        mesh().positions, mesh().normals, mesh().triangles, count, EYE, camera(0.02), 0.02
+        mesh().positions,
+        mesh().normals,
+        mesh().char,
+        mesh().triangles,
+        count,
+        EYE,
+        camera(0.02),
+        0.02,
     )
     return {
         "triangle": target.triangle.to_numpy(),

@@ -40,7 +40,7 @@ class ShadingParams:
 
 class Renderer:
     """Renders a mesh (a :class:`SceneMesh` or anything with its fields and an
-    ``update(state, control)``) from an :class:`EndoscopeCamera` into ``frame``
+    ``update(state, control, peak)``) from an :class:`EndoscopeCamera` into ``frame``
     (``(width, height)`` vec3 field, GGUI layout). ``timings`` holds the last
     frame's milliseconds per pass."""
 
@@ -80,10 +80,12 @@ class Renderer:
         seen from its camera."""
         return cls(SceneMesh(scene, model), EndoscopeCamera.from_scene(scene.camera), size=size)
 
-    def render(self, state, control):
-        """Draw ``state`` (deformed surfaces) and ``control`` (instruments)."""
+    def render(self, state, control, peak=None):
+        """Draw ``state`` (deformed surfaces) and ``control`` (instruments); with
+        ``peak``, the particles' peak temperatures [°C], heated tissue is drawn
+        charred (the wound's look), without it all tissue is fresh."""
         marks = [time.perf_counter()]
-        self.mesh.update(state, control)
+        self.mesh.update(state, control, peak)
         ti.sync()
         marks.append(time.perf_counter())
         cam = self.camera
@@ -93,6 +95,7 @@ class Renderer:
         self.gbuffer.render(
             self.mesh.positions,
             self.mesh.normals,
+            self.mesh.char,
             self.mesh.triangles,
             self.mesh.triangle_count,
             cam.eye,

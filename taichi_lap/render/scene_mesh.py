@@ -22,6 +22,7 @@ from taichi_lap.kernels.draw_mesh import (
     copy_surface_triangles,
     gather_points,
     place_instruments,
+    surface_char,
 )
 from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.render.instruments import instrument_arrays
@@ -38,7 +39,8 @@ def organ_material(organ) -> Material:
 @ti.data_oriented
 class ArrayMesh:
     """A triangle mesh for the renderer. Fields: ``positions``, ``normals`` (vec3
-    per vertex), ``triangles`` (flat, 3 per triangle), ``triangle_material`` and
+    per vertex), ``char`` (per vertex, 0 fresh to 1 charred; zeros unless its owner
+    writes it), ``triangles`` (flat, 3 per triangle), ``triangle_material`` and
     ``triangle_object`` (per triangle), and the material table ``albedo``,
     ``roughness``, ``metalness``, ``mucus``. Normals of the first
     ``smooth_count`` vertices are gathered from their triangles (the rows of
@@ -65,6 +67,7 @@ class ArrayMesh:
         group = FieldGroup()
         self.positions = group.field(ti.f32, vertex_count, vector=3, values=positions)
         self.normals = group.field(ti.f32, vertex_count, vector=3)
+        self.char = group.field(ti.f32, vertex_count)
         self.triangles = group.field(ti.i32, 3 * self.triangle_count, values=triangles.reshape(-1))
         self.triangle_material = group.field(ti.i32, self.triangle_count, values=triangle_material)
         self.triangle_object = group.field(
@@ -84,8 +87,10 @@ class ArrayMesh:
         self.mucus = group.field(ti.f32, len(materials), values=table["mucus"])
         group.finalize()
 
-    def update(self, state=None, control=None):
-        """Gather the normals of the smooth vertices from the current positions."""
+    def update(self, state=None, control=None, peak=None):
+        """Gather the normals of the smooth vertices from the current positions. The
+        simulation's ``state``, ``control`` and particle temperatures ``peak`` are
+        for meshes that follow it (:class:`SceneMesh`)."""
         vertex_normals(
             self.positions,
             self.triangles,
@@ -100,13 +105,15 @@ class SceneMesh(ArrayMesh):
     (the centre row of every spring-sheet organ: the intestine) as generalized
     cylinders re-tessellated each frame at ``tube_epsilon`` and ``tube_level``
     (seed 001 §5). The organ surfaces are those of ``model`` (a
-    :class:`~taichi_lap.sim.model.Model`), followed through dissection."""
+    :class:`~taichi_lap.sim.model.Model`), followed through dissection; their
+    ``char`` follows the peak temperatures of the particles (the wound's look)."""
 
     def __init__(self, scene, model, *, tube_sides: int = 12, tube_max_level: int = 2):
         data = model.data
         specs = {organ.name: organ for organ in scene.organs}
         materials = [organ_material(specs[o.name]) for o in data.organs] + [PRESETS[INSTRUMENT]]
         self.model, self._version = model, model.topology_version
+        self._charred = False  # whether the surfaces' char may be non-zero
         self.surface_count = model.surface_vertex_count
         surface_triangles = model.surface_triangles.to_numpy()
         surface_material = model.surface_triangle_organ.to_numpy()
@@ -173,15 +180,23 @@ class SceneMesh(ArrayMesh):
             )
         group.finalize()
 
-    def update(self, state, control):
+    def update(self, state, control, peak=None):
         """Deformed surfaces with gathered normals, instruments at their poses,
-        tubes re-tessellated; the surfaces' triangles again after a dissection."""
+        tubes re-tessellated; the surfaces' triangles again after a dissection. The
+        surfaces' char from ``peak``, the particles' peak temperatures [°C]
+        (:func:`~taichi_lap.kernels.draw_mesh.surface_char`), or zero when None."""
         if self._version != self.model.topology_version:
             copy_surface_triangles(
                 self.model, self.triangles, self.triangle_material, self.triangle_object
             )
             self._version = self.model.topology_version
         copy_surface(state.surface_position, self.surface_count, self.positions)
+        if peak is not None:
+            surface_char(self.model, peak, self.char)
+            self._charred = True
+        elif self._charred:
+            self.char.fill(0.0)
+            self._charred = False
         super().update()
         if self.instrument_count:
             place_instruments(

@@ -3,7 +3,9 @@ RGB albedo), roughness (α = roughness²), metalness, and the weight of the wet
 mucus layer drawn as a second, smoother specular lobe.
 
 Values are chosen to match laparoscopic footage under the endoscope's light: moist
-tissue with a strong, tight highlight over a rough, saturated base.
+tissue with a strong, tight highlight over a rough, saturated base. Tissue that
+electrocautery heated is drawn blended towards the charred look of the wound
+(:data:`CHAR_ALBEDO`, :data:`CHAR_ROUGHNESS`, no mucus) by its char in [0, 1].
 """
 
 from __future__ import annotations
@@ -40,6 +42,15 @@ PRESETS: dict[str, Material] = {
 """Presets by name; scene organs choose one with ``appearance``."""
 
 INSTRUMENT = "metal"
+
+CHAR_ALBEDO = (0.05, 0.03, 0.02)
+"""Linear RGB albedo of fully charred tissue: the dark brown-black of an
+electrocautery wound, chosen by eye to look like cauterised liver in endoscopic
+video (not measured)."""
+
+CHAR_ROUGHNESS = 0.7
+"""Roughness of fully charred tissue: dry and rough, with the mucus film gone; chosen
+by eye like :data:`CHAR_ALBEDO`."""
 
 
 def material_table(materials: list[Material]) -> dict[str, np.ndarray]:
