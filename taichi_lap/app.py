@@ -20,7 +20,7 @@ from taichi_lap.video import FrameWriter, write_png
 
 def _render(session: Session, renderer: Renderer):
     start = time.perf_counter()
-    renderer.render(session.state, session.control)
+    renderer.render(session.state, session.control, session.peak_temperature)
     session.timings["render"] = (time.perf_counter() - start) * 1e3
 
 
@@ -134,5 +134,5 @@ def render_still(scene: Scene, *, frames: int, out: str, size, use_cache: bool =
     for _ in range(frames):
         _advance(session, device, None)
     renderer = Renderer.for_scene(scene, session.model, size=size)
-    renderer.render(session.state, session.control)
+    renderer.render(session.state, session.control, session.peak_temperature)
     write_png(out, renderer.image())

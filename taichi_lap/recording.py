@@ -79,7 +79,7 @@ TICK_TOOL = struct.Struct("<B3f3fI3f")  # tool index, tip [m], direction, button
 MAX_PAYLOAD = 1 << 24  # [bytes]; a longer length field is damage
 FSYNC_INTERVAL = 1.0  # [s]
 BUFFER_LIMIT = 1 << 16  # [bytes] of buffered ticks written without a flush call
-RESERVED_EVENT_KINDS = ("cut", "cautery_on", "cautery_off", "vessel_damage")
+RESERVED_EVENT_KINDS = ("cut",)
 """Event kinds of the file format that dissection will emit; nothing emits them yet, and
 readers accept them already, so files written later still read here."""
 EVENT_KINDS = (
@@ -90,6 +90,10 @@ EVENT_KINDS = (
     "release",
     "dissect",
     "fragment",
+    "cautery_on",
+    "cautery_off",
+    "cautery",
+    "vessel_damage",
     *RESERVED_EVENT_KINDS,
 )
 CHECKSUM_FIELDS = ("x", "v", "goal", "eta", "collided")

@@ -14,10 +14,11 @@ import taichi as ti
 
 from taichi_lap import runtime
 from taichi_lap.core.errors import SimulationFault
-from taichi_lap.core.instruments import DISSECTOR_REACH, MAX_TOOLS, tool_geometry
+from taichi_lap.core.instruments import CAUTERY_BUTTON, DISSECTOR_REACH, MAX_TOOLS, tool_geometry
 from taichi_lap.core.topology import Topology, TopologyError
 from taichi_lap.core.topology import check_topology as topology_problems
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
+from taichi_lap.dissection.cautery import Cautery
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import MutableTopology
 from taichi_lap.kernels.skinning import skin_surface
@@ -84,9 +85,11 @@ class _Parts:
     solver: Solver
     start_state: dict | None
     settle_seconds: float
+    cautery: Cautery | None
 
     def close(self):
-        for owner in (self.solver, self.control, self.state, self.model):
+        owners = (self.solver, self.control, self.state, self.model)
+        for owner in owners + ((self.cautery.heat,) if self.cautery is not None else ()):
             owner.close()
 
 
@@ -134,11 +137,14 @@ class Session:
         self._closed = False
         self._dissection = None  # a DeviceTopology once tissue was removed
         self._checked_version = None  # what check_topology last validated
+        self._cautery = None  # a Cautery once a hook was energised
+        self._energised: set[str] = set()  # the hooks energised in the last step
         parts = _take_parked(self.key)
         if parts is not None:
             self.data = parts.model.data
             self.model, self.state, self.control = parts.model, parts.state, parts.control
             self.solver, self._start_state = parts.solver, parts.start_state
+            self._cautery = parts.cautery
             self.settle_seconds = parts.settle_seconds
             self.build_seconds = time.perf_counter() - start
             self.solver.reset(pairs=True)
@@ -184,12 +190,16 @@ class Session:
             self.solver,
             self._start_state,
             self.settle_seconds,
+            self._cautery,
         )
 
     def reset(self):
         """Back to the start state (the rest shape, or the settled one), tools at their
-        scene poses, surface skinned; removed tissue is back."""
+        scene poses, surface skinned; removed tissue is back, at body temperature."""
         self._restore_topology()
+        if self._cautery is not None:
+            self._cautery.reset()
+        self._energised = set()
         if self._start_state is None:
             self.state.reset(self.model)
         else:
@@ -207,6 +217,8 @@ class Session:
         change = self._dissected().topology.remove(particles)
         if not change.empty:
             self._dissection.apply(change, self.state)
+            if self._cautery is not None:
+                self._cautery.remove(change.removed_particles)
             if self.solver.collision is not None:
                 self.solver.collision.retire(
                     np.union1d(change.dead_triangles, change.new_triangles)
@@ -236,6 +248,53 @@ class Session:
                 change = self.remove_particles(near)
                 count = len(change.removed_particles)
                 self.events.append({"kind": "dissect", "tool": tool["name"], "particles": count})
+
+    def _energise(self, buttons: dict[str, int]):
+        """The hooks whose CAUTERY_BUTTON is held are energised; events
+        ``cautery_on`` / ``cautery_off`` (with the tool) where that changed."""
+        energised = {
+            tool["name"]
+            for tool in self.scene.tools[:MAX_TOOLS]
+            if tool["kind"] == "hook" and buttons.get(tool["name"], 0) & CAUTERY_BUTTON
+        }
+        for kind, names in (
+            ("cautery_on", energised - self._energised),
+            ("cautery_off", self._energised - energised),
+        ):
+            self.events += [{"kind": kind, "tool": name} for name in sorted(names)]
+        self._energised = energised
+
+    def _cauterize(self):
+        """Electrocautery (seed 002 §3.3, :mod:`taichi_lap.dissection.cautery`): the
+        energised hooks heat the tissue for this frame; particles at their ablation
+        temperature are removed (event ``cautery``, with the tool names and the
+        particles removed) and new vessel damage is reported (``vessel_damage``)."""
+        if self._cautery is None:
+            if not self._energised or not self.model.dissectable:
+                return
+            self._cautery = Cautery(self.scene, self.data)
+        ablated, damage = self._cautery.step(self.dt, self.state, self.control, self._energised)
+        self.events += damage
+        if len(ablated):
+            change = self.remove_particles(ablated)
+            self.events.append(
+                {
+                    "kind": "cautery",
+                    "tools": sorted(self._energised),
+                    "particles": len(change.removed_particles),
+                }
+            )
+
+    @property
+    def energised(self) -> set[str]:
+        """The hooks (names) energised in the last step."""
+        return set(self._energised)
+
+    @property
+    def peak_temperature(self):
+        """The particles' highest temperatures [°C] so far (a field, for the wound's
+        look), or None while no hook was energised."""
+        return None if self._cautery is None else self._cautery.heat.peak
 
     def _dissectable(self, particles: np.ndarray) -> np.ndarray:
         """(P,) bool: ``particles`` alive and of an organ that can lose particles."""
@@ -324,7 +383,9 @@ class Session:
         self.timings["physics"] = (time.perf_counter() - start) * 1e3
         names = [tool["name"] for tool in self.scene.tools]
         self.events = [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
+        self._energise(buttons or {})
         self._dissect()
+        self._cauterize()
 
     def tool_reaction(self, tool: int) -> np.ndarray:
         """The force [N] (3,) the tissue pushed scene tool ``tool`` (an index) with at

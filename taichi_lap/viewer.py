@@ -66,7 +66,9 @@ class Viewer:
             mesh.tube_epsilon, mesh.tube_level = self.tessellation.update(
                 self.session.timings["frame"]
             )
-        self.renderer.render(self.session.state, self.session.control)
+        self.renderer.render(
+            self.session.state, self.session.control, self.session.peak_temperature
+        )
         self.canvas.set_image(self.renderer.frame)
         if self.show_panel:
             self._panel()
@@ -92,9 +94,10 @@ class Viewer:
             )
             for index, tool in enumerate(session.scene.tools):
                 tip = session.control.tool_a[index]
+                energised = " ENERGISED" if tool["name"] in session.energised else ""
                 gui.text(
                     f"{tool['name']} ({tool['kind']}): tip "
-                    f"{tip[0]:+.3f} {tip[1]:+.3f} {tip[2]:+.3f} m"
+                    f"{tip[0]:+.3f} {tip[1]:+.3f} {tip[2]:+.3f} m{energised}"
                 )
             self.paused = gui.checkbox("pause", self.paused)
             if gui.button("reset"):
@@ -108,5 +111,5 @@ class Viewer:
             renderer.view = gui.slider_int(
                 f"view: {VIEWS[renderer.view]}", renderer.view, 0, len(VIEWS) - 1
             )
-            gui.text("LMB drag: tool, q/e: tool depth")
+            gui.text("LMB drag: tool, q/e: tool depth, g: grasp, c (held): cautery")
             gui.text("RMB drag: turn scope, w/s a/d r/f: move scope")

@@ -51,6 +51,21 @@ CUT_POINT = 0.5
 weight sum of the two endpoints")."""
 
 
+def dissectable_organs(data) -> np.ndarray:
+    """(organs,) bool: the tet organs whose surface vertices are their particles
+    (directly bound: the liver), which removal can cut; a vessel's surface is bound
+    barycentrically in its tets and cannot be cut yet."""
+    weight = np.asarray(data.surface_weight, dtype=np.float64).reshape(-1, 4)
+    return np.array(
+        [
+            organ.tets[1] > organ.tets[0]
+            and bool(np.all(weight[slice(*organ.surface_vertices), 0] == 1.0))
+            for organ in data.organs
+        ],
+        dtype=bool,
+    )
+
+
 def _none() -> np.ndarray:
     return np.zeros(0, dtype=np.int64)
 
@@ -140,14 +155,10 @@ class MutableTopology:
         v, f = len(index), len(triangles)
         vertex_organ = np.full(v, -1, dtype=np.int64)
         triangle_organ = np.full(f, -1, dtype=np.int64)
-        self.dissectable = np.zeros(len(data.organs), dtype=bool)
+        self.dissectable = dissectable_organs(data)
         for k, organ in enumerate(data.organs):
             vertex_organ[slice(*organ.surface_vertices)] = k
             triangle_organ[slice(*organ.triangles)] = k
-            rows = slice(*organ.surface_vertices)
-            self.dissectable[k] = organ.tets[1] > organ.tets[0] and bool(
-                np.all(weight[rows, 0] == 1.0)
-            )
         self.vertices = _Slots(
             {
                 "index": index,
@@ -509,6 +520,7 @@ class MutableTopology:
         slots[fresh] = made
         kept, removed = keys[fresh, 0], keys[fresh, 1]
         v["index"][made] = 0
+        v["index"][made, 0], v["index"][made, 1] = kept, removed  # weights 0: not bound
         v["weight"][made] = 0.0
         v["organ"][made] = self.organ_of[kept]
         v["alive"][made] = True

@@ -112,6 +112,14 @@ TOOL_PARAMS = {
         "the device that drives this tool (mouse, openhaptics or "
         "openhaptics:NAME); other tools take the devices left, in order",
     ),
+    "power": Param(
+        "float",
+        30.0,
+        "hook: electrical power of the energised electrode (laparoscopic hooks cut at 30-40 W)",
+        lo=0.0,
+        hi=300.0,
+        unit="W",
+    ),
     "grasp_stiffness": Param(
         "float",
         0.001,
@@ -180,6 +188,51 @@ _SHAPE = {
         "add one cluster holding the whole organ, so it keeps its overall shape under gravity",
     ),
 }
+_HEAT = {
+    "thermal_conductivity": Param(
+        "float",
+        0.52,
+        "electrocautery: heat conduction along the tet edges (liver, IT'IS tissue database)",
+        lo=0.0,
+        hi=100.0,
+        unit="W/(m K)",
+    ),
+    "specific_heat": Param(
+        "float",
+        3540.0,
+        "electrocautery: heat capacity per kilogram (liver, IT'IS tissue database)",
+        lo=100.0,
+        hi=1e5,
+        unit="J/(kg K)",
+    ),
+    "perfusion_rate": Param(
+        "float",
+        0.016,
+        "electrocautery: cooling towards body temperature by the blood flow (liver "
+        "perfusion, about 1 ml per gram per minute)",
+        lo=0.0,
+        hi=10.0,
+        unit="1/s",
+    ),
+    "ablation_temperature": Param(
+        "float",
+        100.0,
+        "electrocautery: particles whose temperature reaches this are removed (the "
+        "tissue water boils: the cut)",
+        lo=40.0,
+        hi=1000.0,
+        unit="°C",
+    ),
+    "damage_temperature": Param(
+        "float",
+        None,
+        "electrocautery: a vessel's wall is damaged above this (protein coagulation, "
+        "about 60 °C): one vessel_damage event per place; none: not a vessel",
+        lo=40.0,
+        hi=1000.0,
+        unit="°C",
+    ),
+}
 _EDGES = {
     "edge_stiffness": Param("float", 1.0, "stiffness of the surface edges", lo=0.0, hi=1.0),
 }
@@ -187,6 +240,7 @@ MATERIAL_PARAMS = {
     "shape_matching": _SHAPE,
     "tet_clusters": {
         **_SHAPE,
+        **_HEAT,
         "particle_spacing": Param(
             "float",
             0.004,
