@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 
@@ -268,6 +269,22 @@ def _replay_settings(args, recording):
         args.threads = recording.start["threads"]
 
 
+HEADLESS_FRAMES = 120
+"""Frames a headless run without a scene script writes unless told (--frames)."""
+SCRIPT_TAIL = 0.5
+"""Seconds a headless run of a scene script goes on after its last keyframe."""
+
+
+def _headless_frames(device, scene) -> int:
+    """Frames of a headless run without --frames: a scene script's run to its end
+    (SCRIPT_TAIL after its last keyframe), else HEADLESS_FRAMES."""
+    from taichi_lap.devices import ScriptedDevice
+
+    if not isinstance(device, ScriptedDevice):
+        return HEADLESS_FRAMES
+    return max(HEADLESS_FRAMES, math.ceil((device.duration() + SCRIPT_TAIL) / scene.settings["dt"]))
+
+
 def cmd_run(args) -> int:
     from taichi_lap import app, runtime
     from taichi_lap.recording import existing_file_error
@@ -288,7 +305,7 @@ def cmd_run(args) -> int:
     if replay is not None:
         _replay_settings(args, replay)
     if headless and args.frames is None:
-        args.frames = 120
+        args.frames = _headless_frames(device, scene)
     runtime.init(args.arch, threads=args.threads, random_seed=scene.settings["seed"])
     if headless:
         out = args.out or f"{scene.settings['name']}.mp4"

@@ -82,6 +82,10 @@ class ScriptedDevice:
         """A device from keyframe tables (:func:`~taichi_lap.scene.keyframes.read_keyframes`)."""
         return cls(read_keyframes(source, frames, tools), source)
 
+    def duration(self) -> float:
+        """Time [s] of the last keyframe of any tool."""
+        return max(track[-1][0] for track in self.keyframes.values())
+
     def _after(self, track, time: float) -> int:
         """How many keyframes of ``track`` lie at or before ``time``."""
         return int(np.searchsorted([frame[0] for frame in track], time, side="right"))

@@ -1,6 +1,7 @@
 """The command line contract: list, info, check --json, run --headless, render."""
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -215,3 +216,14 @@ def test_simulation_fault_is_reported_not_raised(tmp_path, capsys):
     assert status == 1
     assert "simulation fault" in err and "'ball'" in err
     assert not (tmp_path / "x.png").exists()
+
+
+def test_a_headless_run_without_frames_plays_the_scene_script_to_its_end():
+    from taichi_lap.cli import HEADLESS_FRAMES, SCRIPT_TAIL, _headless_frames
+    from taichi_lap.session import scene_script
+
+    scene = scene_mod.load("liver", dict(scene_mod.parse_override(t) for t in SMALL[1::2]))
+    device = scene_script(scene)
+    expected = math.ceil((device.duration() + SCRIPT_TAIL) / scene.settings["dt"])
+    assert device.duration() == 18.0 and _headless_frames(device, scene) == expected
+    assert _headless_frames(None, scene) == HEADLESS_FRAMES

@@ -33,7 +33,7 @@ class Run:
 
     Runs are bit-identical on one backend whatever the thread count, but contact and
     collision decisions amplify differences of rounding: a start perturbed by 1e-9 m
-    (about one ulp) ends 5 cm away in the liver after the probe pressed for 0.2 s, 1.5
+    (about one ulp) ends 5 cm away in the liver after the tool pressed for 0.2 s, 1.5
     mm away in the rectum from frame 14 on (tissue-tissue contacts), and 7 mm away in
     the intestine after one frame of its stochastic self-collision. Each run stops
     before that: at its last frame the perturbed run stays within a tenth of the
@@ -54,18 +54,19 @@ class Run:
 
 
 RUNS = {
-    # the probe presses into the liver's top from frame 27 on (the scene's own script
-    # stops above the liver); the perturbed run is 3e-6 m away at frame 33. Vulkan
-    # stops at frame 16, before the probe touches (the rectum's grasper covers tool
+    # the hook (not energised) touches the liver's top at frame 28 (the scene's own
+    # script would cut); the perturbed run is 1.1e-5 m away there (its thin wire
+    # makes contact more sensitive than the probe's shaft did: 4.6e-5 m at frame 33).
+    # Vulkan stops at frame 16, before the hook touches (the rectum's grasper covers tool
     # contact there)
     "liver": Run(
         (
             "scene.detail=0.1",
             "scene.settle_time=0.5",
-            "tools.probe.script=[{time = 0.0, tip = [0.03, 0.06, 0.03]}, "
+            "tools.hook.script=[{time = 0.0, tip = [0.03, 0.06, 0.03]}, "
             "{time = 0.6, tip = [0.03, 0.021, 0.03]}]",
         ),
-        (1, 16, 33),
+        (1, 16, 28),
         vulkan_frames=(1, 16),
     ),
     # wall, polyp, fascia, gland and vessel settle and touch; the grasper descends
