@@ -107,7 +107,9 @@ def release_parked():
 
 class Session:
     """Owns everything one running scene needs. ``timings`` holds the last frame's
-    milliseconds per stage (``physics``; renderers add theirs); ``events`` the last
+    milliseconds per stage (``physics``; ``topology`` when it removed tissue, the
+    host topology and the rows written to the device; ``heat`` while the cautery's
+    heat runs; renderers add theirs); ``events`` the last
     step's simulation events (grasp, release), each with the tool's name.
 
     A scene with ``settle_time`` starts settled: once, at construction, the solver runs
@@ -214,6 +216,7 @@ class Session:
         and what goes with them; returns the
         :class:`~taichi_lap.dissection.removal.TopologyChange`. A fragment cut off is
         reported in :attr:`events` (``fragment``, with its particle count)."""
+        start = time.perf_counter()
         change = self._dissected().topology.remove(particles)
         if not change.empty:
             self._dissection.apply(change, self.state)
@@ -223,6 +226,9 @@ class Session:
                 self.solver.collision.retire(
                     np.union1d(change.dead_triangles, change.new_triangles)
                 )
+            ti.sync()
+        spent = (time.perf_counter() - start) * 1e3
+        self.timings["topology"] = self.timings.get("topology", 0.0) + spent
         self.events += [{"kind": "fragment", "particles": count} for count in change.fragments]
         return change
 
@@ -273,7 +279,9 @@ class Session:
             if not self._energised or not self.model.dissectable:
                 return
             self._cautery = Cautery(self.scene, self.data)
+        start = time.perf_counter()
         ablated, damage = self._cautery.step(self.dt, self.state, self.control, self._energised)
+        self.timings["heat"] = (time.perf_counter() - start) * 1e3
         self.events += damage
         if len(ablated):
             change = self.remove_particles(ablated)
@@ -284,6 +292,14 @@ class Session:
                     "particles": len(change.removed_particles),
                 }
             )
+
+    def surface_particles(self) -> np.ndarray:
+        """Sorted particles the drawn organ surfaces follow now (as built, or after
+        dissection: alive, with the kept ends of the wound's vertices); for the haptic
+        proxy's collision."""
+        if self._dissection is None:
+            return np.unique(self.data.surface_index[self.data.surface_weight > 0])
+        return self._dissection.topology.surface_particles()
 
     @property
     def energised(self) -> set[str]:
@@ -377,6 +393,8 @@ class Session:
         if self._closed:
             raise RuntimeError("the session is closed")
         start = time.perf_counter()
+        for stage in ("topology", "heat"):
+            self.timings.pop(stage, None)
         apply_poses(self.control, self.scene.tools, poses or {}, buttons)
         self.solver.step(self.state, self.control, self.dt, collide=collide)
         ti.sync()

@@ -11,6 +11,7 @@ from taichi_lap.cli import main
 from taichi_lap.haptics.bridge import openhaptics_bridge
 from taichi_lap.session import Session
 from tests import fake_hd
+from tests.helpers import BOX
 
 SMALL = {"scene.detail": 0.03}
 TWO_DEVICES = ("openhaptics:Left Device", "openhaptics:Right Device")
@@ -161,3 +162,29 @@ def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, t
         "device is 'openhaptics:Right Device' or one with no device), the scene has 1 and "
         "other devices drive 1" in err
     )
+
+
+def test_the_published_surface_follows_a_dissection(fake_library):
+    """After tissue is removed the servo's surface holds the particles left on it and
+    those the wound exposed (the kept ends of its vertices), none of the removed."""
+    scene = scene_mod.from_tables([BOX], tools=[{"name": "probe", "tip": [0.0, 0.05, 0.0]}])
+    session = Session(scene, use_cache=False, progress=False)
+    bridge = openhaptics_bridge(scene.tools[0], None, fake_library)
+    bridge.attach(session)
+    try:
+        built = set(bridge.surface.particles.tolist())
+        rest = session.data.rest_position
+        top = rest[np.argmax(rest[:, 1])]
+        change = session.remove_particles(
+            np.flatnonzero(np.linalg.norm(rest - top, axis=1) < 0.006)
+        )
+        bridge.poses(0.0)
+        published = set(bridge.surface.particles.tolist())
+        capacity = bridge.snapshot.capacity["particles"]
+    finally:
+        bridge.close()
+    removed = set(change.removed_particles.tolist())
+    assert removed and not published & removed
+    exposed = published - built
+    assert exposed and published == set(session.surface_particles().tolist())
+    assert built - removed <= published and len(published) <= capacity

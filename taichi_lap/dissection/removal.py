@@ -216,6 +216,15 @@ class MutableTopology:
         start, member = self._built
         return member[start[c] : start[c + 1]]
 
+    def surface_particles(self) -> np.ndarray:
+        """Sorted particles the live surface follows: those its built vertices are
+        bound to (weights > 0), where alive, and the kept end of each wound vertex."""
+        v = self.vertices
+        live = np.flatnonzero(v["alive"][: v.used])
+        bound = v["index"][live][v["weight"][live] > 0.0]
+        kept = v["kept"][live]
+        return np.unique(np.concatenate([bound, kept[kept >= 0]]))
+
     def topology(self, positions: np.ndarray | None = None) -> Topology:
         """The validator's view at the particle ``positions`` (N, 3) [m] (default: the
         rest shape). Wound vertices follow clusters, not particles: the view puts

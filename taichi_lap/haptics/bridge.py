@@ -32,13 +32,16 @@ graphical tool pose and the stylus buttons back. The tool's shaft is the stylus'
 +z axis, as in OpenHaptics, mapped into the scene by the device's
 :class:`WorkspaceMapping`. While the tool's jaws hold particles, the published
 snapshot carries their edges to free neighbours (the grasped end in the stylus
-frame), from which the servo adds the pull force of Hooke's law.
+frame), from which the servo adds the pull force of Hooke's law. After a dissection
+the published surface follows the tissue left: removed particles leave it and the
+particles a wound exposed join it (regrouped before the next publication).
 """
 
 from __future__ import annotations
 
 import functools
 import logging
+import math
 
 import numpy as np
 
@@ -52,6 +55,9 @@ from taichi_lap.haptics.snapshot import SceneSnapshot
 
 log = logging.getLogger("taichi_lap.haptics")
 
+SURFACE_SPARE = 1.5
+"""The snapshot holds this many times the surface particles and groups of a model that
+can be dissected: a wound exposes particles that were inside."""
 GRASP_EDGE_CAPACITY = 4096
 """Grasp edges one snapshot carries to the servo."""
 COUPLING = 0.5
@@ -82,6 +88,7 @@ class HapticBridge:
         self.grasp_stiffness = tool["grasp_stiffness"]
         self._factory, self._settings = device_factory, settings
         self.session = self.surface = self.snapshot = self.servo = self.feedback = None
+        self._surface_version = None  # the model's topology_version the surface follows
         self.tool_index = -1
         self._tip = self._coupled = None  # the scene tool's tip, the coupled tip [m]
         self.proxy = ProxySettings(self.geometry, grasp_stiffness=self.grasp_stiffness)
@@ -94,10 +101,11 @@ class HapticBridge:
         """Start the servo for ``session``: publish its surface, then open the device."""
         self.session = session
         self.tool_index = [tool["name"] for tool in session.scene.tools].index(self.name)
-        self.surface = SurfaceClusters(session.data)
+        self._follow_surface()
+        spare = SURFACE_SPARE if session.model.dissectable else 1.0
         self.snapshot = SceneSnapshot.create(
-            clusters=self.surface.cluster_count,
-            particles=self.surface.particle_count,
+            clusters=math.ceil(spare * self.surface.cluster_count),
+            particles=math.ceil(spare * self.surface.particle_count),
             grasp_edges=GRASP_EDGE_CAPACITY,
         )
         self.surface.publish(self.snapshot, session.state.x.to_numpy())
@@ -115,6 +123,8 @@ class HapticBridge:
         """Publish the current surface, grasp and coupled tip; the tool at that tip,
         along the servo's graphical pose."""
         state = self.session.state
+        if self._surface_version != self.session.model.topology_version:
+            self._follow_surface()
         x = state.x.to_numpy()
         closed = bool(state.jaws_closed[self.tool_index])
         grasp = self._grasp(x) if closed else {}
@@ -129,6 +139,12 @@ class HapticBridge:
         pose = self.feedback.graphic_pose
         direction = pose[:3, :3][:, 2]  # the tool frame's z, from the tip to the handle
         return {self.name: Pose(tip=self._tip, direction=direction)}
+
+    def _follow_surface(self):
+        """Group the particles the session's surface follows now (after a dissection:
+        the wound's, not the removed ones) for the servo's collision."""
+        self.surface = SurfaceClusters(self.session.data, surface=self.session.surface_particles())
+        self._surface_version = self.session.model.topology_version
 
     def _coupled_tip(self, closed: bool) -> np.ndarray:
         """The scene tool's tip [m]: s' = s + κ ((q_h - s) + F_t / g) while tissue

@@ -294,12 +294,15 @@ class SurfaceClusters:
     organs without clusters are grouped on a lattice of ``cell`` [m] (default: the
     median cluster radius). Each frame a group's sphere is centred on its particles'
     mean with the radius that bounds their spheres, so however the tissue deforms the
-    cluster test misses no particle.
+    cluster test misses no particle. ``surface`` (sorted particle indices) replaces
+    the built surface's particles: the surface after a dissection
+    (:meth:`taichi_lap.session.Session.surface_particles`).
     """
 
-    def __init__(self, data, *, cell: float | None = None):
+    def __init__(self, data, *, cell: float | None = None, surface=None):
         n = data.particle_count
-        surface = np.unique(data.surface_index[data.surface_weight > 0])
+        if surface is None:
+            surface = np.unique(data.surface_index[data.surface_weight > 0])
         on_surface = np.zeros(n, dtype=bool)
         on_surface[surface] = True
         sizes = np.diff(data.cluster_start)
