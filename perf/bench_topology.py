@@ -1,15 +1,14 @@
 """Topology benchmark (issue: Dissection I, seed 002 §3.3).
 
 Cases
-* ``liver-groove``: a groove cut into the top of the liver scene as it runs (settled
-  start, tissue collision): a tip 4 mm deep moving 5 mm/s along a 4 cm line removes
-  the particles within 3 mm of it every frame (blunt removal, the same topology
-  update a cautery hook's ablation makes; at lower detail depth and reach grow with
-  the particle spacing). Metrics ``ms_per_update`` (the update alone: host topology
-  and the rows written to the device; median, p95, max; the first update, which
-  compiles the row writes, is the parameter ``first_update_ms``) and
-  ``ms_per_frame`` (a simulation step plus its update) while cutting and, for the
-  same frames from the same start, without.
+* ``liver-cautery``: the liver scene's own script (settled start, tissue collision):
+  the electrocautery hook, energised, cuts a groove along the liver's top at 5 mm/s
+  and deepens it on the way back (18 s). Metrics ``ms_per_update`` (the topology
+  update alone of each frame that removed tissue: host topology and the rows written
+  to the device; median, p95, max; the first update, which compiles the row writes,
+  is the parameter ``first_update_ms``) and ``ms_per_frame`` (a whole simulation
+  step: physics, heat and the update) while cutting and, for the same frames from the
+  same start with the hook not energised, without.
 * ``random-removals-liver``: random removal events at full scale (a ball of radius
   1.5-4 mm around a random live liver particle each), the topology validator after
   every one: ``validator_failures`` (events whose topology failed it) and the host's
@@ -30,71 +29,51 @@ import numpy as np
 
 from taichi_lap.perf.common import arguments, report, result
 
-DEPTH = 0.004  # [m] of the groove's tip below the surface (at full scale)
-REACH = 0.003  # [m] particles this close to the tip are removed (at full scale)
-SPEED = 0.005  # [m/s] of the tip along the groove
-LENGTH = 0.04  # [m] of the groove
 
-
-def groove_tip(
-    positions: np.ndarray, surface: np.ndarray, x: float, z: float, reach: float, depth: float
-) -> np.ndarray:
-    """The tip [m] ``depth`` below the highest of the ``surface`` particles within
-    ``reach`` of the vertical line through (x, z)."""
-    near = surface[np.hypot(positions[surface, 0] - x, positions[surface, 2] - z) < reach]
-    top = positions[near, 1].max() if len(near) else positions[surface, 1].max()
-    return np.array([x, top - depth, z])
-
-
-def groove_cases(detail: float) -> list[dict]:
-    """``liver-groove`` at ``detail`` (module docstring)."""
+def cautery_cases(detail: float) -> list[dict]:
+    """``liver-cautery`` at ``detail`` (module docstring)."""
     from taichi_lap import scene as scene_mod
-    from taichi_lap.session import Session
+    from taichi_lap.session import Session, scene_script
 
     session = Session(scene_mod.load("liver", {"scene.detail": detail}), progress=False)
-    data, dt = session.data, session.dt
-    liver = data.organs[0]
-    surface = np.unique(data.surface_index[slice(*liver.surface_vertices), 0])
-    start = session.state.x.to_numpy()
-    top = surface[np.argmax(start[surface, 1])]
-    x0, z0 = start[top, 0] - LENGTH / 2, start[top, 2]
-    frames = int(round(LENGTH / SPEED / dt))
-    scale = detail ** (-1.0 / 3.0)  # the particle spacing grows so at lower detail
-    reach, depth = REACH * scale, DEPTH * scale
+    device = scene_script(session.scene)
+    frames = int(round(device.duration() / session.dt))
     session.step()  # compile
     updates, cutting, plain, removed, alive = [], [], [], 0, 0
     for cut in (True, False):
         session.reset()
-        for k in range(frames):
-            begin = time.perf_counter()
-            session.step()
-            if cut:
-                x = session.state.x.to_numpy()
-                tip = groove_tip(x, surface, x0 + SPEED * dt * k, z0, reach, depth)
-                near = np.flatnonzero((np.linalg.norm(x - tip, axis=1) < reach) & (data.organ == 0))
-                mark = time.perf_counter()
-                change = session.remove_particles(near)
-                if not change.empty:
-                    updates.append((time.perf_counter() - mark) * 1e3)
-                    removed += len(change.removed_particles)
-            (cutting if cut else plain).append((time.perf_counter() - begin) * 1e3)
-        if cut and session._dissection is not None:
+        for _ in range(frames):
+            time = session.state.time
+            buttons = device.buttons(time) if cut else None
+            begin = time_ms()
+            session.step(device.poses(time), buttons)
+            (cutting if cut else plain).append(time_ms() - begin)
+            if "topology" in session.timings:
+                updates.append(session.timings["topology"])
+        if cut and session._dissection is None:
+            raise RuntimeError(f"the hook removed nothing from the liver at detail {detail}")
+        if cut:
+            removed = int((~session._dissection.topology.particle_alive).sum())
             alive = int(session._dissection.topology.triangles["alive"].sum())
     params = {
         "detail": detail,
-        "particles": data.particle_count,
+        "particles": session.data.particle_count,
         "frames": frames,
         "removed": removed,
+        "updates": len(updates),
         "first_update_ms": round(updates[0], 1),  # compiles the row writes
         "triangles_alive": alive,
     }
     session.close()
-    rows = [
-        result("liver-groove", params, "ms_per_update", updates[1:]),
-        result("liver-groove", dict(params, cutting=True), "ms_per_frame", cutting),
-        result("liver-groove", dict(params, cutting=False), "ms_per_frame", plain),
+    return [
+        result("liver-cautery", params, "ms_per_update", updates[1:]),
+        result("liver-cautery", dict(params, cutting=True), "ms_per_frame", cutting),
+        result("liver-cautery", dict(params, cutting=False), "ms_per_frame", plain),
     ]
-    return rows
+
+
+def time_ms() -> float:
+    return time.perf_counter() * 1e3
 
 
 def random_removal_cases(detail: float, events: int, seed: int = 0) -> list[dict]:
@@ -141,8 +120,8 @@ def main():
     from taichi_lap import runtime
 
     runtime.init(args.arch)
-    detail = 0.1 if args.quick else 1.0
-    results = groove_cases(detail)
+    detail = 0.3 if args.quick else 1.0
+    results = cautery_cases(detail)
     results += random_removal_cases(detail, 100 if args.quick else (args.runs or 1000))
     report("topology", args.arch, results, args.json)
 
