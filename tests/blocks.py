@@ -1,5 +1,5 @@
 """A Kuhn-split tet block as topology arrays, for the tests of the topology validator
-and of dissection (no Taichi)."""
+and of dissection (no Taichi); and the scene file of a tet block with one tool."""
 
 import numpy as np
 
@@ -100,3 +100,23 @@ def block_model(cells: int = 4, whole_cluster: bool = False):
         surface_triangles=arguments["triangles"],
         organs=arguments["organs"],
     )
+
+
+def block_scene_file(name: str, tool: str, material: str = "") -> str:
+    """A scene file: the 4 x 2.4 x 3 cm tet block (2 mm lattice, ``material``: more
+    of its material keys, e.g. ``", mass = 0.03"``), fixed at its base, no gravity,
+    and the ``[[tools]]`` table ``tool`` (TOML)."""
+    return f"""
+[scene]
+name = "{name}"
+gravity = [0.0, 0.0, 0.0]
+
+{tool}
+
+[[organs]]
+name = "block"
+model = "tet_clusters"
+geometry = {{ generator = "box", half_extents = [0.02, 0.012, 0.015] }}
+material = {{ particle_spacing = 0.002{material} }}
+attachments = [ {{ kind = "fixed", box_min = [-1, -1, -1], box_max = [1, -0.011, 1] }} ]
+"""

@@ -22,6 +22,7 @@ from taichi_lap.perf.bench_contact import HALF, organ_table
 from taichi_lap.replay import read_recording
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
+from tests.blocks import block_scene_file
 
 RADIUS = 0.0025  # [m] a 5 mm hook
 DEPTH = 0.002  # [m] how far the electrode's bottom goes below the block's top
@@ -162,11 +163,7 @@ def test_contact_without_current_removes_nothing_and_a_reset_cools():
     session.close()
 
 
-SCENE = """
-[scene]
-name = "cautery"
-gravity = [0.0, 0.0, 0.0]
-
+TOOL = """
 [[tools]]
 name = "hook"
 kind = "hook"
@@ -174,23 +171,16 @@ radius = 0.0025
 length = 0.1
 tip = [-0.005, 0.01925, 0.0]
 script = [
-  {{ time = 0.0, tip = [-0.005, 0.01925, 0.0] }},
-  {{ time = 0.3, tip = [-0.005, {y}, 0.0], cautery = true }},
-  {{ time = 1.0, tip = [0.0, {y}, 0.0] }},
-]
-
-[[organs]]
-name = "block"
-model = "tet_clusters"
-geometry = {{ generator = "box", half_extents = [0.02, 0.012, 0.015] }}
-material = {{ particle_spacing = 0.002, mass = 0.03 }}
-attachments = [ {{ kind = "fixed", box_min = [-1, -1, -1], box_max = [1, -0.011, 1] }} ]
-"""
+  { time = 0.0, tip = [-0.005, 0.01925, 0.0] },
+  { time = 0.3, tip = [-0.005, %s, 0.0], cautery = true },
+  { time = 1.0, tip = [0.0, %s, 0.0] },
+]"""
 
 
 def test_a_recorded_cautery_session_replays_to_the_same_state(tmp_path, capsys):
     scene = tmp_path / "cautery.toml"
-    scene.write_text(SCENE.format(y=0.01925 - 0.001 - DEPTH))
+    y = 0.01925 - 0.001 - DEPTH
+    scene.write_text(block_scene_file("cautery", TOOL % (y, y), ", mass = 0.03"))
     record = tmp_path / "cautery.tlap"
     run = ["run", str(scene), "--headless", "--size", "64x48", "--frames", "60"]
     assert main([*run, "--out", str(tmp_path / "a"), "--record", str(record)]) == 0

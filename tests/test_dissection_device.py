@@ -17,6 +17,7 @@ from taichi_lap.kernels.collision import spheres
 from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
+from tests.blocks import block_scene_file
 from tests.helpers import BOX, simulation
 
 SHIFT = 0.005  # [m] the left half is moved this far along z
@@ -263,11 +264,7 @@ def test_the_topology_check_of_a_session_passes_a_dissection_and_names_a_broken_
         session.check_topology()
 
 
-SCENE = """
-[scene]
-name = "dissect"
-gravity = [0.0, 0.0, 0.0]
-
+TOOL = """
 [[tools]]
 name = "dissector"
 kind = "dissector"
@@ -275,22 +272,14 @@ radius = 0.003
 length = 0.1
 tip = [0.0, 0.016, 0.0]
 script = [
-  {{ time = 0.0, tip = [0.0, 0.016, 0.0] }},
-  {{ time = 0.5, tip = [0.0, {low}, 0.0] }},
-]
-
-[[organs]]
-name = "block"
-model = "tet_clusters"
-geometry = {{ generator = "box", half_extents = [0.02, 0.012, 0.015] }}
-material = {{ particle_spacing = 0.002 }}
-attachments = [ {{ kind = "fixed", box_min = [-1, -1, -1], box_max = [1, -0.011, 1] }} ]
-"""
+  { time = 0.0, tip = [0.0, 0.016, 0.0] },
+  { time = 0.5, tip = [0.0, %s, 0.0] },
+]"""
 
 
 def test_run_checks_the_topology_of_every_frame_that_removed_tissue(tmp_path, capsys):
     scene = tmp_path / "dissect.toml"
-    scene.write_text(SCENE.format(low=HALF[1] - 0.004 + PROBE_RADIUS))
+    scene.write_text(block_scene_file("dissect", TOOL % (HALF[1] - 0.004 + PROBE_RADIUS)))
     argv = ["run", str(scene), "--headless", "--frames", "40", "--size", "64x48"]
     record = tmp_path / "dissect.tlap"
     status = main(

@@ -65,10 +65,9 @@ def camera(near: float):
     return projection @ view
 
 
-def render(vertices, faces, *, normals=None, near=0.01, by_pixel=False) -> dict:
-    """G-buffer arrays of a mesh seen by the default camera."""
-    count = mesh().load(vertices, faces, normals)
-    target = gbuffer(by_pixel)
+def draw(target: GBuffer, count: int, near: float):
+    """Rasterize the first ``count`` triangles of the shared mesh into ``target``, seen
+    by the default camera with the near plane at ``near`` [m]."""
     target.render(
         mesh().positions,
         mesh().normals,
@@ -79,6 +78,13 @@ def render(vertices, faces, *, normals=None, near=0.01, by_pixel=False) -> dict:
         camera(near),
         near,
     )
+
+
+def render(vertices, faces, *, normals=None, near=0.01, by_pixel=False) -> dict:
+    """G-buffer arrays of a mesh seen by the default camera."""
+    count = mesh().load(vertices, faces, normals)
+    target = gbuffer(by_pixel)
+    draw(target, count, near)
     return {
         "triangle": target.triangle.to_numpy(),
         "depth": target.depth.to_numpy(),
@@ -402,16 +408,7 @@ def compute_gbuffer() -> dict:
     vertices = np.concatenate([sphere * 0.3 + [0.0, 0.1, -1.0], floor])
     faces = np.concatenate([sphere_faces, [[len(sphere), len(sphere) + 1, len(sphere) + 2]]])
     target, count = GBuffer(WIDTH, HEIGHT), mesh().load(vertices, faces)
-    target.render(
-        mesh().positions,
-        mesh().normals,
-        mesh().char,
-        mesh().triangles,
-        count,
-        EYE,
-        camera(0.02),
-        0.02,
-    )
+    draw(target, count, 0.02)
     return {
         "triangle": target.triangle.to_numpy(),
         "depth": target.depth.to_numpy(),
