@@ -12,6 +12,7 @@ from taichi_lap.kernels.draw_mesh import CHAR_FULL, CHAR_START, surface_char
 from taichi_lap.kernels.shading import VIEWS
 
 from taichi_lap.core.fields import FieldGroup
+from taichi_lap.dissection.removal import CUT_POINT
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.renderer import BACKGROUND, Renderer
 from taichi_lap.render.scene_mesh import ArrayMesh
@@ -35,14 +36,16 @@ def smoothstep(a: float, b: float, x):
 @ti.data_oriented
 class Binding:
     """Surface vertices bound to particles the way a model binds them (``surface_index``,
-    ``surface_weight``), the particles' ``peak`` temperatures and a ``char`` field with
-    ``extra`` rows past the surface (where a drawn mesh keeps instruments and tubes)."""
+    ``surface_weight``; ``surface_cluster`` >= 0 for a wound vertex), the particles'
+    ``peak`` temperatures and a ``char`` field with ``extra`` rows past the surface
+    (where a drawn mesh keeps instruments and tubes)."""
 
-    def __init__(self, index, weight, peak, extra: int, extra_char: float):
+    def __init__(self, index, weight, cluster, peak, extra: int, extra_char: float):
         self.surface_vertex_count = len(index)
         group = FieldGroup()
         self.surface_index = group.field(ti.i32, len(index), vector=4, values=index)
         self.surface_weight = group.field(ti.f32, len(index), vector=4, values=weight)
+        self.surface_cluster = group.field(ti.i32, len(index), values=cluster)
         self.peak = group.field(ti.f32, len(peak), values=np.asarray(peak, np.float32))
         rows = len(index) + extra
         self.char = group.field(ti.f32, rows, values=np.full(rows, extra_char, np.float32))
@@ -51,22 +54,25 @@ class Binding:
 
 def test_char_follows_the_peak_temperature_of_the_bound_particles():
     peak = [BODY, 100.0, 130.0, 75.0, HOT, 60.0, 90.0, 50.0]
-    rows = {  # name: (particles, weights, expected char)
-        "body temperature": ([0, 0, 0, 0], [1, 0, 0, 0], 0.0),
-        "boiled": ([1, 0, 0, 0], [1, 0, 0, 0], 1.0),
-        "hotter still": ([2, 0, 0, 0], [1, 0, 0, 0], 1.0),
-        "midway": ([3, 0, 0, 0], [1, 0, 0, 0], 0.5),
-        "wound edge": ([0, 4, 0, 0], [0.5, 0.5, 0, 0], smoothstep(50.0, 100.0, 78.5)),
-        "in a tetrahedron": ([5, 6, 7, 3], [0.25] * 4, smoothstep(50.0, 100.0, 68.75)),
-        "spare row": ([1, 2, 1, 2], [0, 0, 0, 0], 0.0),
+    edge = (1.0 - CUT_POINT) * BODY + CUT_POINT * HOT  # a wound vertex's place on its cut edge
+    rows = {  # name: (particles, weights, skinning cluster, expected char)
+        "body temperature": ([0, 0, 0, 0], [1, 0, 0, 0], -1, 0.0),
+        "boiled": ([1, 0, 0, 0], [1, 0, 0, 0], -1, 1.0),
+        "hotter still": ([2, 0, 0, 0], [1, 0, 0, 0], -1, 1.0),
+        "midway": ([3, 0, 0, 0], [1, 0, 0, 0], -1, 0.5),
+        "on an edge": ([0, 4, 0, 0], [0.5, 0.5, 0, 0], -1, smoothstep(50.0, 100.0, 78.5)),
+        "in a tetrahedron": ([5, 6, 7, 3], [0.25] * 4, -1, smoothstep(50.0, 100.0, 68.75)),
+        "wound vertex": ([0, 4, 0, 0], [0, 0, 0, 0], 3, smoothstep(50.0, 100.0, edge)),
+        "spare row": ([1, 2, 1, 2], [0, 0, 0, 0], -1, 0.0),
     }
     index = np.array([r[0] for r in rows.values()], np.int32)
     weight = np.array([r[1] for r in rows.values()], np.float32)
-    binding = Binding(index, weight, peak, extra=3, extra_char=0.25)
+    cluster = np.array([r[2] for r in rows.values()], np.int32)
+    binding = Binding(index, weight, cluster, peak, extra=3, extra_char=0.25)
     surface_char(binding, binding.peak, binding.char)
     char = binding.char.to_numpy()
     assert (CHAR_START, CHAR_FULL) == (50.0, 100.0)
-    for (name, (_, _, expected)), value in zip(rows.items(), char):
+    for (name, (_, _, _, expected)), value in zip(rows.items(), char):
         assert value == pytest.approx(expected, abs=1e-6), name
     assert (char[len(rows) :] == 0.25).all()  # rows past the surface are left alone
 
