@@ -298,7 +298,7 @@ class Session:
         dissection: alive, with the kept ends of the wound's vertices); for the haptic
         proxy's collision."""
         if self._dissection is None:
-            return np.unique(self.data.surface_index[self.data.surface_weight > 0])
+            return self.data.surface_particles()
         return self._dissection.topology.surface_particles()
 
     @property

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import math
 
 import numpy as np
 
@@ -52,12 +51,10 @@ from taichi_lap.haptics.device import WorkspaceMapping
 from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, grasp_edges
 from taichi_lap.haptics.servo import ServoProcess, ServoSettings
 from taichi_lap.haptics.snapshot import SceneSnapshot
+from taichi_lap.sim.model import SURFACE_SPARE, spare_rows
 
 log = logging.getLogger("taichi_lap.haptics")
 
-SURFACE_SPARE = 1.5
-"""The snapshot holds this many times the surface particles and groups of a model that
-can be dissected: a wound exposes particles that were inside."""
 GRASP_EDGE_CAPACITY = 4096
 """Grasp edges one snapshot carries to the servo."""
 COUPLING = 0.5
@@ -102,10 +99,10 @@ class HapticBridge:
         self.session = session
         self.tool_index = [tool["name"] for tool in session.scene.tools].index(self.name)
         self._follow_surface()
-        spare = SURFACE_SPARE if session.model.dissectable else 1.0
+        dissectable = session.model.dissectable  # a wound exposes particles from inside
         self.snapshot = SceneSnapshot.create(
-            clusters=math.ceil(spare * self.surface.cluster_count),
-            particles=math.ceil(spare * self.surface.particle_count),
+            clusters=spare_rows(self.surface.cluster_count, dissectable, SURFACE_SPARE),
+            particles=spare_rows(self.surface.particle_count, dissectable, SURFACE_SPARE),
             grasp_edges=GRASP_EDGE_CAPACITY,
         )
         self.surface.publish(self.snapshot, session.state.x.to_numpy())

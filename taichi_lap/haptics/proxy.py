@@ -302,7 +302,7 @@ class SurfaceClusters:
     def __init__(self, data, *, cell: float | None = None, surface=None):
         n = data.particle_count
         if surface is None:
-            surface = np.unique(data.surface_index[data.surface_weight > 0])
+            surface = data.surface_particles()
         on_surface = np.zeros(n, dtype=bool)
         on_surface[surface] = True
         sizes = np.diff(data.cluster_start)

@@ -71,6 +71,10 @@ class ModelData:
         """(N,) 1 / mass [1/kg], 0 for pinned particles (they do not move)."""
         return np.where(self.pinned, 0.0, 1.0 / np.maximum(self.mass, 1e-12))
 
+    def surface_particles(self) -> np.ndarray:
+        """Sorted particles the surface vertices are bound to (weights > 0)."""
+        return np.unique(self.surface_index[self.surface_weight > 0])
+
     def contact_radius(self) -> np.ndarray:
         """(N,) how far [m] a tool stays from each particle: the drawn surface's
         distance from it. Surfaces are drawn through their particles (0), and so is
