@@ -44,12 +44,12 @@ class Cautery:
         specs = {organ.name: organ for organ in scene.organs}
         n = data.particle_count
         dissectable = dissectable_organs(data)
-        per_particle = {
-            name: np.full(n, math.inf)
-            for name in ("specific_heat", "perfusion_rate", "ablation", "damage")
+        per_particle = {  # organs without tets take no heat: their values stay unused
+            "specific_heat": np.ones(n),
+            "perfusion_rate": np.zeros(n),
+            "ablation": np.full(n, math.inf),
+            "damage": np.full(n, math.inf),
         }
-        per_particle["specific_heat"][:] = 1.0  # organs without tets take no heat
-        per_particle["perfusion_rate"][:] = 0.0
         tet_conductivity = np.zeros(len(data.tets))
         for k, organ in enumerate(data.organs):
             if organ.tets[1] == organ.tets[0]:

@@ -111,11 +111,12 @@ class HeatField(FieldOwner):
     ``cooling_rate`` [1/s], ``ablation_temperature`` and ``damage_temperature`` [°C]
     (scalars or per particle; inf: never), ``body_temperature`` [°C] (the start and
     the cooling target), ``particle_radius`` [m] (scalar or per particle: how far a
-    particle reaches towards a source). Fields: ``temperature`` and ``peak`` (the highest so far)
-    [°C], ``alive`` (particles in no tet are dead from the start: other organs take no
-    heat), the edges of each particle in compressed rows with their conductances, the
-    thresholds, ``hottest`` (the highest alive temperature after the last step) and
-    scratch of a step. ``max_step`` [s] is :func:`stable_time_step`, computed once."""
+    particle reaches towards a source). Fields: ``temperature`` and ``peak`` (the
+    highest so far) [°C], ``alive`` (particles in no tet are dead from the start:
+    other organs take no heat), the edges of each particle in compressed rows with
+    their conductances, the thresholds, ``hottest`` (the highest alive temperature
+    after the last step) and scratch of a step. ``max_step`` [s] is
+    :func:`stable_time_step`, computed once."""
 
     def __init__(
         self,
