@@ -2,6 +2,8 @@
 dumbbell is cut its halves move independently, while joined they pull each other;
 removed particles stay where they were."""
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,9 @@ from taichi_lap.dissection.removal import MutableTopology
 from taichi_lap.kernels.collision import spheres
 from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.scene import from_tables
+from taichi_lap.render.renderer import Renderer
 from taichi_lap.session import Session
+from taichi_lap.sim import model as model_module
 from tests.blocks import block_scene_file
 from tests.helpers import BOX, simulation
 
@@ -289,3 +293,59 @@ def test_run_checks_the_topology_of_every_frame_that_removed_tissue(tmp_path, ca
     assert status == 0, err
     removed = [e["particles"] for e in read_recording(record).events if e["kind"] == "dissect"]
     assert len(removed) > 3 and sum(removed) > 10  # frames that removed tissue were checked
+
+
+def dumbbell_cut_with_growth(spare: bool, monkeypatch) -> dict:
+    """The dumbbell of :func:`displaced_dumbbell` cut through a session, drawn before
+    and after, stepped before, during and after the cut; without ``spare`` the
+    model is built with no spare rows, so the cut must grow every kind of them.
+    Returns the positions after 22 frames, the renderer's triangle counts and the
+    session."""
+    if not spare:
+        monkeypatch.setattr(model_module, "spare_rows", lambda count, *_: count)
+    session = Session(from_tables([BOX], gravity=[0, 0, 0]), use_cache=False, progress=False)
+    renderer = Renderer.for_scene(session.scene, session.model, size=(64, 48))
+    renderer.render(session.state, session.control)
+    drawn = [renderer.mesh.triangle_count]
+    before = session.state.snapshot()
+    for _ in range(2):  # the step's kernels compiled before the rows grow
+        session.step()
+    rest = session.data.rest_position
+    slab = np.abs(rest[:, 0]) < 0.003
+    neck = slab & (np.abs(rest[:, 1]) < 0.005) & (np.abs(rest[:, 2]) < 0.005)
+    session.remove_particles(np.flatnonzero(slab & ~neck))
+    for _ in range(2):  # after the first growth, which destroys no tree
+        session.step()
+    session.remove_particles(np.flatnonzero(neck))
+    for _ in range(18):
+        session.step()
+    renderer.render(session.state, session.control)
+    drawn.append(renderer.mesh.triangle_count)
+    return {"x": session.state.x.to_numpy(), "drawn": drawn, "session": session, "before": before}
+
+
+def test_a_cut_beyond_the_spare_rows_grows_the_model_and_changes_nothing_else(monkeypatch, caplog):
+    """Built without spare rows, the dumbbell's cut grows the model's rows (one log
+    line per growth) and the state's; the tables stay right, the topology valid, the
+    drawn mesh follows, the motion is that of a model built with spare rows, and a
+    snapshot taken before the growth still restores."""
+    ample = dumbbell_cut_with_growth(spare=True, monkeypatch=monkeypatch)
+    with caplog.at_level(logging.WARNING, logger="taichi_lap"):
+        grown = dumbbell_cut_with_growth(spare=False, monkeypatch=monkeypatch)
+    session = grown["session"]
+    growths = [r for r in caplog.records if "spare rows ran out" in r.getMessage()]
+    assert 1 <= len(growths) <= 2  # one line per removal that outgrew the rows
+    assert session.model.layout_version == len(growths)
+    built = session.model.data
+    assert session.model.cluster_capacity > built.cluster_count
+    assert session.model.surface_triangle_count > len(built.surface_triangles)
+    assert session.model.cluster_total > built.cluster_count  # the neck's cut split clusters
+    assert_device_clusters_match(session.model, session._dissection.topology)
+    session.check_topology()
+    assert grown["drawn"][1] > grown["drawn"][0]  # the renderer made its mesh again
+    assert np.array_equal(grown["x"], ample["x"])
+    session.state.restore(grown["before"])
+    rows = len(grown["before"]["cluster_center"])
+    assert np.array_equal(
+        session.state.cluster_center.to_numpy()[:rows], grown["before"]["cluster_center"]
+    )

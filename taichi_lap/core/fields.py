@@ -11,8 +11,17 @@ from __future__ import annotations
 
 import numpy as np
 import taichi as ti
+from taichi.lang import impl
 from taichi.lang.struct import StructType
 from taichi.lang.util import to_numpy_type
+
+
+def padded_rows(values: np.ndarray, rows: int, fill=0) -> np.ndarray:
+    """``values`` with rows of ``fill`` appended up to ``rows``."""
+    if len(values) >= rows:
+        return values
+    extra = np.full((rows - len(values),) + values.shape[1:], fill, values.dtype)
+    return np.concatenate([values, extra])
 
 
 class FieldGroup:
@@ -22,6 +31,7 @@ class FieldGroup:
     def __init__(self):
         self._builder = ti.FieldsBuilder()
         self._uploads: list = []
+        self._specs: dict[int, tuple] = {}  # id(field) -> (dtype, vector, matrix)
         self.tree = None
 
     def field(
@@ -45,6 +55,7 @@ class FieldGroup:
             f = ti.Vector.field(vector, dtype)
         else:
             f = ti.field(dtype)
+        self._specs[id(f)] = (dtype, vector, matrix)
         if n is None:
             self._builder.place(f)
         else:
@@ -56,6 +67,38 @@ class FieldGroup:
     def fill(self, field, values):
         """Upload ``values`` into ``field`` when the group is finalized."""
         self._uploads.append((field, np.asarray(values)))
+
+    def regrown(self, owner, rows: dict[str, int], fill: dict | None = None) -> FieldGroup:
+        """Reallocate fields of this group, attributes ``rows`` of ``owner``, with
+        ``rows[name]`` entries each (at least as many as it has): a new group holds
+        them, their values kept and the new rows ``fill[name]`` (0 when not named);
+        ``owner``'s attributes are the new fields, and every kernel compiles again.
+        When they were every field of this group it is closed (:meth:`close`), else
+        it stays, the old fields unused in it. Returns the new group."""
+        fields = {name: getattr(owner, name) for name in rows}
+        if not {id(f) for f in fields.values()} <= set(self._specs):
+            raise ValueError("regrown: rows must name fields of the group")
+        whole = len(fields) == len(self._specs)
+        fill = fill or {}
+        arrays = {name: f.to_numpy() for name, f in fields.items()}  # before declaring
+        group = FieldGroup()
+        for name, f in fields.items():
+            values = arrays[name]
+            if rows[name] < len(values):
+                raise ValueError(f"regrown: {name} has {len(values)} rows, more than {rows[name]}")
+            values = padded_rows(values, rows[name], fill.get(name, 0))
+            dtype, vector, matrix = self._specs[id(f)]
+            setattr(
+                owner,
+                name,
+                group.field(dtype, rows[name], vector=vector, matrix=matrix, values=values),
+            )
+        group.finalize()
+        if whole:
+            self.close()
+        else:  # as destroying a tree does: a compiled kernel holds the fields it read
+            impl.get_runtime().clear_compiled_functions()
+        return group
 
     def close(self):
         """Free the fields' memory (destroy the SNode tree). The fields must not be used

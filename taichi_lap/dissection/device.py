@@ -17,23 +17,35 @@ update ... followed by mesh skinning"): the host's :class:`MutableTopology` deci
   their organ, the incident-triangle rows of their vertices (normals), and the
   vertices made, removed or skinned by another cluster.
 
+A change that needs more rows than the model has spare first grows the model and
+the state (:meth:`~taichi_lap.sim.model.Model.grow`, by :data:`GROWTH`, one log
+line): geometry is never dropped.
+
 The model's :attr:`~taichi_lap.sim.model.Model.topology_version` then tells the
 drawn mesh to copy the surface again.
 """
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from taichi_lap.core.csr import owners_of, rows_of
+from taichi_lap.core.fields import padded_rows
 from taichi_lap.dissection.removal import MutableTopology, TopologyChange
 from taichi_lap.kernels.collision.particle_contact import FREE
 from taichi_lap.kernels.scatter import scatter
-from taichi_lap.sim.model import Model, member_chunks
+from taichi_lap.sim.model import CHUNK, Model, member_chunks
+
+log = logging.getLogger("taichi_lap")
+
+GROWTH = 1.5
+"""Factor by which rows that ran out grow (at least to what the change needs)."""
 
 
 class CapacityError(RuntimeError):
-    """The model's spare rows ran out (the model must be built with more)."""
+    """A surface vertex is in more triangles than its incident row holds."""
 
 
 class DeviceTopology:
@@ -65,6 +77,8 @@ class DeviceTopology:
         """Write ``change`` (just made by the topology) to the model, and release the
         removed particles from grasps in ``state``."""
         model, topology, removed = self.model, self.topology, change.removed_particles
+        new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
+        self._fit(change, new, state)
         scatter(model.inv_mass, removed, np.zeros(len(removed)))
         held = removed[state.grasp_tool.to_numpy()[removed] != FREE]
         scatter(state.grasp_tool, held, np.full(len(held), FREE))
@@ -75,7 +89,6 @@ class DeviceTopology:
                 removed[owners_of(topology.membership_start, removed)],
             )
         ]
-        new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
         for c in new:
             members = topology.cluster_members[c]
             left.append((np.full(len(members), topology.cluster_parent[c]), members))
@@ -87,6 +100,36 @@ class DeviceTopology:
         model.finalize_counts()
         self._write_surface(change)
         model.topology_version += 1
+
+    def _fit(self, change: TopologyChange, new: list[int], state):
+        """Grow the model, the state and these tables when ``change`` with its
+        ``new`` clusters needs more rows than are spare (module docstring)."""
+        model = self.model
+        sizes = np.array([len(self.topology.cluster_members[c]) for c in new], dtype=np.int64)
+        need = {
+            "clusters": max(new, default=-1) + 1,
+            "members": self.rows_used + int(sizes.sum()),
+            "chunks": model.chunk_total + int(np.maximum(-(-sizes // CHUNK), 1).sum()),
+            "triangles": int(change.new_triangles.max(initial=-1)) + 1,
+            "vertices": int(change.new_vertices.max(initial=-1)) + 1,
+        }
+        short = {k: n for k, n in need.items() if n > model.capacity[k]}
+        if not short:
+            return
+        rows = {k: max(n, int(GROWTH * model.capacity[k])) for k, n in short.items()}
+        log.warning(
+            "dissection: the model's spare rows ran out; growing %s (kernels compile again)",
+            ", ".join(f"{k} {model.capacity[k]} -> {n}" for k, n in rows.items()),
+        )
+        model.grow(**rows)
+        state.grow(model)
+        self.row_mass = padded_rows(self.row_mass, model.member_capacity, 0.0)
+        self.mass = padded_rows(self.mass, model.cluster_capacity, 0.0)
+        self.center = padded_rows(self.center, model.cluster_capacity, 0.0)
+        self.origin = padded_rows(self.origin, model.cluster_capacity, 0.0)
+        self.triangles = padded_rows(self.triangles, model.surface_triangle_count, 0)
+        self.triangle_live = padded_rows(self.triangle_live, model.surface_triangle_count, False)
+        self.incident = padded_rows(self.incident, model.surface_vertex_count, -1)
 
     def _drop_members(self, clusters: np.ndarray, particles: np.ndarray):
         """Members ``particles`` leave ``clusters`` (pairs): their rows weigh 0, and
@@ -132,15 +175,6 @@ class DeviceTopology:
         first, count = self.rows_used, len(members)
         chunks = member_chunks(np.array([first, first + count]), model.chunk_total)
         chunk_rows = np.arange(model.chunk_total, model.chunk_total + len(chunks["cluster"]))
-        if (
-            first + count > model.member_capacity
-            or chunk_rows[-1] >= model.chunk_capacity
-            or c >= model.cluster_capacity
-        ):
-            raise CapacityError(
-                f"cluster {c}: the model's spare cluster rows ran out ({model.cluster_capacity} "
-                f"clusters, {model.member_capacity} members, {model.chunk_capacity} chunks)"
-            )
         rows = np.arange(first, first + count)
         n = len(topology.rest)
         self.row_key = np.concatenate([self.row_key, c * n + members])
@@ -178,13 +212,6 @@ class DeviceTopology:
         their vertices."""
         model, v, f = self.model, self.topology.vertices, self.topology.triangles
         new, vertices = change.new_triangles, change.new_vertices
-        if (len(new) and new.max() >= len(self.triangles)) or (
-            len(vertices) and vertices.max() >= len(self.incident)
-        ):
-            raise CapacityError(
-                f"the model's spare surface rows ran out ({len(self.triangles)} triangles, "
-                f"{len(self.incident)} vertices)"
-            )
         rows = np.union1d(change.dead_triangles, new)
         old = rows[self.triangle_live[rows]]
         old_vertices = self.triangles[old]

@@ -85,6 +85,8 @@ class Renderer:
         ``peak``, the particles' peak temperatures [°C], heated tissue is drawn
         charred (the wound's look), without it all tissue is fresh."""
         marks = [time.perf_counter()]
+        if self.mesh.outgrown:
+            self.mesh = self.mesh.rebuilt()
         self.mesh.update(state, control, peak)
         ti.sync()
         marks.append(time.perf_counter())

@@ -46,7 +46,10 @@ class ArrayMesh:
     ``smooth_count`` vertices are gathered from their triangles (the rows of
     ``incident``, a field of :func:`~taichi_lap.core.mesh.incident_table`, built
     from ``triangles`` when not given) by :meth:`update`; the others are written by
-    whoever places them."""
+    whoever places them. A mesh of fixed arrays never outgrows its fields
+    (:attr:`outgrown`)."""
+
+    outgrown = False
 
     def __init__(
         self,
@@ -86,6 +89,11 @@ class ArrayMesh:
         self.metalness = group.field(ti.f32, len(materials), values=table["metalness"])
         self.mucus = group.field(ti.f32, len(materials), values=table["mucus"])
         group.finalize()
+        self._mesh_group = group
+
+    def close(self):
+        """Free the mesh's fields (:meth:`FieldGroup.close`)."""
+        self._mesh_group.close()
 
     def update(self, state=None, control=None, peak=None):
         """Gather the normals of the smooth vertices from the current positions. The
@@ -106,10 +114,17 @@ class SceneMesh(ArrayMesh):
     cylinders re-tessellated each frame at ``tube_epsilon`` and ``tube_level``
     (seed 001 §5). The organ surfaces are those of ``model`` (a
     :class:`~taichi_lap.sim.model.Model`), followed through dissection; their
-    ``char`` follows the peak temperatures of the particles (the wound's look)."""
+    ``char`` follows the peak temperatures of the particles (the wound's look).
+    When the model's rows were reallocated (:meth:`~taichi_lap.sim.model.Model.grow`)
+    the mesh is :attr:`outgrown` and its owner makes it again (:meth:`rebuilt`)."""
 
     def __init__(self, scene, model, *, tube_sides: int = 12, tube_max_level: int = 2):
         data = model.data
+        self.scene, self._tube_options = (
+            scene,
+            {"tube_sides": tube_sides, "tube_max_level": tube_max_level},
+        )
+        self._layout = model.layout_version
         specs = {organ.name: organ for organ in scene.organs}
         materials = [organ_material(specs[o.name]) for o in data.organs] + [PRESETS[INSTRUMENT]]
         self.model, self._version = model, model.topology_version
@@ -179,6 +194,25 @@ class SceneMesh(ArrayMesh):
                 )
             )
         group.finalize()
+        self._group = group
+
+    @property
+    def outgrown(self) -> bool:
+        """Whether the model's rows were reallocated since this mesh was made."""
+        return self._layout != self.model.layout_version
+
+    def rebuilt(self) -> SceneMesh:
+        """A new mesh of the scene and model as they are now, at this mesh's tube
+        settings; this one is closed."""
+        mesh = SceneMesh(self.scene, self.model, **self._tube_options)
+        mesh.tube_epsilon, mesh.tube_level = self.tube_epsilon, self.tube_level
+        self.close()
+        return mesh
+
+    def close(self):
+        """Free the mesh's fields."""
+        self._group.close()
+        super().close()
 
     def update(self, state, control, peak=None):
         """Deformed surfaces with gathered normals, instruments at their poses,

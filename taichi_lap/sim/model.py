@@ -6,7 +6,8 @@ a ``ti.template()`` argument and only read it. Dissection changes it between ste
 (:mod:`taichi_lap.dissection.device`): the cluster tables have spare rows (members,
 chunks and clusters are appended, counts live in fields), a cluster drops a member by
 the member's weight in it (``cluster_member_mass``), a removed particle gets inverse
-mass 0. :meth:`Model.reset_topology` puts back the model as built.
+mass 0. Spare rows that run out are reallocated larger (:meth:`Model.grow`);
+:meth:`Model.reset_topology` puts back the model as built.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.core.csr import both_ends, incidence
-from taichi_lap.core.fields import FieldGroup, FieldOwner
+from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows
 from taichi_lap.core.mesh import incident_table
 from taichi_lap.preprocess.model_data import ModelData
 
@@ -23,6 +24,10 @@ CHUNK = 128
 """Cluster members summed by one thread in the cluster-matching reduction."""
 SURFACE_SPARE = 1.5
 """Spare surface rows of a model with tets, as a fraction of its surface."""
+
+
+ROW_KINDS = ("vertices", "triangles", "members", "clusters", "chunks")
+"""The kinds of rows dissection appends to (:attr:`Model.capacity`, :meth:`Model.grow`)."""
 
 
 def spare_rows(count: int, dissectable: bool, spare: float = 0.5) -> int:
@@ -50,15 +55,6 @@ def greedy_colors(pairs: np.ndarray, count: int) -> np.ndarray:
         used[i] |= 1 << c
         used[j] |= 1 << c
     return colors
-
-
-def _padded(values: np.ndarray, rows: int, fill=0) -> np.ndarray:
-    """``values`` with rows of ``fill`` appended up to ``rows``."""
-    if len(values) >= rows:
-        return values
-    return np.concatenate(
-        [values, np.full((rows - len(values),) + values.shape[1:], fill, values.dtype)]
-    )
 
 
 def cluster_tables(
@@ -148,92 +144,141 @@ class Model(FieldOwner):
         """An i32 field holding ``values`` (one entry per row; ``rows`` at least)."""
         values = np.asarray(values, dtype=np.int32)
         return self._group.field(
-            ti.i32, max(len(values), rows), vector=vector, values=_padded(values, rows)
+            ti.i32, max(len(values), rows), vector=vector, values=padded_rows(values, rows)
         )
 
     def _floats(self, values, vector: int = 0, rows: int = 0):
         """An f32 field holding ``values`` (one entry per row; ``rows`` at least)."""
         values = np.asarray(values, dtype=np.float32)
         return self._group.field(
-            ti.f32, max(len(values), rows), vector=vector, values=_padded(values, rows)
+            ti.f32, max(len(values), rows), vector=vector, values=padded_rows(values, rows)
         )
 
     def _init_clusters(self, data: ModelData):
         """Cluster tables of seed 000 Alg. 1 (:func:`cluster_tables`), chunked
         (:func:`member_chunks`), and the inverse masses: the fields dissection
-        changes, with their spare rows."""
+        changes. Those with spare rows (:data:`ROW_KINDS`) are the ``rows`` that
+        :meth:`grow` reallocates."""
         self.cluster_count = self._group.field(ti.i32, None)
         self.chunk_count = self._group.field(ti.i32, None)
-        for name, (values, rows, fill) in self._as_built(data).items():
+        self._rows = self._group  # a tree of their own once grown
+        self._row_fill = {}
+        for name, (values, kind, fill) in self._as_built(data).items():
             make = self._ints if values.dtype.kind in "iu" else self._floats
-            values = _padded(values, rows, fill)
-            setattr(self, name, make(values, vector=values.shape[1] if values.ndim > 1 else 0))
-        self.cluster_capacity = self.cluster_mass.shape[0]
-        self.member_capacity = self.cluster_member.shape[0]
-        self.chunk_capacity = self.chunk_cluster.shape[0]
-        self.surface_vertex_count = self.surface_index.shape[0]  # rows, spare ones included
-        self.surface_triangle_count = self.surface_triangles.shape[0]
+            values = padded_rows(values, self.capacity.get(kind, 0), fill)
+            vector = values.shape[1] if values.ndim > 1 else 0
+            setattr(self, name, make(values, vector=vector))
+            if kind is not None:
+                self._row_fill[name] = (kind, fill)
+        self._set_capacities()
         self.topology_version = 0  # counts the changes written to the model
+        self.layout_version = 0  # counts the reallocations of the row fields (grow)
 
-    def _as_built(self, data: ModelData) -> dict[str, tuple[np.ndarray, int, int]]:
-        """Field name -> (values as built, rows to allocate, value of the spare rows) of
-        what dissection changes (``cluster_rest_shift``: :mod:`taichi_lap.dissection.device`):
-        the surface (each vertex follows four particles, or
-        with a ``surface_cluster`` >= 0 that cluster from its ``surface_rest``
-        place; the triangles, (0, 0, 0) when dead, their organ, and each vertex's
-        triangles in ``surface_incident``, -1 padded), and
-        members with their mass in the cluster, rest offsets q = x0 - x0_cm, cluster
-        masses and rest centres, every particle's clusters and offsets in them (the
-        memberships it gathers goals from, particle-major so the gather reads
-        contiguous memory), and chunks of at most :data:`CHUNK` members summed in
-        parallel then per cluster in order (balanced work for clusters of any size, a
-        whole-organ cluster has ~10^5 members, still deterministic)."""
+    def _set_capacities(self):
+        """The attributes kernels and dissection read for the rows allocated."""
+        self.cluster_capacity = self.capacity["clusters"]
+        self.member_capacity = self.capacity["members"]
+        self.chunk_capacity = self.capacity["chunks"]
+        self.surface_vertex_count = self.capacity["vertices"]  # spare rows included
+        self.surface_triangle_count = self.capacity["triangles"]
+
+    def grow(self, **rows: int):
+        """Reallocate the row fields with at least ``rows`` of each kind named
+        (:data:`ROW_KINDS`), values kept, in a tree of their own (the first growth
+        leaves the rows as built unused in the model's tree: one tree more only for a
+        model that grew, as a process holds a limited number): the first dissection
+        that outgrows the spare rows pays it (every kernel compiles again) and the
+        rows' consumers (the state, the drawn mesh) follow :attr:`layout_version`."""
+        unknown = set(rows) - set(ROW_KINDS)
+        if unknown:
+            raise ValueError(f"grow: unknown row kinds {sorted(unknown)}; {ROW_KINDS} expected")
+        for kind, count in rows.items():
+            self.capacity[kind] = max(self.capacity[kind], int(count))
+        self._rows = self._rows.regrown(
+            self,
+            {name: self.capacity[kind] for name, (kind, _) in self._row_fill.items()},
+            {name: fill for name, (_, fill) in self._row_fill.items()},
+        )
+        self._set_capacities()
+        self.layout_version += 1
+
+    def close(self):
+        """Free the model's fields (:meth:`FieldGroup.close`; the rows' own tree too
+        once grown)."""
+        self._rows.close()
+        super().close()
+
+    def _as_built(self, data: ModelData) -> dict[str, tuple[np.ndarray, str | None, int]]:
+        """Field name -> (values as built, the kind of its spare rows or None for
+        none, value of the spare rows) of what dissection changes
+        (``cluster_rest_shift``: :mod:`taichi_lap.dissection.device`): the surface
+        (each vertex follows four particles, or with a ``surface_cluster`` >= 0 that
+        cluster from its ``surface_rest`` place; the triangles, (0, 0, 0) when dead,
+        their organ, and each vertex's triangles in ``surface_incident``, -1 padded),
+        and members with their mass in the cluster, rest offsets q = x0 - x0_cm,
+        cluster masses and rest centres, every particle's clusters and offsets in
+        them (the memberships it gathers goals from, particle-major so the gather
+        reads contiguous memory), and chunks of at most :data:`CHUNK` members summed
+        in parallel then per cluster in order (balanced work for clusters of any
+        size, a whole-organ cluster has ~10^5 members, still deterministic). Sets
+        the counts as built and, at the first call, :attr:`capacity`."""
         tables = cluster_tables(
             data.rest_position, data.mass, data.cluster_start, data.cluster_member
         )
         chunks = member_chunks(data.cluster_start)
         self.cluster_total = data.cluster_count
         self.chunk_total = len(chunks["cluster"])
-        members = spare_rows(len(data.cluster_member), self.dissectable)
-        clusters = spare_rows(self.cluster_total, self.dissectable)
-        chunk_rows = spare_rows(self.chunk_total, self.dissectable)
-        # a wound across a whole organ adds about as much surface as it had
-        vertices = spare_rows(len(data.surface_index), self.dissectable, SURFACE_SPARE)
-        triangles = spare_rows(len(data.surface_triangles), self.dissectable, SURFACE_SPARE)
+        if not hasattr(self, "capacity"):
+            # a wound across a whole organ adds about as much surface as it had
+            surface = {
+                "vertices": len(data.surface_index),
+                "triangles": len(data.surface_triangles),
+            }
+            self.capacity = {
+                **{k: spare_rows(n, self.dissectable, SURFACE_SPARE) for k, n in surface.items()},
+                "members": spare_rows(len(data.cluster_member), self.dissectable),
+                "clusters": spare_rows(self.cluster_total, self.dissectable),
+                "chunks": spare_rows(self.chunk_total, self.dissectable),
+            }
         organ = np.zeros(len(data.surface_triangles), dtype=np.int64)
         for k, record in enumerate(data.organs):
             organ[record.triangles[0] : record.triangles[1]] = k
         return {
-            "surface_index": (data.surface_index, vertices, 0),
-            "surface_weight": (data.surface_weight, vertices, 0),
-            "surface_cluster": (np.full(len(data.surface_index), -1), vertices, -1),
-            "surface_rest": (np.zeros((len(data.surface_index), 3)), vertices, 0),
-            "surface_triangles": (data.surface_triangles.reshape(-1, 3), triangles, 0),
-            "surface_triangle_organ": (organ, triangles, 0),
-            "surface_incident": (incident_table(data.surface_triangles, vertices), vertices, -1),
-            "inv_mass": (data.inverse_mass(), 0, 0),
-            "cluster_member": (data.cluster_member, members, 0),
-            "cluster_member_mass": (tables["member_mass"], members, 0),
-            "cluster_rest_offset": (tables["offset"], members, 0),
-            "cluster_rest_center": (tables["center"], clusters, 0),
-            "cluster_mass": (tables["mass"], clusters, 0),
-            "cluster_rest_shift": (np.zeros((data.cluster_count, 3)), clusters, 0),
-            "membership_start": (tables["membership_start"], 0, 0),
-            "membership_cluster": (tables["membership_cluster"], 0, 0),
-            "membership_offset": (tables["membership_offset"], 0, 0),
-            "cluster_chunk_begin": (chunks["first"][:-1], clusters, 0),
-            "cluster_chunk_end": (chunks["first"][1:], clusters, 0),
-            "chunk_cluster": (chunks["cluster"], chunk_rows, 0),
-            "chunk_begin": (chunks["begin"], chunk_rows, 0),
-            "chunk_end": (chunks["end"], chunk_rows, 0),
+            "surface_index": (data.surface_index, "vertices", 0),
+            "surface_weight": (data.surface_weight, "vertices", 0),
+            "surface_cluster": (np.full(len(data.surface_index), -1), "vertices", -1),
+            "surface_rest": (np.zeros((len(data.surface_index), 3)), "vertices", 0),
+            "surface_triangles": (data.surface_triangles.reshape(-1, 3), "triangles", 0),
+            "surface_triangle_organ": (organ, "triangles", 0),
+            "surface_incident": (
+                incident_table(data.surface_triangles, len(data.surface_index)),
+                "vertices",
+                -1,
+            ),
+            "inv_mass": (data.inverse_mass(), None, 0),
+            "cluster_member": (data.cluster_member, "members", 0),
+            "cluster_member_mass": (tables["member_mass"], "members", 0),
+            "cluster_rest_offset": (tables["offset"], "members", 0),
+            "cluster_rest_center": (tables["center"], "clusters", 0),
+            "cluster_mass": (tables["mass"], "clusters", 0),
+            "cluster_rest_shift": (np.zeros((data.cluster_count, 3)), "clusters", 0),
+            "membership_start": (tables["membership_start"], None, 0),
+            "membership_cluster": (tables["membership_cluster"], None, 0),
+            "membership_offset": (tables["membership_offset"], None, 0),
+            "cluster_chunk_begin": (chunks["first"][:-1], "clusters", 0),
+            "cluster_chunk_end": (chunks["first"][1:], "clusters", 0),
+            "chunk_cluster": (chunks["cluster"], "chunks", 0),
+            "chunk_begin": (chunks["begin"], "chunks", 0),
+            "chunk_end": (chunks["end"], "chunks", 0),
         }
 
     def reset_topology(self):
         """Put back every field dissection changes as it was built (off the frame's
-        path: whole fields are written)."""
-        for name, (values, rows, fill) in self._as_built(self.data).items():
+        path: whole fields are written; rows a :meth:`grow` added stay, spare)."""
+        for name, (values, kind, fill) in self._as_built(self.data).items():
             dtype = np.int32 if values.dtype.kind in "iu" else np.float32
-            getattr(self, name).from_numpy(_padded(values.astype(dtype), rows, fill))
+            rows = self.capacity.get(kind, 0)
+            getattr(self, name).from_numpy(padded_rows(values.astype(dtype), rows, fill))
         self.finalize_counts()
         self.topology_version += 1
 

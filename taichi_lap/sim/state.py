@@ -51,14 +51,16 @@ class State(FieldOwner):
         self.goal = group.field(ti.f32, n, vector=3)
         self.eta = group.field(ti.f32, n)
         self.collided = group.field(ti.i32, n)
+        # sized by the model's rows: grow follows the model's
         self.cluster_rotation = group.field(ti.f32, c, matrix=(3, 3))
         self.cluster_quaternion = group.field(ti.f32, c, vector=4)
         self.cluster_center = group.field(ti.f32, c, vector=3)
         self.chunk_first = group.field(ti.f32, model.chunk_capacity, vector=3)
         self.chunk_moment = group.field(ti.f32, model.chunk_capacity, matrix=(3, 3))
+        self.surface_position = group.field(ti.f32, model.surface_vertex_count, vector=3)
+        self._rows = group  # a tree of their own once grown (Model.grow)
         self.grasp_tool = group.field(ti.i32, n)
         self.grasp_local = group.field(ti.f32, n, vector=3)
-        self.surface_position = group.field(ti.f32, model.surface_vertex_count, vector=3)
         self.fault = group.field(ti.i32, None)
         self.fault_particle = group.field(ti.i32, None)
         group.finalize()
@@ -66,6 +68,27 @@ class State(FieldOwner):
         self.time = 0.0
         self.frame = 0
         self.jaws_closed = [False] * MAX_TOOLS
+
+    def grow(self, model: Model):
+        """Reallocate the fields sized by ``model``'s rows after :meth:`Model.grow`
+        (values kept), in a tree of their own as the model's."""
+        rows = {"clusters": model.cluster_capacity, "chunks": model.chunk_capacity}
+        self._rows = self._rows.regrown(
+            self,
+            {
+                "cluster_rotation": rows["clusters"],
+                "cluster_quaternion": rows["clusters"],
+                "cluster_center": rows["clusters"],
+                "chunk_first": rows["chunks"],
+                "chunk_moment": rows["chunks"],
+                "surface_position": model.surface_vertex_count,
+            },
+        )
+
+    def close(self):
+        """Free the state's fields (:meth:`FieldGroup.close`)."""
+        self._rows.close()
+        super().close()
 
     def reset(self, model: Model):
         """Return to the rest configuration."""
@@ -103,10 +126,16 @@ class State(FieldOwner):
 
     def restore(self, snapshot: dict[str, np.ndarray]):
         """Put back a :meth:`snapshot` taken while no tool held tissue, as frame 0:
-        predictions at x, no fault, jaws open, time 0. A snapshot of another model (an
-        array of another shape or type) raises ValueError and changes nothing."""
+        predictions at x, no fault, jaws open, time 0. A snapshot taken before the
+        model grew (:meth:`grow`) lacks the new cluster rows, which keep their values.
+        A snapshot of another model (an array of another shape or type) raises
+        ValueError and changes nothing."""
+        arrays = {}
         for name, current in self.snapshot().items():
             array = snapshot[name]
+            if name.startswith("cluster_") and len(array) < len(current):
+                array = np.concatenate([array, current[len(array) :]])
+            arrays[name] = array
             if array.shape != current.shape or array.dtype != current.dtype:
                 raise ValueError(
                     f"{name}: {array.dtype} {array.shape} was found, {current.dtype} "
@@ -115,7 +144,7 @@ class State(FieldOwner):
         if (snapshot["grasp_tool"] != FREE).any():
             raise ValueError("cannot restore a snapshot taken while a tool held tissue")
         for name in SNAPSHOT_FIELDS:
-            getattr(self, name).from_numpy(snapshot[name])
+            getattr(self, name).from_numpy(arrays[name])
         self.p.copy_from(self.x)
         self.p_next.copy_from(self.x)
         self.fault[None] = 0
