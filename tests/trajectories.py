@@ -38,8 +38,9 @@ class Run:
     the intestine after one frame of its stochastic self-collision. Each run stops
     before that: at its last frame the perturbed run stays within a tenth of the
     tolerance, so another machine's rounding (or Vulkan's) passes and a change of the
-    simulation does not. Vulkan rounds differently in every operation, not once: the
-    rectum's settled start differs by 4e-6 m and frame 13 by 0.9 mm there.
+    simulation does not. Vulkan, and another CPU, round differently in every
+    operation, not once: the rectum's settled start differs by 4e-6 m and frame 13 by
+    0.9 mm there, so the rectum is held to 2 mm.
 
     ``vulkan_frames`` (default all of ``frames``): the stored frames the Vulkan run
     compares, ending it; on Mesa's software driver a liver frame takes 2 to 8 s (the broad phase
@@ -69,10 +70,11 @@ RUNS = {
         (1, 16, 28),
         vulkan_frames=(1, 16),
     ),
-    # wall, polyp, fascia, gland and vessel settle and touch; the grasper descends
-    "rectum": Run(
-        ("scene.detail=0.3", "scene.settle_time=0.25"), (1, 7, 13), vulkan_tolerance=2e-3
-    ),
+    # wall, polyp, fascia, gland and vessel settle and touch; the grasper descends.
+    # Another CPU's rounding moves it as far as Vulkan's: the reference, made on an AMD
+    # EPYC, and a run on an Intel Xeon differ by 4e-6 m at frame 1 (the settled start),
+    # 0.58 mm at frame 7 and 0.86 mm at frame 13, so one tolerance serves both
+    "rectum": Run(("scene.detail=0.3", "scene.settle_time=0.25"), (1, 7, 13), tolerance=2e-3),
     # springs, tool and planes without the stochastic self-collision (its tests compare
     # it with the exact detector); the perturbed run is 1e-5 m away at frame 20
     "intestine": Run(("scene.self_collision=false",), (1, 10, 20)),
