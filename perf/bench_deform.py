@@ -34,6 +34,8 @@ from pathlib import Path
 from taichi_lap.perf.common import arguments, report, result, timed
 
 LIVER_ONLY_PARTICLES = 146_000  # liver organ of scenes/liver.toml at detail 1 (approx.)
+SERIES = "liver deformation"
+"""The series of the size cases (how their cost grows with the particles)."""
 DT = 1.0 / 60.0
 
 
@@ -78,7 +80,8 @@ def deform_cases(quick: bool, runs: int) -> list[dict]:
             "substeps": session.solver.settings.substeps,
             "shape_iterations": session.solver.settings.shape_iterations,
         }
-        out.append(result(case, params, "ms_per_step", timed(session.step, runs)))
+        steps = timed(session.step, runs)
+        out.append(result(case, params, "ms_per_step", steps, series=SERIES))
         print(out[-1]["case"], out[-1]["metric"], f"{out[-1]['median']:.2f}", flush=True)
         settings, scene = session.solver.settings, session.scene
         reference = ReferenceShapeMatching(
@@ -95,6 +98,7 @@ def deform_cases(quick: bool, runs: int) -> list[dict]:
                 params,
                 "numpy_ms_per_step",
                 timed(partial(reference.step, DT), numpy_runs, warmup=1),
+                series=f"{SERIES} (NumPy)",
             )
         )
         print(out[-1]["case"], out[-1]["metric"], f"{out[-1]['median']:.2f}", flush=True)

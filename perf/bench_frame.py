@@ -1,7 +1,9 @@
 """Whole-frame benchmark (issue: performance): what a user feels.
 
-Each built-in scene at its default settings (detail 0.2 with ``--quick``) runs from its
-session's start with its scripted tools, headless: the physics of a frame
+Each built-in scene at its default settings and at detail 0.3 (case
+``<scene>-detail-0.3``, to show how the cost grows with the model: the rows of one
+scene are a ``series``; ``--quick``: detail 0.2 alone) runs from its session's start
+with its scripted tools, headless: the physics of a frame
 (:meth:`Session.step`: deformation, contacts, both collision pipelines) and its render
 at 640x480 (:meth:`Renderer.render`: vertex, visibility and shading passes), each
 synchronised. The first frames (kernel compilation, first pair listing) are not
@@ -20,20 +22,25 @@ import time
 from taichi_lap.perf.common import arguments, report, result
 
 SCENES = ("liver", "rectum", "intestine")
+DETAILS = (None, 0.3)
+"""The sizes of each scene: its own detail, and a smaller one."""
+QUICK_DETAIL = 0.2
 SIZE = (640, 480)
 WARMUP = 3
 """Frames run before the timed ones."""
 
 
-def frame_case(name: str, quick: bool, runs: int) -> list[dict]:
-    """Time ``runs`` frames of scene ``name`` after :data:`WARMUP` frames."""
+def frame_case(name: str, detail: float | None, runs: int) -> list[dict]:
+    """Time ``runs`` frames of scene ``name`` at ``detail`` (None: the scene's own)
+    after :data:`WARMUP` frames."""
     import taichi as ti
 
     from taichi_lap import scene as scene_mod
     from taichi_lap.render.renderer import Renderer
     from taichi_lap.session import Session, scene_script
 
-    scene = scene_mod.load(name, {"scene.detail": 0.2} if quick else {})
+    scene = scene_mod.load(name, {} if detail is None else {"scene.detail": detail})
+    case = name if detail is None else f"{name}-detail-{detail:g}"
     samples = {"physics": [], "render": [], "vertex": [], "visibility": [], "shading": []}
     with Session(scene, progress=False) as session:
         renderer = Renderer.for_scene(scene, session.model, size=SIZE)
@@ -58,9 +65,9 @@ def frame_case(name: str, quick: bool, runs: int) -> list[dict]:
             "height": SIZE[1],
         }
     frames = [p + r for p, r in zip(samples["physics"], samples["render"])]
-    out = [result(name, params, "ms_per_frame", frames)]
-    out.append(result(name, params, "frames_per_second", [1e3 / out[0]["median"]]))
-    return out + [result(name, params, f"ms_{stage}", ms) for stage, ms in samples.items()]
+    out = [result(case, params, "ms_per_frame", frames, series=name)]
+    out.append(result(case, params, "frames_per_second", [1e3 / out[0]["median"]]))
+    return out + [result(case, params, f"ms_{stage}", ms) for stage, ms in samples.items()]
 
 
 def main():
@@ -71,9 +78,15 @@ def main():
     runs = args.runs or (10 if args.quick else 60)
     results = []
     for name in SCENES:
-        results += frame_case(name, args.quick, runs)
-        ms = next(r["median"] for r in results if r["case"] == name)
-        print(f"{name} {ms:.1f} ms per frame ({1e3 / ms:.1f} frames per second)", flush=True)
+        for detail in (QUICK_DETAIL,) if args.quick else DETAILS:
+            rows = frame_case(name, detail, runs)
+            results += rows
+            ms, particles = rows[0]["median"], rows[0]["params"]["particles"]
+            print(
+                f"{rows[0]['case']} ({particles} particles): {ms:.1f} ms per frame "
+                f"({1e3 / ms:.1f} frames per second)",
+                flush=True,
+            )
     report("frame", args.arch, results, args.json)
 
 

@@ -68,8 +68,13 @@ def timed(func, runs: int, warmup: int = 2) -> list[float]:
     return samples
 
 
-def result(case: str, params: dict, metric: str, samples: list[float]) -> dict:
-    return {
+def result(
+    case: str, params: dict, metric: str, samples: list[float], *, series: str | None = None
+) -> dict:
+    """One row of a benchmark's results: the median, p95, min and max of ``samples``.
+    ``series`` names the cases that are one computation at several sizes (their
+    ``params`` hold ``particles``): ``taichi-lap bench`` plots how their cost grows."""
+    row = {
         "case": case,
         "params": params,
         "metric": metric,
@@ -79,6 +84,9 @@ def result(case: str, params: dict, metric: str, samples: list[float]) -> dict:
         "max": max(samples),
         "runs": len(samples),
     }
+    if series is not None:
+        row["series"] = series
+    return row
 
 
 def report(benchmark: str, arch: str, results: list[dict], path: str):

@@ -2,11 +2,12 @@
 asked, each in a process of its own (one Taichi backend per process), then one
 ``summary.md`` over all of them: a table per benchmark, a column of medians per
 backend and the ratio of each other backend to the CPU, with a bar chart of the
-timings (``summary.png``; matplotlib, from the ``perf`` extra).
+timings (``summary.png``; matplotlib, from the ``perf`` extra), and how the cost of
+each series of sizes grows with the particles (a table, and ``scaling.png``).
 
 Layout of ``out``: ``<arch>/bench_<name>.json`` (the format every benchmark writes,
 docs/architecture.md), ``<arch>/bench_<name>.log`` (what it printed), ``summary.md``,
-``summary.png``.
+``summary.png``, ``scaling.png``.
 """
 
 from __future__ import annotations
@@ -174,6 +175,75 @@ def timing_rows(results: dict) -> dict[str, list[tuple[str, dict[str, float]]]]:
     return out
 
 
+def scaling_series(results: dict) -> dict[str, dict[str, list[tuple[int, float]]]]:
+    """The rows that belong to a ``series`` (one computation at several sizes), as
+    ``{"<benchmark>: <series> <metric>": {arch: [(particles, median), ...]}}``, sorted
+    by particles; series of a single size are left out."""
+    out: dict[str, dict[str, list[tuple[int, float]]]] = {}
+    for name, per_arch in results.items():
+        for arch, data in per_arch.items():
+            for row in data["results"]:
+                if "series" in row and "particles" in row["params"]:
+                    key = f"{name}: {row['series']} {row['metric']}"
+                    points = out.setdefault(key, {}).setdefault(arch, [])
+                    points.append((int(row["params"]["particles"]), float(row["median"])))
+    for per_arch in out.values():
+        for points in per_arch.values():
+            points.sort()
+    return {
+        key: per_arch
+        for key, per_arch in out.items()
+        if any(len({n for n, _ in points}) > 1 for points in per_arch.values())
+    }
+
+
+def scaling_markdown(series: dict) -> list[str]:
+    """``summary.md``'s section on how cost grows: per series, the median at each size
+    and backend, and the growth from the smallest size to the largest against the
+    growth of the particle count."""
+    if not series:
+        return []
+    lines = ["", "## How cost grows with size", ""]
+    lines += ["| series | backend | particles: median | growth (cost / particles) |"]
+    lines += ["|---|---|---|---|"]
+    for key, per_arch in series.items():
+        for arch, points in per_arch.items():
+            sizes = ", ".join(f"{n}: {_number(median)}" for n, median in points)
+            (n0, m0), (n1, m1) = points[0], points[-1]
+            grew = n1 > n0 > 0 and m0 > 0
+            growth = f"{_number(m1 / m0)} / {_number(n1 / n0)}" if grew else "—"
+            lines.append(f"| {key} | {arch} | {sizes} | {growth} |")
+    return lines
+
+
+def scaling_chart(series: dict, path: Path) -> bool:
+    """Cost against particles (log-log), a panel per series, a line per backend, into
+    ``path``; False without matplotlib or without a series."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    if not series:
+        return False
+    fig, axes = plt.subplots(len(series), 1, figsize=(6, 2.6 * len(series)), squeeze=False)
+    for ax, (key, per_arch) in zip(axes[:, 0], series.items()):
+        for arch, points in per_arch.items():
+            ax.loglog(*zip(*points), marker="o", label=arch)
+        ax.set_title(key, fontsize=9)
+        ax.set_xlabel("particles", fontsize=8)
+        ax.set_ylabel("median", fontsize=8)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return True
+
+
 def bar_chart(results: dict, path: Path) -> bool:
     """Grouped bars of the timings per benchmark, one colour per backend, into
     ``path``; False (and says which extra gives it) without matplotlib."""
@@ -217,11 +287,15 @@ def bar_chart(results: dict, path: Path) -> bool:
 
 
 def write_summary(out: Path, arches: list[str], status: dict[str, dict[str, str]]) -> Path:
-    """``summary.md`` (written atomically) and ``summary.png`` of what ``out`` holds."""
+    """``summary.md`` (written atomically), ``summary.png`` and ``scaling.png`` of what
+    ``out`` holds."""
     results = load_results(out, arches)
+    series = scaling_series(results)
     path = out / "summary.md"
     tmp = path.with_suffix(".md.tmp")
-    tmp.write_text(summary_markdown(results, status))
+    growth = "".join(line + "\n" for line in scaling_markdown(series))
+    tmp.write_text(summary_markdown(results, status) + growth)
     os.replace(tmp, path)
     bar_chart(results, out / "summary.png")
+    scaling_chart(series, out / "scaling.png")
     return path

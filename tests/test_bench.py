@@ -9,10 +9,12 @@ from taichi_lap.cli import main
 
 
 def write_result(folder, arch: str, name: str, rows: list[tuple], gpu=None):
+    """A benchmark's JSON of ``rows`` (case, metric, params, median[, series])."""
     (folder / arch).mkdir(parents=True, exist_ok=True)
     results = [
-        {"case": case, "params": params, "metric": metric, "median": median}
-        for case, metric, params, median in rows
+        {"case": row[0], "metric": row[1], "params": row[2], "median": row[3]}
+        | ({"series": row[4]} if len(row) > 4 else {})
+        for row in rows
     ]
     data = {
         "benchmark": name,
@@ -58,6 +60,30 @@ def test_summary_has_a_column_per_backend_and_the_ratio_to_the_cpu(tmp_path):
         "sheet ms_per_step (solver=jacobi)",
         "sheet ms_per_step (solver=gauss_seidel)",
     ]
+
+
+def test_summary_says_how_the_cost_of_a_series_grows_with_the_particles(tmp_path):
+    """The sizes of one series are gathered per backend in order of particles; a
+    series of one size, and rows of no series, are not a growth."""
+    big, small = {"particles": 200_000}, {"particles": 10_000}
+    rows = [
+        ("full", "ms_per_step", big, 40.0, "liver"),
+        ("10k", "ms_per_step", small, 5.0, "liver"),
+        ("10k", "numpy_ms_per_step", small, 30.0, "liver (NumPy)"),
+        ("sheet", "ms_per_step", small, 3.0),
+    ]
+    write_result(tmp_path, "cpu", "deform", rows)
+    write_result(tmp_path, "cuda", "deform", [("full", "ms_per_step", big, 4.0, "liver")])
+    results = bench.load_results(tmp_path, ["cpu", "cuda"])
+    assert bench.scaling_series(results) == {
+        "deform: liver ms_per_step": {
+            "cpu": [(10_000, 5.0), (200_000, 40.0)],
+            "cuda": [(200_000, 4.0)],
+        }
+    }
+    text = bench.write_summary(tmp_path, ["cpu", "cuda"], {"cpu": {}, "cuda": {}}).read_text()
+    assert "| deform: liver ms_per_step | cpu | 10000: 5, 200000: 40 | 8 / 20 |" in text
+    assert "| deform: liver ms_per_step | cuda | 200000: 4 | — |" in text
 
 
 def test_bar_chart_without_matplotlib_says_which_extra_gives_it(tmp_path, monkeypatch, capsys):
