@@ -24,6 +24,11 @@ Cases
   20 mm where the body is thicker than that under the tool, at 5 mm/s and 0.25 m/s
   (``--quick``: tet_clusters and mass_spring, collision off, 4 substeps, 4 mm at
   5 mm/s).
+* ``press-<model>-off-<kind>`` (not with ``--quick``): the same presses by a
+  grasper (its jaws' capsule, 12 mm ahead of the tip, radius 2.1 mm, presses;
+  scissors have the same shapes) and an electrocautery hook (not energised; the foot
+  of its wire, 0.9 mm in radius, presses) of the probe's shaft, into the block and
+  the sheet, collision off.
 * ``haptic-press-<d>mm``: a scripted haptic stylus (``HapticBridge``, servo process
   at 1 kHz) pressed into the tet_clusters block (circumsphere collision, 4 substeps,
   damping 6, eta_on_contact 0.7) at 5 mm/s to ``d`` = 2, 4, 8, 20 mm below the top
@@ -44,14 +49,27 @@ Metrics
   point (tip height minus radius: the bottom of the tip sphere of a vertical probe)
   after the hold, and the displacement is h0 - h1. 1 is "as drawn", below 1 the tool
   went into the drawn tissue (slip-through), above 1 the tissue moved away from the
-  tool (over-push). The drawn surface is the skinned surface
+  tool (over-push). A loose body (the intestine) that a fast press flings off the
+  tool as the tool stops is not pushed by the contact but carried by its momentum
+  (inelastic contact gives it the tool's speed): where the surface touched the tool
+  (within TOUCH_GAP = 0.5 mm below its lowest point) while the tool was at least
+  half its depth deep, left it as the tool stopped (in the frame the tool reached its
+  end or the next) at over 2.5 cm/s, and does not touch it after the hold, the ratio is
+  that of the last frame it touched, and how far it flew off (the gap after the hold)
+  is the press's ``flight_mm``. A surface the contact pushed ahead of the tool, or one
+  that crept away from the stopped tool, is judged after the hold.
+  The drawn surface is the skinned surface
   (``State.surface_position`` with the model's surface triangles); for a mass-spring
   organ also the tube of its row-0 radius around row 0 (a chain of capsules), the
-  higher of the two counting as the first hit.
+  higher of the two counting as the first hit. The axis is the vertical line through
+  the tool's lowest point (the tip of a probe or of closed jaws, the middle of a
+  hook's foot).
   The haptic depth uses the tool the simulation contacts with, the Control's, which
   follows the graphical pose (not the stylus). The indent_ratio rows carry each
   press (``presses``) and the haptic rows what the press did (``tool_depth_mm``,
   ``stylus_depth_mm``, ``indent_mm``, ...) beside the usual keys.
+* ``flight_mm``: how far the tissue flew off the stopped tool, per press (0 where it
+  stayed against it).
 * ``faults``: presses that raised ``SimulationFault`` (they end and get no
   indent_ratio; the session is reset for the next press). The row says whether the
   body also faults within 1 s with the tool held clear of it
@@ -101,6 +119,17 @@ SPACING = 0.002  # [m] particle spacing / mesh edge of the test bodies
 PROBE_RADIUS = 0.003  # [m]
 PROBE_LENGTH = 0.1  # [m]
 GAP = 0.001  # [m] from the bottom of the tip to the drawn surface at the start
+TOUCH_GAP = 0.0005  # [m] the drawn surface within this below the tool touches it
+HELD_DEPTH = 0.5
+FLIGHT_FRAMES = 1
+FLIGHT_SPEED = 0.025  # [m/s]
+"""A tissue that touched the tool down to HELD_DEPTH of the press depth and left it
+as the tool stopped (touching it no later than FLIGHT_FRAMES frames into the hold),
+at over FLIGHT_SPEED (five times a careful push), flew off it: it is judged where it
+last touched (module docstring). Tissue that creeps away from a stopped tool is not
+flying: measured, the test block left the probe at 14 mm/s after a slow 20 mm push
+(4 substeps), the loose intestine at 41 mm/s (1 substep) and 118 mm/s (4 substeps)
+after a 2 mm tap at 0.25 m/s."""
 HOLD = 0.5  # [s] of simulated time after each press
 DEPTHS = (0.002, 0.004, 0.008)  # [m]
 DEEP = 0.020  # [m] the deep press, for bodies thicker than this under the tool
@@ -109,6 +138,12 @@ SOLVERS = ((4, 6.0, 0.7), (1, 0.0, 1.0))
 """(substeps, damping, eta_on_contact) of the two solver settings."""
 COLLISIONS = ("off", "polygon", "circumsphere")
 MODELS = ("tet_clusters", "shape_matching", "fascia_lra", "truss", "mass_spring", "mesentery")
+INSTRUMENTS = ("grasper", "hook")
+"""Instruments pressed like the probe (jaws closed or open alike: their closed jaws'
+capsule is always part of the tool; scissors have the grasper's shapes,
+:func:`~taichi_lap.core.instruments.tool_geometry`; the hook not energised)."""
+INSTRUMENT_MODELS = ("tet_clusters", "fascia_lra")
+"""The bodies the instruments press: a solid and a membrane (collision off)."""
 INTESTINE_GEOMETRY = {
     "generator": "intestine",
     "length": 0.5,
@@ -364,10 +399,12 @@ def start_height(model: str, geometry, x: float, z: float) -> float:
     return float(geometry.bounds[1][1])
 
 
-def probe_table(tip) -> dict:
+def probe_table(tip, kind: str = "probe") -> dict:
+    """The pressing instrument: ``kind`` (a probe by default) of the probe's radius
+    and length, axis vertical, its tip at ``tip`` [m]."""
     return {
-        "name": "probe",
-        "kind": "probe",
+        "name": kind,
+        "kind": kind,
         "radius": PROBE_RADIUS,
         "length": PROBE_LENGTH,
         "tip": [float(c) for c in tip],
@@ -375,10 +412,29 @@ def probe_table(tip) -> dict:
     }
 
 
-def press_scene(model: str, collision: str = "off", substeps: int = 4, damping=6.0, eta=0.7):
+def tip_above_bottom(kind: str) -> float:
+    """How far [m] the tip of a vertical ``kind`` (tip down) is above the tool's
+    lowest point: the probe's radius, the closed jaws' length and radius, the hook's
+    stem and wire."""
+    from taichi_lap.core.instruments import tool_geometry
+
+    geometry = tool_geometry(probe_table((0.0, 0.0, 0.0), kind))
+    return max(r - min(a[2], b[2]) for a, b, r in geometry.round_shapes())
+
+
+def press_scene(
+    model: str,
+    collision: str = "off",
+    substeps: int = 4,
+    damping=6.0,
+    eta=0.7,
+    *,
+    kind: str = "probe",
+):
     """(session, target) of the test body of ``model`` under ``collision`` and the
-    solver setting, gravity off, the probe's tip 1 mm above the drawn surface at the
-    press point (the scene's tool pose, so that a reset puts it there)."""
+    solver setting, gravity off, the lowest point of the instrument ``kind`` 1 mm
+    above the drawn surface at the press point (the scene's tool pose, so that a
+    reset puts it there)."""
     from taichi_lap.preprocess.organs import make_geometry
     from taichi_lap.scene import from_tables
     from taichi_lap.session import Session
@@ -387,10 +443,10 @@ def press_scene(model: str, collision: str = "off", substeps: int = 4, damping=6
     bare = from_tables([organ], gravity=[0.0, 0.0, 0.0])
     geometry = make_geometry(bare.organs[0], bare.source)
     x, z = press_point(model, geometry)
-    tip = (x, start_height(model, geometry, x, z) + GAP + PROBE_RADIUS, z)
+    tip = (x, start_height(model, geometry, x, z) + GAP + tip_above_bottom(kind), z)
     scene = from_tables(
         [organ],
-        tools=[probe_table(tip)],
+        tools=[probe_table(tip, kind)],
         gravity=[0.0, 0.0, 0.0],
         collision=collision,
         substeps=substeps,
@@ -403,32 +459,55 @@ def press_scene(model: str, collision: str = "off", substeps: int = 4, damping=6
 
 
 def tool_bottom(session) -> tuple[np.ndarray, float]:
-    """The probe's tip [m] and its lowest point's height [m] (the bottom of the tip
-    sphere: the axis is vertical, tip down), as the simulation placed it."""
+    """Where [m] the instrument reaches lowest, as the simulation placed it, and that
+    height [m]: the bottom of the round shape that reaches lowest (for a probe the
+    tip sphere's, for a hook the middle of its foot's underside)."""
+    from taichi_lap.core.instruments import tool_geometry
+
     tip = session.control.tool_a.to_numpy()[0].astype(np.float64)
-    return tip, float(tip[1]) - float(session.control.tool_radius.to_numpy()[0])
+    frame = session.control.tool_frame.to_numpy()[0].astype(np.float64)
+    lowest, height = tip, math.inf
+    for a, b, r in tool_geometry(session.scene.tools[0]).round_shapes():
+        a, b = tip + frame @ a, tip + frame @ b
+        bottom = min(a[1], b[1]) - r
+        if bottom < height - 1e-9:
+            level = abs(a[1] - b[1]) < 1e-9  # a level segment: its middle
+            lowest, height = ((a + b) / 2 if level else min(a, b, key=lambda p: p[1])), bottom
+    return lowest, float(height)
 
 
-def press(session, target: Target, depth: float, speed: float, hold: float = HOLD):
-    """One press from the reset state: down from 1 mm above the drawn surface to
-    ``depth`` [m] below it at ``speed`` [m/s], then ``hold`` [s] still. Returns
-    (indent_ratio, or None after a SimulationFault; the milliseconds of each frame)."""
+class Press(NamedTuple):
+    """What one press did: its indent_ratio (None after a SimulationFault), the
+    milliseconds of each frame, and how far [m] the tissue flew off the stopped tool
+    (0 where it stayed against it)."""
+
+    ratio: float | None
+    frame_ms: list[float]
+    flight: float = 0.0
+
+
+def press(session, target: Target, depth: float, speed: float, hold: float = HOLD) -> Press:
+    """One press from the reset state: the instrument's lowest point down from 1 mm
+    above the drawn surface to ``depth`` [m] below it at ``speed`` [m/s], then
+    ``hold`` [s] still. A tissue the stopped tool flung off is judged at the last
+    frame it touched the tool, and its flight is reported (module docstring,
+    HELD_DEPTH, FLIGHT_FRAMES)."""
     from taichi_lap.core.errors import SimulationFault
     from taichi_lap.devices import ScriptedDevice
 
     session.reset()
-    x, z = target.x, target.z
-    start = session.scene.tools[0]["tip"]
-    end = [x, target.height - depth + PROBE_RADIUS, z]
+    tool = session.scene.tools[0]
+    start = tool["tip"]
+    end = [target.x, target.height - depth + tip_above_bottom(tool["kind"]), target.z]
     reach = (start[1] - end[1]) / speed
     frames = [
-        {"time": 0.0, "tool": "probe", "tip": list(start)},
-        {"time": reach, "tool": "probe", "tip": end},
-        {"time": reach + hold, "tool": "probe", "tip": end},
+        {"time": 0.0, "tool": tool["name"], "tip": list(start)},
+        {"time": reach, "tool": tool["name"], "tip": end},
+        {"time": reach + hold, "tool": tool["name"], "tip": end},
     ]
     device = ScriptedDevice.from_tables("press", frames, session.scene.tools)
     count = math.ceil((reach + hold) / session.dt - 1e-6)
-    times = []
+    times, touched, still, gap = [], None, 0, math.nan  # still: frames the tool stood
     try:
         for _ in range(count):
             now = session.state.time
@@ -436,21 +515,31 @@ def press(session, target: Target, depth: float, speed: float, hold: float = HOL
             begin = time.perf_counter()
             session.step(poses, buttons)
             times.append((time.perf_counter() - begin) * 1e3)
+            still += now >= reach - 1e-9  # this step took the tool to its end pose
+            last_gap, (ratio, gap, tool_depth) = gap, indent_ratio(session, target)
+            if not gap > TOUCH_GAP:
+                deep = tool_depth >= HELD_DEPTH * depth and still <= FLIGHT_FRAMES
+                touched = ratio if deep else None  # touching later: no flight
+            elif not last_gap > TOUCH_GAP and touched is not None:  # it left the tool
+                touched = touched if gap - last_gap >= FLIGHT_SPEED * session.dt else None
     except SimulationFault as fault:
         print(f"    fault: {fault}", flush=True)
         session.reset()
-        return None, times
-    return indent_ratio(session, target), times
+        return Press(None, times)
+    if touched is None or not gap > TOUCH_GAP:  # against the tool, or not flung off it
+        return Press(ratio, times)
+    return Press(touched, times, gap)
 
 
-def indent_ratio(session, target: Target, at=None) -> float:
-    """Displacement of the drawn surface along the tool axis over the tool's depth
-    below the starting surface (module docstring); ``at``: the axis' (x, z), by
-    default the target's. nan when the ray no longer meets the surface."""
-    x, z = (target.x, target.z) if at is None else at
-    _, lowest = tool_bottom(session)
-    depth = target.height - lowest
-    return (target.height - surface_height(session, target.organ, x, z)) / depth
+def indent_ratio(session, target: Target) -> tuple[float, float, float]:
+    """Displacement of the drawn surface under the tool's lowest point over the
+    tool's depth below the starting surface (module docstring); the gap [m] between
+    the tool's lowest point and that surface (negative: the tool is inside the drawn
+    tissue); the tool's depth [m]. nan when the ray no longer meets the surface."""
+    lowest, height = tool_bottom(session)
+    surface = surface_height(session, target.organ, lowest[0], lowest[2])
+    tool_depth = target.height - height
+    return (target.height - surface) / tool_depth, height - surface, tool_depth
 
 
 def fault_without_contact(session, seconds: float = 1.0) -> bool:
@@ -480,9 +569,12 @@ def press_case(session, target, model, collision, solver, depths, speeds) -> lis
     """The rows of one press case: every depth (the deep one where the body is
     thick enough) at every speed. The indent_ratio row also lists each press
     (``presses``: depth, speed, ratio, or ``fault`` / ``surface lost`` where the
-    press gave none)."""
+    press gave none, and ``flight_mm`` where the tissue flew off the stopped tool);
+    a ``flight_mm`` row gives the flights. The case is ``press-<model>-<collision>``,
+    with ``-<kind>`` for an instrument other than the probe."""
     substeps, damping, eta = solver
-    ratios, times, faults, done, log = [], [], 0, [], []
+    kind = session.scene.tools[0]["kind"]
+    ratios, times, faults, done, log, flights = [], [], 0, [], [], []
     alone = fault_without_contact(session)
     if alone:
         print("    the body faults without contact too", flush=True)
@@ -492,8 +584,9 @@ def press_case(session, target, model, collision, solver, depths, speeds) -> lis
             continue
         done.append(depth)
         for speed in speeds:
-            ratio, frame_ms = press(session, target, depth, speed)
+            ratio, frame_ms, flight = press(session, target, depth, speed)
             times += frame_ms
+            flights.append(flight)
             if ratio is None:
                 faults += 1
                 shown = "fault"
@@ -502,11 +595,15 @@ def press_case(session, target, model, collision, solver, depths, speeds) -> lis
             else:
                 ratios.append(ratio)
                 shown = round(float(ratio), 4)
-            log.append({"depth_mm": _mm(depth), "speed_mm_s": _mm(speed), "indent_ratio": shown})
+            entry = {"depth_mm": _mm(depth), "speed_mm_s": _mm(speed), "indent_ratio": shown}
+            flew = f", flew {flight * 1e3:.2f} mm off the tool" if flight else ""
+            if flight:
+                entry["flight_mm"] = _mm(flight)
+            log.append(entry)
             ms = statistics.median(frame_ms) if frame_ms else math.nan
             print(
-                f"  {model} {collision} substeps {substeps} depth {depth * 1e3:g} mm "
-                f"speed {speed * 1e3:g} mm/s: indent_ratio {shown}, {ms:.2f} ms/frame",
+                f"  {kind} {model} {collision} substeps {substeps} depth {depth * 1e3:g} mm "
+                f"speed {speed * 1e3:g} mm/s: indent_ratio {shown}{flew}, {ms:.2f} ms/frame",
                 flush=True,
             )
     data = session.model.data
@@ -521,11 +618,14 @@ def press_case(session, target, model, collision, solver, depths, speeds) -> lis
         "triangles": int(last - first),
         "depths_mm": [_mm(d) for d in done],
         "speeds_mm_s": [_mm(v) for v in speeds],
+        "instrument": kind,
     }
-    case = f"press-{model}-{collision}"
+    case = f"press-{model}-{collision}" + ("" if kind == "probe" else f"-{kind}")
     rows = []
     if ratios:
         rows.append({**result(case, params, "indent_ratio", ratios), "presses": log})
+    if flights:
+        rows.append(result(case, params, "flight_mm", [f * 1e3 for f in flights]))
     faults_row = result(case, params, "faults", [faults])
     rows.append({**faults_row, "presses": len(log), "faults_without_contact": alone})
     if times:
@@ -588,7 +688,7 @@ def haptic_press(
         # from the servo's graphical (proxy) pose before each step: the depth and
         # the axis are taken from it, not from the stylus (haptic) pose.
         tip, lowest = tool_bottom(session)
-        ratio = None if fault else indent_ratio(session, target, at=(tip[0], tip[2]))
+        ratio = None if fault else indent_ratio(session, target)[0]
         surface = surface_height(session, target.organ, tip[0], tip[2])
         feedback = bridge.feedback
         stylus = feedback.haptic_pose[1, 3] - PROBE_RADIUS if feedback else math.nan
@@ -747,6 +847,13 @@ def main():
                 results += press_case(session, target, model, collision, solver, depths, speeds)
                 if model == "tet_clusters" and (collision, solver) == haptic:
                     haptic_cases(session, target)
+                session.close()
+    for kind in () if quick else INSTRUMENTS:
+        for model in INSTRUMENT_MODELS:
+            for solver in solvers:
+                session, target = press_scene(model, "off", *solver, kind=kind)
+                print(f"{kind} on the {model} body, substeps {solver[0]}", flush=True)
+                results += press_case(session, target, model, "off", solver, depths, speeds)
                 session.close()
     results += haptic_rows
     if not quick:

@@ -17,38 +17,57 @@ SLOW, HAND = 0.005, 0.25
 """Press speeds [m/s]: a careful push and a fast hand (4.2 mm per substep at 60 Hz)."""
 
 
-def pressed(model: str, collision: str, depth: float, speed: float, solver) -> float:
-    session, target = contact.press_scene(model, collision, *solver)
+def pressed(
+    model: str, collision: str, depth: float, speed: float, solver, *, kind: str = "probe"
+) -> contact.Press:
+    session, target = contact.press_scene(model, collision, *solver, kind=kind)
     try:
-        ratio, _ = contact.press(session, target, depth, speed)
+        press = contact.press(session, target, depth, speed)
     finally:
         session.close()
-    assert ratio is not None, "the press faulted"
-    return ratio
+    assert press.ratio is not None, "the press faulted"
+    return press
 
 
 def test_a_probe_indents_the_tet_block_as_deep_as_it_goes():
     """The probe's 6 mm tip slipped between the 2 mm particles (0.22 mm for 7 mm) with
     collision off (the circumsphere setting, which pushed the surface 5 mm beyond the
     tool, is in perf/bench_contact.py)."""
-    ratio = pressed("tet_clusters", "off", 0.004, SLOW, contact.SOLVERS[0])
-    assert TOLERANCE[0] <= ratio <= TOLERANCE[1]
+    press = pressed("tet_clusters", "off", 0.004, SLOW, contact.SOLVERS[0])
+    assert TOLERANCE[0] <= press.ratio <= TOLERANCE[1]
+    assert press.flight == 0.0
 
 
 @pytest.mark.parametrize("model", ["tet_clusters", "fascia_lra"])
 def test_a_fast_press_with_one_undamped_substep_holds(model):
     """0.25 m/s with 1 substep, no damping, η = 1: no fault, no tunnelling through the
     block or the 2 mm fascia sheet, no over-push."""
-    ratio = pressed(model, "off", 0.008, HAND, contact.SOLVERS[1])
-    assert TOLERANCE[0] <= ratio <= TOLERANCE[1]
+    press = pressed(model, "off", 0.008, HAND, contact.SOLVERS[1])
+    assert TOLERANCE[0] <= press.ratio <= TOLERANCE[1]
 
 
 @pytest.mark.parametrize("model", ["mass_spring", "mesentery"])
 def test_a_probe_pushes_the_intestine_tube_and_the_mesentery_between_masses(model):
     """The tube is drawn 2 cm around masses a tube diameter apart: pressed between two
     of them it moves with the probe (contact acted on the masses alone)."""
-    ratio = pressed(model, "off", 0.008, SLOW, contact.SOLVERS[0])
-    assert TOLERANCE[0] <= ratio <= TOLERANCE[1]
+    press = pressed(model, "off", 0.008, SLOW, contact.SOLVERS[0])
+    assert TOLERANCE[0] <= press.ratio <= TOLERANCE[1]
+
+
+def test_a_fast_tap_flings_the_loose_intestine_off_the_stopped_probe():
+    """At 0.25 m/s the probe gives the free tube its speed and stops dead 2 mm deep: the
+    tube pressed as deep as the probe while they touched, then flew on (2.4 mm past
+    it after the hold), which the press reports as flight, not as over-push."""
+    press = pressed("mass_spring", "off", 0.002, HAND, contact.SOLVERS[0])
+    assert TOLERANCE[0] <= press.ratio <= TOLERANCE[1]
+    assert press.flight > contact.TOUCH_GAP
+
+
+def test_the_foot_of_a_hook_indents_the_block_as_deep_as_it_goes():
+    """The hook's electrode wire (0.9 mm in radius, thinner than the 2 mm particle
+    spacing) presses with its foot, the tool's lowest point, 4 mm into the block."""
+    press = pressed("tet_clusters", "off", 0.004, SLOW, contact.SOLVERS[0], kind="hook")
+    assert TOLERANCE[0] <= press.ratio <= TOLERANCE[1]
 
 
 def test_tools_move_a_fraction_of_the_frame_per_substep():
@@ -68,7 +87,7 @@ def test_tools_move_a_fraction_of_the_frame_per_substep():
 def compute_press_case() -> dict:
     """A fast press into the tet block (also run on Vulkan)."""
     session, target = contact.press_scene("tet_clusters", "off", *contact.SOLVERS[1])
-    ratio, _ = contact.press(session, target, 0.004, HAND, hold=0.1)
+    ratio = contact.press(session, target, 0.004, HAND, hold=0.1).ratio
     return {"x": session.state.x.to_numpy(), "indent": np.float32([ratio * 0.004])}  # [m]
 
 
