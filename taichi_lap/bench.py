@@ -216,17 +216,33 @@ def scaling_markdown(series: dict) -> list[str]:
     return lines
 
 
-def scaling_chart(series: dict, path: Path) -> bool:
-    """Cost against particles (log-log), a panel per series, a line per backend, into
-    ``path``; False without matplotlib or without a series."""
+def _pyplot():
+    """matplotlib's pyplot drawing off screen, or None without matplotlib (the
+    ``perf`` extra)."""
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        return False
-    if not series:
+        return None
+    return plt
+
+
+def _save(plt, fig, path: Path):
+    """Write ``fig`` to the PNG ``path`` atomically and close it."""
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def scaling_chart(series: dict, path: Path) -> bool:
+    """Cost against particles (log-log), a panel per series, a line per backend, into
+    ``path``; False without matplotlib or without a series."""
+    plt = _pyplot()
+    if plt is None or not series:
         return False
     fig, axes = plt.subplots(len(series), 1, figsize=(6, 2.6 * len(series)), squeeze=False)
     for ax, (key, per_arch) in zip(axes[:, 0], series.items()):
@@ -236,23 +252,15 @@ def scaling_chart(series: dict, path: Path) -> bool:
         ax.set_xlabel("particles", fontsize=8)
         ax.set_ylabel("median", fontsize=8)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
+    _save(plt, fig, path)
     return True
 
 
 def bar_chart(results: dict, path: Path) -> bool:
     """Grouped bars of the timings per benchmark, one colour per backend, into
     ``path``; False (and says which extra gives it) without matplotlib."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = _pyplot()
+    if plt is None:
         print("no bar chart: it needs matplotlib (pip install 'taichi-lap[perf]')")
         return False
     panels = timing_rows(results)
@@ -278,11 +286,7 @@ def bar_chart(results: dict, path: Path) -> bool:
         ax.set_xscale("log")
         ax.set_title(f"{name} (median; log scale, each row in its own unit)", fontsize=9)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
+    _save(plt, fig, path)
     return True
 
 
