@@ -491,7 +491,7 @@ def press(session, target: Target, depth: float, speed: float, hold: float = HOL
     above the drawn surface to ``depth`` [m] below it at ``speed`` [m/s], then
     ``hold`` [s] still. A tissue the stopped tool flung off is judged at the last
     frame it touched the tool, and its flight is reported (module docstring,
-    HELD_DEPTH, FLIGHT_FRAMES)."""
+    HELD_DEPTH, FLIGHT_FRAMES, FLIGHT_SPEED)."""
     from taichi_lap.core.errors import SimulationFault
     from taichi_lap.devices import ScriptedDevice
 
