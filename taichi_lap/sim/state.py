@@ -27,6 +27,16 @@ SNAPSHOT_FIELDS = (
     "cluster_center",
 )
 """State fields carried from one frame to the next (the rest is scratch of a step)."""
+ROW_FIELDS = {
+    "cluster_rotation": ("clusters", {"matrix": (3, 3)}),
+    "cluster_quaternion": ("clusters", {"vector": 4}),
+    "cluster_center": ("clusters", {"vector": 3}),
+    "chunk_first": ("chunks", {"vector": 3}),
+    "chunk_moment": ("chunks", {"matrix": (3, 3)}),
+    "surface_position": ("vertices", {"vector": 3}),
+}
+"""f32 fields sized by a kind of the model's rows (:attr:`Model.capacity`): name ->
+(kind, shape of an entry); :meth:`State.grow` follows the model's."""
 
 
 @ti.data_oriented
@@ -42,7 +52,6 @@ class State(FieldOwner):
 
     def __init__(self, model: Model):
         n = model.particle_count
-        c = model.cluster_capacity
         group = FieldGroup()
         self.x = group.field(ti.f32, n, vector=3)
         self.v = group.field(ti.f32, n, vector=3)
@@ -51,13 +60,8 @@ class State(FieldOwner):
         self.goal = group.field(ti.f32, n, vector=3)
         self.eta = group.field(ti.f32, n)
         self.collided = group.field(ti.i32, n)
-        # sized by the model's rows: grow follows the model's
-        self.cluster_rotation = group.field(ti.f32, c, matrix=(3, 3))
-        self.cluster_quaternion = group.field(ti.f32, c, vector=4)
-        self.cluster_center = group.field(ti.f32, c, vector=3)
-        self.chunk_first = group.field(ti.f32, model.chunk_capacity, vector=3)
-        self.chunk_moment = group.field(ti.f32, model.chunk_capacity, matrix=(3, 3))
-        self.surface_position = group.field(ti.f32, model.surface_vertex_count, vector=3)
+        for name, (kind, shape) in ROW_FIELDS.items():
+            setattr(self, name, group.field(ti.f32, model.capacity[kind], **shape))
         self._rows = group  # a tree of their own once grown (Model.grow)
         self.grasp_tool = group.field(ti.i32, n)
         self.grasp_local = group.field(ti.f32, n, vector=3)
@@ -72,18 +76,8 @@ class State(FieldOwner):
     def grow(self, model: Model):
         """Reallocate the fields sized by ``model``'s rows after :meth:`Model.grow`
         (values kept), in a tree of their own as the model's."""
-        rows = {"clusters": model.cluster_capacity, "chunks": model.chunk_capacity}
-        self._rows = self._rows.regrown(
-            self,
-            {
-                "cluster_rotation": rows["clusters"],
-                "cluster_quaternion": rows["clusters"],
-                "cluster_center": rows["clusters"],
-                "chunk_first": rows["chunks"],
-                "chunk_moment": rows["chunks"],
-                "surface_position": model.surface_vertex_count,
-            },
-        )
+        rows = {name: model.capacity[kind] for name, (kind, _) in ROW_FIELDS.items()}
+        self._rows = self._rows.regrown(self, rows)
 
     def close(self):
         """Free the state's fields (:meth:`FieldGroup.close`)."""
