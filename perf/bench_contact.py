@@ -317,16 +317,19 @@ def tube_span(centres: np.ndarray, radius: float, x: float, z: float, samples: i
 
 
 def drawn_span(session, organ: int, x: float, z: float, positions=None, particles=None):
-    """(top, bottom) [m] of the drawn surface of organ ``organ`` along the vertical
-    line through (x, z): the first and last hit of a ray cast down from above
+    """(top, bottom) [m] of the drawn surface of organ ``organ`` (its live triangles,
+    a wound included) along the vertical line through (x, z): the first and last hit
+    of a ray cast down from above
     (nan, nan if it misses). ``positions`` / ``particles``: surface vertex and
     particle positions to use instead of the session's current ones."""
-    data = session.model.data
+    model = session.model
+    data = model.data
     record = data.organs[organ]
     if positions is None:
         positions = session.state.surface_position.to_numpy()
-    first, last = record.triangles
-    heights = list(ray_hits(positions, data.surface_triangles[first:last], x, z))
+    triangles = model.surface_triangles.to_numpy()  # as a dissection left them
+    live = (triangles != 0).any(axis=1) & (model.surface_triangle_organ.to_numpy() == organ)
+    heights = list(ray_hits(positions, triangles[live], x, z))
     if record.row_length:
         if particles is None:
             particles = session.state.x.to_numpy()

@@ -222,10 +222,16 @@ class Session:
             self._dissection.apply(change, self.state)
             if self._cautery is not None:
                 self._cautery.remove(change.removed_particles)
-            if self.solver.collision is not None:
-                self.solver.collision.retire(
-                    np.union1d(change.dead_triangles, change.new_triangles)
-                )
+            collision = self.solver.collision
+            if collision is not None:
+                surface = self._dissection.surface_rows()
+                if (collision.triangle_count, collision.vertex_count) != (
+                    self.model.surface_triangle_count,
+                    self.model.surface_vertex_count,
+                ):
+                    collision = self.solver.collision = collision.regrown(surface)
+                collision.rewrite(np.union1d(change.dead_triangles, change.new_triangles), surface)
+            skin_surface(self.model, self.state)  # the wound is drawn where it is
             ti.sync()
         spent = (time.perf_counter() - start) * 1e3
         self.timings["topology"] = self.timings.get("topology", 0.0) + spent

@@ -10,7 +10,8 @@ import taichi as ti
 from taichi_lap.kernels import shape_matching
 from taichi_lap.kernels.collision import response, spheres
 
-from taichi_lap.collision.tissue import TissueCollision, broad_spheres
+from taichi_lap.collision.surface_tables import broad_spheres
+from taichi_lap.collision.tissue import TissueCollision
 from taichi_lap.core.instruments import ToolShape
 from taichi_lap.sim import Control, Solver
 from tests.archrun import assert_vulkan_matches_cpu
@@ -79,11 +80,16 @@ def test_circumsphere_centre_lies_on_the_normal_at_the_stated_depth_through_the_
     bound_center, radius_b = bounding_spheres(corners)
     goal = skinned(data, data.rest_position)[data.surface_triangles]
     recovery = np.linalg.norm(corners - goal, axis=2).mean(axis=1)  # ε of §4.2.2
-    hermite = collision.curvature_factor.to_numpy()
-    assert np.allclose(collision.recovery.to_numpy(), recovery, atol=1e-6)
+    hermite = collision.curvature_factor.to_numpy()[: collision.rows_in_use]
+    assert np.allclose(collision.recovery.to_numpy()[: collision.rows_in_use], recovery, atol=1e-6)
     depth = collision.scale_phi * radius_b / math.tan(collision.safe_angle) * hermite + recovery
-    center, radius = collision.sphere_center.to_numpy(), collision.sphere_radius.to_numpy()
-    assert np.allclose(collision.bound_center.to_numpy(), bound_center, atol=1e-6)
+    center, radius = (
+        collision.sphere_center.to_numpy()[: collision.rows_in_use],
+        collision.sphere_radius.to_numpy()[: collision.rows_in_use],
+    )
+    assert np.allclose(
+        collision.bound_center.to_numpy()[: collision.rows_in_use], bound_center, atol=1e-6
+    )
     assert np.allclose(center, bound_center - normal * depth[:, None], atol=2e-6)
     assert np.all((hermite > 0.0) & (hermite <= 1.0))
     distance = np.linalg.norm(corners - center[:, None, :], axis=2)
@@ -119,9 +125,9 @@ def dual_curvature_of(organ):
     collision = TissueCollision(model, tools=False, tissue_pairs=False)
     collision.update_spheres(state)
     return (
-        collision.curvature.to_numpy(),
+        collision.curvature.to_numpy()[: collision.rows_in_use],
         triangle_areas(data, data.rest_position),
-        collision.tri_neighbour.to_numpy(),
+        collision.tri_neighbour.to_numpy()[: collision.rows_in_use],
     )
 
 
@@ -160,12 +166,19 @@ def test_lazy_update_skips_recomputation_under_delta_and_recomputes_above(box):
     step = lambda: collision.update_spheres(state)
     assert counted(collision, "recomputed", step) == len(model.data.surface_triangles)
     assert counted(collision, "recomputed", step) == 0
-    center, recovery = collision.sphere_center.to_numpy(), collision.recovery.to_numpy()
+    center, recovery = (
+        collision.sphere_center.to_numpy()[: collision.rows_in_use],
+        collision.recovery.to_numpy()[: collision.rows_in_use],
+    )
     shift = np.float32([0.001, 0.002, 0.0])
     state.p.from_numpy((data.rest_position + shift).astype(np.float32))
     assert counted(collision, "recomputed", step) == 0  # rigid motion: same areas
-    assert np.allclose(collision.sphere_center.to_numpy(), center + shift, atol=1e-6)
-    assert np.array_equal(collision.recovery.to_numpy(), recovery)  # ε kept, not |p - g|
+    assert np.allclose(
+        collision.sphere_center.to_numpy()[: collision.rows_in_use], center + shift, atol=1e-6
+    )
+    assert np.array_equal(
+        collision.recovery.to_numpy()[: collision.rows_in_use], recovery
+    )  # ε kept, not |p - g|
     rest_area = triangle_areas(data, data.rest_position)
     delta = collision.lazy_delta
     for stretch in (0.25 * delta, 3.0 * delta):
@@ -465,9 +478,9 @@ def rest_excluded(collision, data):
     and (F, F) bool: pairs too near a tie of its f32 tests to say."""
     tri = data.surface_triangles
     shares = (tri[:, None, :, None] == tri[None, :, None, :]).any(axis=(2, 3))
-    rest = collision.rest_sphere.to_numpy().astype(np.float64)
-    normal = collision.rest_normal.to_numpy().astype(np.float64)
-    body = collision.tri_body.to_numpy()
+    rest = collision.rest_sphere.to_numpy()[: collision.rows_in_use].astype(np.float64)
+    normal = collision.rest_normal.to_numpy()[: collision.rows_in_use].astype(np.float64)
+    body = collision.tri_body.to_numpy()[: collision.rows_in_use]
     d = rest[None, :, :3] - rest[:, None, :3]
     margin = np.linalg.norm(d, axis=2) - collision.rest_exclusion * (
         rest[:, None, 3] + rest[None, :, 3]
@@ -487,11 +500,11 @@ def rest_excluded(collision, data):
 
 def listed_pairs(collision) -> np.ndarray:
     """(F, F) bool: the pair rows as a matrix."""
-    f = collision.triangle_count
+    f = collision.rows_in_use
     start = collision.rows.start.to_numpy()
     partner = collision.rows.partner.to_numpy()[: start[f]]
     out = np.zeros((f, f), dtype=bool)
-    out[np.repeat(np.arange(f), np.diff(start)), partner] = True
+    out[np.repeat(np.arange(f), np.diff(start[: f + 1])), partner] = True
     return out
 
 
@@ -518,7 +531,7 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
     }
     _, data, model, state, control, _ = simulation([lower, upper, nodule], gravity=[0, 0, 0])
     collision = TissueCollision(model, tools=False)
-    body = collision.tri_body.to_numpy()
+    body = collision.tri_body.to_numpy()[: collision.rows_in_use]
     organ_of = np.repeat(np.arange(3), [o.triangles[1] - o.triangles[0] for o in data.organs])
     assert body[organ_of == 2][0] == body[organ_of == 0][0] != body[organ_of == 1][0]
     skipped, tie = rest_excluded(collision, data)
@@ -551,7 +564,7 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
         found += meeting
         x = p
     assert found > 100
-    assert any(0 < r < collision.triangle_count for r in rescans[1:])
+    assert any(0 < r < collision.rows_in_use for r in rescans[1:])
     # a reset that puts the state back at rest keeps the lists: the triangles that moved
     # away from where they were listed rescan, the others keep their rows
     state.x.from_numpy(x0.astype(np.float32))
@@ -559,7 +572,7 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
     collision.reset()
     rescanned = counted(collision, "rescanned", lambda: collision.step(state, control))
     assert unlisted_meeting_pairs(x0, x0)[0] == 0
-    assert 0 < rescanned < collision.triangle_count
+    assert 0 < rescanned < collision.rows_in_use
 
 
 def folded_sheet(rest_exclusion: float):

@@ -144,7 +144,7 @@ def update_bounds(
             ]
         )
     skin_vertices(model, state, coll)
-    for t in range(coll.triangle_count):
+    for t in range(coll.row_count[None]):
         v = coll.tri_vertex[t]
         a, b, c = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]
         center = (a + b + c) / 3.0
@@ -175,9 +175,9 @@ def hold_spheres(coll: ti.template(), grid: ti.template()):
     """After ``grid.build(broad_sphere)``: the hash holds each triangle's broad sphere
     (hash_sphere) and, in hash order, that sphere, the rest sphere and the body
     (sorted_sphere, sorted_rest, sorted_body: what the scan loop reads)."""
-    for t in range(coll.triangle_count):
+    for t in range(coll.row_count[None]):
         coll.hash_sphere[t] = coll.broad_sphere[t]
-    for s in range(coll.triangle_count):
+    for s in range(coll.row_count[None]):
         u = grid.sorted_index[s]
         coll.sorted_sphere[s] = coll.hash_sphere[u]
         coll.sorted_rest[s] = coll.rest_sphere[u]
@@ -273,7 +273,7 @@ def list_pairs(coll: ti.template(), grid: ti.template(), found: ti.template()):
     found.count[None] = 0
     for k in ti.static(range(B_SEEN, len(BROAD))):
         coll.broad[k] = 0
-    for t in range(coll.triangle_count):
+    for t in range(coll.row_count[None]):
         if coll.moved[t]:
             count, seen = 0, 0
             if ti.static(grid.reserve_per_point):  # Vulkan: count, reserve, write
@@ -293,7 +293,7 @@ def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(), foun
     did not move; every found pair adds to both rows. Writes new.cursor (kept), new.size,
     new.start (prefix sum) and, to compare with the capacities, broad[B_FOUND] and
     broad[B_ROWS] (the total)."""
-    for t in range(coll.triangle_count):
+    for t in range(coll.row_count[None]):
         kept = 0
         if not coll.moved[t]:
             for m in range(old.start[t], old.start[t + 1]):
@@ -305,9 +305,9 @@ def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(), foun
         pair = found.pair[q]
         ti.atomic_add(new.size[pair[0]], 1)
         ti.atomic_add(new.size[pair[1]], 1)
-    exclusive_scan(new.size, new.start, coll.triangle_count, new.block_start, ROW_BLOCK)
+    exclusive_scan(new.size, new.start, coll.row_count[None], new.block_start, ROW_BLOCK)
     coll.broad[B_FOUND] = found.count[None]
-    coll.broad[B_ROWS] = new.start[coll.triangle_count]
+    coll.broad[B_ROWS] = new.start[coll.row_count[None]]
 
 
 @ti.kernel
@@ -315,7 +315,7 @@ def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found
     """The new rows of :func:`count_rows`, each sorted by partner (the order the
     contacts are summed in: runs stay bit-reproducible); the rescan's counts go to the
     counters."""
-    for t in range(coll.triangle_count):
+    for t in range(coll.row_count[None]):
         if not coll.moved[t]:
             slot = new.start[t]
             for m in range(old.start[t], old.start[t + 1]):
@@ -331,7 +331,7 @@ def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found
     ti.atomic_add(coll.counter[C_CANDIDATES], coll.broad[B_SEEN])
     ti.atomic_add(coll.counter[C_RESCANNED], coll.broad[B_RESCANNED])
     ti.atomic_add(coll.counter[C_LISTED], coll.broad[B_LISTED])
-    for t in range(coll.triangle_count):  # insertion sort of the short rows
+    for t in range(coll.row_count[None]):  # insertion sort of the short rows
         lo, hi = new.start[t], new.start[t + 1]
         for a in range(lo + 1, hi):
             v, c = new.partner[a], a
@@ -350,7 +350,7 @@ def mark_active(coll: ti.template(), rows: ti.template()):
     near a tool (:func:`update_bounds`), the triangles whose spheres
     :func:`kernels.collision.spheres.update_spheres` computes and that
     :func:`detect_and_respond` tests (both triangles of a pair are listed)."""
-    for t in range(coll.triangle_count):
+    for t in range(coll.row_count[None]):
         start, end = rows.start[t], rows.start[t + 1]
         if start < end and not any_tool_near(coll, coll.broad_sphere[t]):
             active = False

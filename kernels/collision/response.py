@@ -272,7 +272,7 @@ def surface_tool(
     v = coll.tri_vertex[t]
     w = ti.Vector([coll.corner_inv_mass[3 * t + j] for j in ti.static(range(3))])
     thickness = ti.Vector([coll.corner_thickness[3 * t + j] for j in ti.static(range(3))])
-    start = ti.Matrix.rows([skin(model, state.p, v[j]) for j in ti.static(range(3))])
+    start = ti.Matrix.rows([skin(model, state, state.p, v[j]) for j in ti.static(range(3))])
     x = [coll.vertex_x[v[j]] for j in ti.static(range(3))]
     c = start
     moved = ti.Vector([0, 0, 0])
@@ -437,14 +437,22 @@ def detect_and_respond(
                         coll.touched_list[ti.atomic_add(coll.touched_count[None], 1)] = idx[j]
     for n in range(coll.touched_count[None]):
         i = coll.touched_list[n]
-        j = coll.particle_rank[i]
         total, weight = ti.Vector([0.0, 0.0, 0.0]), 0.0
-        for m in range(coll.particle_start[j], coll.particle_start[j + 1]):
-            corner = coll.particle_corner[m]
-            if coll.corner_count[corner] > 0:
-                total += coll.particle_weight[m] * coll.corner_delta[corner]
-                weight += coll.particle_weight[m]
-        if model.inv_mass[i] > 0.0:
+        j = coll.particle_rank[i]
+        if j >= 0:  # corners as built, but those a dissection rewrote
+            for m in range(coll.particle_start[j], coll.particle_start[j + 1]):
+                corner = coll.particle_corner[m]
+                if coll.corner_count[corner] > 0 and coll.corner_built[corner] != 0:
+                    total += coll.particle_weight[m] * coll.corner_delta[corner]
+                    weight += coll.particle_weight[m]
+        r = coll.written_rank[i]
+        if r >= 0:  # corners a dissection wrote
+            for m in range(coll.written_start[r], coll.written_start[r + 1]):
+                corner = coll.written_corner[m]
+                if coll.corner_count[corner] > 0:
+                    total += coll.written_weight[m] * coll.corner_delta[corner]
+                    weight += coll.written_weight[m]
+        if model.inv_mass[i] > 0.0 and weight > 0.0:
             state.p[i] = state.p[i] + total / weight
         state.collided[i] = 1
         coll.particle_mark[i] = 0

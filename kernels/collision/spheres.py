@@ -49,6 +49,8 @@ import math
 import numpy as np
 import taichi as ti
 
+from taichi_lap.kernels.skinning import skin
+
 CIRCUMSPHERE, BOUNDING_SPHERE, POLYGON = 0, 1, 2
 HERMITE_SAMPLES = 256
 """Intervals of the tabulated H3 over s ∈ [0, 1]."""
@@ -179,16 +181,12 @@ def centroid(coll: ti.template(), t):
 
 @ti.func
 def skin_vertices(model: ti.template(), state: ti.template(), coll: ti.template()):
-    """Surface vertices from p and x by the surface binding (vertex_p, vertex_x); call
-    at a kernel's top level (a parallel loop)."""
-    for s in range(coll.vertex_count):
-        idx, w = model.surface_index[s], model.surface_weight[s]
-        p, x = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
-        for k in ti.static(range(4)):
-            p += w[k] * state.p[idx[k]]
-            x += w[k] * state.x[idx[k]]
-        coll.vertex_p[s] = p
-        coll.vertex_x[s] = x
+    """Surface vertices in use from p and x by the surface binding (vertex_p,
+    vertex_x; :func:`~taichi_lap.kernels.skinning.skin`); call at a kernel's top
+    level (a parallel loop)."""
+    for s in range(coll.vertex_rows[None]):
+        coll.vertex_p[s] = skin(model, state, state.p, s)
+        coll.vertex_x[s] = skin(model, state, state.x, s)
 
 
 @ti.kernel
@@ -204,7 +202,7 @@ def update_spheres(
     recovery) and ``recomputed``."""
     if ti.static(every):
         skin_vertices(model, state, coll)
-    for m in range(coll.triangle_count if ti.static(every) else coll.active_count[None]):
+    for m in range(coll.row_count[None] if ti.static(every) else coll.active_count[None]):
         t = m if ti.static(every) else coll.active_list[m]
         v = coll.tri_vertex[t]
         a, b, c = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]

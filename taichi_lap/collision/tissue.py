@@ -19,6 +19,8 @@ the tissue pairs, or, with ``method_tools``, by the method's own response (seed 
 compares the methods on a tool).
 """
 
+from __future__ import annotations
+
 import logging
 import math
 import time
@@ -28,11 +30,14 @@ import taichi as ti
 
 from taichi_lap.collision.pair_lists import FoundPairs, PairRows
 from taichi_lap.collision.surface_tables import (
-    broad_spheres,
+    SurfaceRows,
+    corner_binding,
+    live_neighbours,
     organ_bodies,
+    rest_tables,
     triangle_corner_tables,
 )
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, padded_rows
 from taichi_lap.core.instruments import FAR, MAX_TOOLS
 from taichi_lap.core.mesh import edge_neighbours
 from taichi_lap.kernels.collision import broad_phase, response, spheres
@@ -48,6 +53,7 @@ METHODS = {
 }
 PHASES = ("bounds", "hash", "pairs", "spheres", "detect")
 """Phases of :meth:`TissueCollision.step` timed with ``timing``."""
+
 REACH_FACTOR = 1.5
 """How much larger than the largest rest broad radius a triangle's broad sphere (its
 radius plus its motion in a substep) may grow before its pairs may be missed; the
@@ -113,6 +119,22 @@ class TissueCollision:
         if rest_exclusion < 0.0 or (pair_margin or 0.0) < 0.0 or (hash_slack or 0.0) < 0.0:
             raise ValueError("pair_margin, hash_slack and rest_exclusion must be >= 0")
         self.model = model
+        self._options = dict(
+            method=method,
+            scale_phi=scale_phi,
+            safe_angle=safe_angle,
+            lazy_delta=lazy_delta,
+            tissue_pairs=tissue_pairs,
+            self_collision=self_collision,
+            tools=tools,
+            method_tools=method_tools,
+            polygon_thickness=polygon_thickness,
+            pair_margin=pair_margin,
+            hash_slack=hash_slack,
+            rest_exclusion=rest_exclusion,
+            cell_size=cell_size,
+            timing=timing,
+        )
         self.method = METHODS[method]
         self.scale_phi, self.safe_angle = float(scale_phi), float(safe_angle)
         self.lazy_delta = float(lazy_delta)
@@ -126,12 +148,13 @@ class TissueCollision:
         self._hashed, self._mark = False, 0.0
         data = model.data
         triangles = np.asarray(data.surface_triangles, dtype=np.int64).reshape(-1, 3)
-        self.triangle_count, self.vertex_count = len(triangles), len(data.surface_index)
+        # the model's rows, spare ones included (a dissection writes them); the loops
+        # run over the rows in use (row_count, vertex_rows)
+        self.triangle_count = model.surface_triangle_count
+        self.vertex_count = model.surface_vertex_count
+        self.rows_in_use = len(triangles)
         rest = (data.surface_weight[..., None] * data.rest_position[data.surface_index]).sum(axis=1)
-        corners = rest[triangles]
-        rest_sphere = broad_spheres(corners)
-        rest_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        rest_normal /= np.maximum(np.linalg.norm(rest_normal, axis=1, keepdims=True), 1e-30)
+        rest_sphere, rest_normal = rest_tables(rest, triangles)
         self.pair_margin = float(
             np.median(rest_sphere[:, 3])
             if pair_margin is None and len(triangles)
@@ -140,6 +163,7 @@ class TissueCollision:
         self.hash_slack = self.pair_margin if hash_slack is None else float(hash_slack)
         self.rescan_drift = self.pair_margin / 3.0
         self.reach_bound = REACH_FACTOR * max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
+        self._body = organ_bodies(data)
         tables = triangle_corner_tables(data)
         self._init_fields(data, triangles, tables, rest_sphere, rest_normal)
         self._retired = []  # pair lists outgrown, freed with the rest by close()
@@ -165,42 +189,65 @@ class TissueCollision:
     ):
         f, v, group = self.triangle_count, self.vertex_count, FieldGroup()
         self._group = group
-        organ = np.zeros(f, dtype=np.int32)
+        n = len(data.pinned)
+        organ = np.zeros(len(triangles), dtype=np.int32)
         for k, record in enumerate(data.organs):
             organ[record.triangles[0] : record.triangles[1]] = k
-        self.tri_body = group.field(ti.i32, f, values=organ_bodies(data)[organ])
         corner_inv_mass = tables["corner_inv_mass"]
-        self.tri_vertex = group.field(ti.i32, f, vector=3, values=triangles)
-        self.tri_neighbour = group.field(ti.i32, f, vector=3, values=edge_neighbours(triangles))
-        self.tri_organ = group.field(ti.i32, f, values=organ)
-        self.tri_live = group.field(ti.i32, f, values=np.ones(f, dtype=np.int32))
+        built = {  # what a dissection rewrites, as built; spare rows dead
+            "tri_vertex": (triangles, 0),
+            "tri_neighbour": (edge_neighbours(triangles), -1),
+            "tri_organ": (organ, 0),
+            "tri_body": (self._body[organ], 0),
+            "tri_live": (np.ones(len(triangles), dtype=np.int32), 0),
+            "rest_sphere": (rest_sphere, 0.0),
+            "rest_normal": (rest_normal, 0.0),
+            "tri_inv_mass": (corner_inv_mass.reshape(-1, 3).mean(axis=1), 0.0),
+        }
+        corners = {
+            "corner_inv_mass": (corner_inv_mass, 0.0),
+            "corner_owner": (tables["corner_owner"], 0),
+            "corner_thickness": (tables["corner_thickness"], 0.0),
+            "corner_built": (np.ones(3 * len(triangles), dtype=np.int32), 0),
+        }
+        self._built = {
+            **{name: padded_rows(values, f, fill) for name, (values, fill) in built.items()},
+            **{name: padded_rows(values, 3 * f, fill) for name, (values, fill) in corners.items()},
+        }
+        for name, values in self._built.items():
+            kind = ti.i32 if values.dtype.kind in "iub" else ti.f32
+            vector = values.shape[1] if values.ndim > 1 else 0
+            setattr(self, name, group.field(kind, len(values), vector=vector, values=values))
+        self._tri_vertex = self._built["tri_vertex"].astype(np.int64)  # host copy
+        self._written = np.zeros(f, dtype=bool)  # rows a dissection wrote
+        self.row_count = group.field(ti.i32, None)
+        self.vertex_rows = group.field(ti.i32, None)
         self.broad_sphere = group.field(ti.f32, f, vector=4)
-        self.rest_sphere = group.field(ti.f32, f, vector=4, values=rest_sphere)
-        self.rest_normal = group.field(ti.f32, f, vector=3, values=rest_normal)
         self.ref_sphere = group.field(ti.f32, f, vector=4)
         self.hash_sphere = group.field(ti.f32, f, vector=4)
         self.moved = group.field(ti.i32, f)
         self.tool_held = group.field(ti.i32, f)
         self.active_list = group.field(ti.i32, f)
         self.active_count = group.field(ti.i32, None)
-        self.touched_list = group.field(ti.i32, len(data.pinned))
+        self.touched_list = group.field(ti.i32, n)
         self.touched_count = group.field(ti.i32, None)
-        self.particle_mark = group.field(ti.i32, len(data.pinned))
-        rank = np.full(len(data.pinned), -1)
+        self.particle_mark = group.field(ti.i32, n)
+        rank = np.full(n, -1)
         rank[tables["bound_particle"]] = np.arange(len(tables["bound_particle"]))
-        self.particle_rank = group.field(ti.i32, len(data.pinned), values=rank)
+        self.particle_rank = group.field(ti.i32, n, values=rank)
         self.broad = group.field(ti.i32, len(broad_phase.BROAD))
-        self.tri_inv_mass = group.field(
-            ti.f32, f, values=corner_inv_mass.reshape(-1, 3).mean(axis=1)
-        )
-        self.corner_inv_mass = group.field(ti.f32, 3 * f, values=corner_inv_mass)
-        self.corner_owner = group.field(ti.i32, 3 * f, values=tables["corner_owner"])
-        self.corner_thickness = group.field(ti.f32, 3 * f, values=tables["corner_thickness"])
         for name in ("bound_particle", "particle_start", "particle_corner"):
             setattr(self, name, group.field(ti.i32, len(tables[name]), values=tables[name]))
         self.particle_weight = group.field(
             ti.f32, len(tables["particle_weight"]), values=tables["particle_weight"]
         )
+        # the gather lists of the corners of rows a dissection wrote (rank -1: none);
+        # a corner binds at most four particles
+        self._written_particles = np.zeros(0, dtype=np.int64)
+        self.written_rank = group.field(ti.i32, n, values=np.full(n, -1))
+        self.written_start = group.field(ti.i32, n + 1)
+        self.written_corner = group.field(ti.i32, 12 * f)
+        self.written_weight = group.field(ti.f32, 12 * f)
         self.hermite = group.field(
             ti.f32, spheres.HERMITE_SAMPLES + 1, values=spheres.hermite_table()
         )
@@ -236,6 +283,7 @@ class TissueCollision:
         self.corner_count = group.field(ti.i32, 3 * f)
         self.counter = group.field(ti.i32, len(spheres.COUNTERS))
         group.finalize()
+        self._set_rows_in_use(len(triangles), len(data.surface_index))
 
     def close(self):
         """Free the fields of the tables, the hash and the pair lists (Taichi then
@@ -245,16 +293,135 @@ class TissueCollision:
             if owner is not None:
                 owner.close()
 
-    def retire(self, triangles: np.ndarray):
-        """Stop colliding the model's surface ``triangles`` (rows a dissection removed
-        or wrote anew): they are no one's partner and no tool's contact."""
-        triangles = np.asarray(triangles, dtype=np.int64)
-        triangles = triangles[triangles < self.triangle_count]
-        scatter(self.tri_live, triangles, np.zeros(len(triangles)))
+    def _set_rows_in_use(self, triangles: int, vertices: int):
+        """The rows the loops run over: ``triangles`` triangles, ``vertices`` vertices."""
+        self.rows_in_use = int(triangles)
+        self.row_count[None] = self.rows_in_use
+        self.vertex_rows[None] = int(vertices)
+
+    def rewrite(self, rows: np.ndarray, surface: SurfaceRows):
+        """Follow a dissection (seed 002 §3.3: every consumer of the surface follows a
+        topology change): the triangle ``rows`` it removed or wrote anew, as
+        ``surface`` now holds them, collide as they are. Their tables (vertices,
+        organ, rest sphere and normal, corner masses and thickness), the edge
+        neighbours of them and of the triangles next to them, the owner corners of
+        their vertices and the gather lists of every rewritten corner are written;
+        they rescan their pairs and the hash is rebuilt at the next step, and the
+        curvature of them and their neighbours is computed again. Only rows near the
+        change and the rewritten corners' gather lists are touched."""
+        rows = np.unique(np.asarray(rows, dtype=np.int64))
+        if not len(rows):
+            return
+        if rows[-1] >= self.triangle_count:
+            raise ValueError(
+                f"surface row {rows[-1]} beyond the collision's {self.triangle_count} rows "
+                "(a grown model needs a collision of its size: regrown)"
+            )
+        live = surface.live[: self.triangle_count]
+        old_vertices = self._tri_vertex[rows]
+        new_vertices = surface.triangles[rows].astype(np.int64)
+        self._tri_vertex[rows] = new_vertices
+        self._written[rows] = True
+        organ = surface.organ[rows].astype(np.int64)
+        rest_sphere, rest_normal = rest_tables(surface.rest, new_vertices)
+        inv_mass, thickness = corner_binding(
+            new_vertices,
+            surface.index,
+            surface.weight,
+            surface.inverse_mass,
+            surface.contact_radius,
+        )
+        corners = (3 * rows[:, None] + np.arange(3)).ravel()
+        scatter(self.tri_vertex, rows, new_vertices)
+        scatter(self.tri_live, rows, live[rows])
+        scatter(self.tri_organ, rows, organ)
+        scatter(self.tri_body, rows, self._body[organ])
+        scatter(self.rest_sphere, rows, rest_sphere)
+        scatter(self.rest_normal, rows, rest_normal)
+        scatter(self.tri_inv_mass, rows, inv_mass.reshape(-1, 3).mean(axis=1))
+        scatter(self.corner_inv_mass, corners, inv_mass)
+        scatter(self.corner_thickness, corners, thickness)
+        scatter(self.corner_built, corners, np.zeros(len(corners)))
+        scatter(self.corner_owner, corners, np.zeros(len(corners)))  # live ones: below
+        for name in ("ref_sphere", "hash_sphere"):  # rescan, rebuild the hash
+            scatter(getattr(self, name), rows, np.full((len(rows), 4), FAR))
+        scatter(self.tool_held, rows, np.zeros(len(rows)))
+        nearby = live_neighbours(self._tri_vertex, live, surface.incident, rows[live[rows]])
+        near = np.union1d(rows, nearby[nearby >= 0])
+        scatter(
+            self.tri_neighbour,
+            near,
+            live_neighbours(self._tri_vertex, live, surface.incident, near),
+        )
+        scatter(self.area_last, near, np.zeros(len(near)))
+        self._rewrite_owners(np.union1d(old_vertices.ravel(), new_vertices.ravel()), surface)
+        self._set_rows_in_use(max(self.rows_in_use, int(rows[-1]) + 1), surface.vertex_rows)
+        self._rewrite_gather(surface)
+
+    def _rewrite_owners(self, vertices: np.ndarray, surface: SurfaceRows):
+        """Owner corners (:func:`corner_owners`) of ``vertices``: every live corner at
+        one of them (their incident rows list them all) is written."""
+        incident = surface.incident[vertices]
+        triangles = np.unique(incident[incident >= 0])
+        triangles = triangles[surface.live[triangles]]
+        corner_vertex = self._tri_vertex[triangles].ravel()
+        corner = (3 * triangles[:, None] + np.arange(3)).ravel()
+        mine = np.isin(corner_vertex, vertices)  # all of their live corners are here
+        corner_vertex, corner = corner_vertex[mine], corner[mine]
+        distinct, which = np.unique(corner_vertex, return_inverse=True)
+        first = np.full(len(distinct), 3 * self.triangle_count)
+        np.minimum.at(first, which, corner)
+        owner = first[which] == corner
+        scatter(self.corner_owner, corner, owner.astype(np.int32))
+
+    def _rewrite_gather(self, surface: SurfaceRows):
+        """The gather lists of every live rewritten corner (particle -> corners bound
+        to it with their weights), sorted by particle then corner: the response
+        reads them beside the lists as built, whose rewritten corners it skips."""
+        rows = np.flatnonzero(self._written & surface.live[: self.triangle_count])
+        vertex = self._tri_vertex[rows].ravel()
+        corner = np.repeat((3 * rows[:, None] + np.arange(3)).ravel(), 4)
+        particle = surface.index[vertex].ravel()
+        weight = surface.weight[vertex].ravel()
+        keep = weight > 0.0
+        particle, corner, weight = particle[keep], corner[keep], weight[keep]
+        order = np.lexsort((corner, particle))
+        particle, corner, weight = particle[order], corner[order], weight[order]
+        distinct, first = np.unique(particle, return_index=True)
+        gone = np.setdiff1d(self._written_particles, distinct)
+        scatter(self.written_rank, gone, np.full(len(gone), -1))
+        scatter(self.written_rank, distinct, np.arange(len(distinct)))
+        scatter(
+            self.written_start,
+            np.arange(len(distinct) + 1),
+            np.append(first, len(particle)),
+        )
+        scatter(self.written_corner, np.arange(len(corner)), corner)
+        scatter(self.written_weight, np.arange(len(weight)), weight)
+        self._written_particles = distinct
 
     def revive(self):
-        """Collide every triangle again (the model was put back as built)."""
-        self.tri_live.fill(1)
+        """Collide the surface as built again (the model was put back as built)."""
+        for name, values in self._built.items():
+            getattr(self, name).from_numpy(values)
+        self._tri_vertex = self._built["tri_vertex"].astype(np.int64)
+        self._written[:] = False
+        scatter(
+            self.written_rank, self._written_particles, np.full(len(self._written_particles), -1)
+        )
+        self._written_particles = np.zeros(0, dtype=np.int64)
+        data = self.model.data
+        self._set_rows_in_use(len(data.surface_triangles), len(data.surface_index))
+        self.reset(pairs=True)
+
+    def regrown(self, surface: SurfaceRows) -> TissueCollision:
+        """A collision of the same settings sized for the model's rows after
+        :meth:`~taichi_lap.sim.model.Model.grow`, holding the rows this one
+        rewrote; this one is closed."""
+        grown = TissueCollision(self.model, **self._options)
+        grown.rewrite(np.flatnonzero(self._written), surface)
+        self.close()
+        return grown
 
     def reset(self, *, pairs: bool = False):
         """Forget the lazy-update state (every circumsphere is recomputed at the next
@@ -353,7 +520,7 @@ class TissueCollision:
         capacity and a reused collision lists into the arrays its kernels were compiled
         for."""
         if stale or not self._hashed:
-            self.grid.build(self.broad_sphere, self.triangle_count)
+            self.grid.build(self.broad_sphere, self.rows_in_use)
             broad_phase.hold_spheres(self, self.grid)
             self._hashed = True
             self._lap("hash")

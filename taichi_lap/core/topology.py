@@ -87,8 +87,9 @@ class Topology:
     :class:`~taichi_lap.preprocess.model_data.ModelData`), with alive flags.
 
     ``positions`` (N, 3) [m] are where the particles are now (the surface is checked
-    there, or at ``surface_position`` (V, 3) [m] when given: vertices a dissection
-    made follow clusters, not particles, and have all weights 0),
+    there, or at ``surface_position`` (V, 3) [m] when given: a vertex a dissection
+    made sits at its kept particle plus a rest offset its cluster rotates, not at
+    the weighted particles alone),
     ``rest_positions`` (N, 3) [m] where they were built (tet volumes);
     ``removed_volume`` [m^3] is the tet volume the dissection reports it removed.
     ``triangle_organ`` and ``vertex_organ`` give each element's organ where a

@@ -15,7 +15,8 @@ update ... followed by mesh skinning"): the host's :class:`MutableTopology` deci
   (the particle-major membership rows are rewritten);
 * the surface rows the change touched: triangles (a dead one degenerate, (0, 0, 0)),
   their organ, the incident-triangle rows of their vertices (normals), and the
-  vertices made, removed or skinned by another cluster.
+  vertices made, removed or skinned by another cluster (a wound vertex: its kept
+  particle with weight 1, its cluster and its rest offset from that particle).
 
 A change that needs more rows than the model has spare first grows the model and
 the state (:meth:`~taichi_lap.sim.model.Model.grow`, by :data:`GROWTH`, one log
@@ -31,6 +32,7 @@ import logging
 
 import numpy as np
 
+from taichi_lap.collision.surface_tables import SurfaceRows
 from taichi_lap.core.csr import owners_of, rows_of
 from taichi_lap.core.fields import padded_rows
 from taichi_lap.dissection.removal import MutableTopology, TopologyChange
@@ -72,6 +74,7 @@ class DeviceTopology:
         self.triangle_live = np.zeros(len(self.triangles), dtype=bool)
         self.triangle_live[: len(data.surface_triangles)] = True
         self.incident = model.surface_incident.to_numpy().astype(np.int64)
+        self.inverse_mass = data.inverse_mass().astype(np.float64)  # removed ones 0
 
     def apply(self, change: TopologyChange, state):
         """Write ``change`` (just made by the topology) to the model, and release the
@@ -80,6 +83,7 @@ class DeviceTopology:
         new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
         self._fit(change, new, state)
         scatter(model.inv_mass, removed, np.zeros(len(removed)))
+        self.inverse_mass[removed] = 0.0
         held = removed[state.grasp_tool.to_numpy()[removed] != FREE]
         scatter(state.grasp_tool, held, np.full(len(held), FREE))
         rows = rows_of(topology.membership_start, removed)
@@ -100,6 +104,24 @@ class DeviceTopology:
         model.finalize_counts()
         self._write_surface(change)
         model.topology_version += 1
+
+    def surface_rows(self) -> SurfaceRows:
+        """The model's surface rows as the changes so far left them (what the tissue
+        collision follows, :meth:`~taichi_lap.collision.tissue.TissueCollision.rewrite`)."""
+        v, f = self.topology.vertices, self.topology.triangles
+        rows = len(self.triangles)
+        return SurfaceRows(
+            triangles=self.triangles,
+            live=self.triangle_live,
+            organ=padded_rows(f["organ"][:rows], rows, 0),
+            incident=self.incident,
+            index=v["index"],
+            weight=v["weight"],
+            rest=v["rest"],
+            vertex_rows=v.used,
+            inverse_mass=self.inverse_mass,
+            contact_radius=self.model.data.contact_radius(),
+        )
 
     def _fit(self, change: TopologyChange, new: list[int], state):
         """Grow the model, the state and these tables when ``change`` with its
@@ -229,7 +251,9 @@ class DeviceTopology:
         scatter(model.surface_index, changed, v["index"][changed])
         scatter(model.surface_weight, changed, v["weight"][changed])
         scatter(model.surface_cluster, changed, v["cluster"][changed])
-        scatter(model.surface_rest, changed, v["rest"][changed])
+        offset = v["rest"][changed] - self.topology.rest[v["index"][changed, 0]]
+        offset[v["cluster"][changed] < 0] = 0.0
+        scatter(model.surface_offset, changed, offset)
 
     def _unlist(self, triangles: np.ndarray, vertices: np.ndarray):
         """Take each triangle out of its vertex's incident row."""

@@ -18,7 +18,9 @@ next to the removed particles:
 4. the wound surface: marching tetrahedra (:mod:`taichi_lap.dissection.marching`)
    on the tets and surface triangles touching a removed particle replace what they
    made before. New vertices lie halfway along the cut edges at rest and follow
-   their nearest cluster (linear blend skinning, seed 002 §3.3).
+   their nearest cluster's rotation (linear blend skinning, seed 002 §3.3) from the
+   edge's kept particle: bound to it with weight 1 and a rest offset, so a push on
+   the wound moves that particle and the wound stays joined to the tissue it bounds.
 
 Only organs of tets whose surface vertices are their boundary particles (direct
 binding, the BCC liver of seed 002) can lose particles.
@@ -217,19 +219,17 @@ class MutableTopology:
         return member[start[c] : start[c + 1]]
 
     def surface_particles(self) -> np.ndarray:
-        """Sorted particles the live surface follows: those its built vertices are
-        bound to (weights > 0), where alive, and the kept end of each wound vertex."""
+        """Sorted particles the live surface follows: those its vertices are bound to
+        (weights > 0; a wound vertex's kept particle)."""
         v = self.vertices
         live = np.flatnonzero(v["alive"][: v.used])
-        bound = v["index"][live][v["weight"][live] > 0.0]
-        kept = v["kept"][live]
-        return np.unique(np.concatenate([bound, kept[kept >= 0]]))
+        return np.unique(v["index"][live][v["weight"][live] > 0.0])
 
     def topology(self, positions: np.ndarray | None = None) -> Topology:
         """The validator's view at the particle ``positions`` (N, 3) [m] (default: the
-        rest shape). Wound vertices follow clusters, not particles: the view puts
-        them at their rest place, so to check a deformed wound set its
-        ``surface_position`` to the skinned surface."""
+        rest shape). Wound vertices sit at a rotated offset from their kept
+        particle: the view puts them at their rest place, so to check a deformed
+        wound set its ``surface_position`` to the skinned surface."""
         v, f = self.vertices, self.triangles
         sizes = [len(m) for m in self.cluster_members]
         positions = self.rest if positions is None else positions
@@ -504,7 +504,8 @@ class MutableTopology:
         for key in zip(v["kept"][wound].tolist(), v["cut"][wound].tolist()):
             del self.wound_vertex[key]
         v["cluster"][dead] = -1
-        self.particle_vertex[v["index"][dead[v["weight"][dead, 0] == 1.0], 0]] = -1
+        own = dead[(v["weight"][dead, 0] == 1.0) & (v["kept"][dead] < 0)]  # a particle's own
+        self.particle_vertex[v["index"][own, 0]] = -1
         v.release(dead)
         return dict(
             dead_triangles=np.setdiff1d(old, slots),
@@ -529,8 +530,9 @@ class MutableTopology:
         slots[fresh] = made
         kept, removed = keys[fresh, 0], keys[fresh, 1]
         v["index"][made] = 0
-        v["index"][made, 0], v["index"][made, 1] = kept, removed  # weights 0: not bound
+        v["index"][made, 0], v["index"][made, 1] = kept, removed
         v["weight"][made] = 0.0
+        v["weight"][made, 0] = 1.0  # follows the kept particle (and its cluster's rotation)
         v["organ"][made] = self.organ_of[kept]
         v["alive"][made] = True
         v["rest"][made] = self.rest[kept] + CUT_POINT * (self.rest[removed] - self.rest[kept])

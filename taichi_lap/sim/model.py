@@ -212,8 +212,9 @@ class Model(FieldOwner):
         """Field name -> (values as built, the kind of its spare rows or None for
         none, value of the spare rows) of what dissection changes
         (``cluster_rest_shift``: :mod:`taichi_lap.dissection.device`): the surface
-        (each vertex follows four particles, or with a ``surface_cluster`` >= 0 that
-        cluster from its ``surface_rest`` place; the triangles, (0, 0, 0) when dead,
+        (each vertex follows four particles, a wound vertex with a ``surface_cluster``
+        >= 0 its kept particle plus its rest offset ``surface_offset`` turned by that
+        cluster's rotation; the triangles, (0, 0, 0) when dead,
         their organ, and each vertex's triangles in ``surface_incident``, -1 padded),
         and members with their mass in the cluster, rest offsets q = x0 - x0_cm,
         cluster masses and rest centres, every particle's clusters and offsets in
@@ -247,7 +248,7 @@ class Model(FieldOwner):
             "surface_index": (data.surface_index, "vertices", 0),
             "surface_weight": (data.surface_weight, "vertices", 0),
             "surface_cluster": (np.full(len(data.surface_index), -1), "vertices", -1),
-            "surface_rest": (np.zeros((len(data.surface_index), 3)), "vertices", 0),
+            "surface_offset": (np.zeros((len(data.surface_index), 3)), "vertices", 0),
             "surface_triangles": (data.surface_triangles.reshape(-1, 3), "triangles", 0),
             "surface_triangle_organ": (organ, "triangles", 0),
             "surface_incident": (
