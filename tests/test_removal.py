@@ -178,3 +178,66 @@ def test_a_ball_removed_from_the_built_liver_leaves_a_valid_closed_wound():
     dead = topology.tets[change.dead_tets]
     whole = tet_volumes(data.rest_position, dead[(~topology.particle_alive[dead]).all(axis=1)])
     assert whole.sum() < lost < change.removed_volume
+
+
+def liver_with_vessels():
+    data = build_model(scene_mod.load("liver", {"scene.detail": 0.03}), progress=False)
+    vessels = [k for k, organ in enumerate(data.organs) if organ.name == "portal_vein"]
+    return data, vessels[0]
+
+
+def vessel_volume(view, organ: int) -> float:
+    live = view.triangle_alive & (view.triangle_organ == organ)
+    return enclosed_volume(view.surface_position, view.triangles[live])
+
+
+def test_a_cut_across_a_vessel_caps_its_ends_and_keeps_a_valid_topology():
+    """A slab 3 mm thick across the portal vein's trunk removed: the vessel's tube
+    loses the vertices bound to the removed particles, every hole is capped across
+    its boundary loop (a sealed stump on each side), the surface stays closed,
+    manifold and outward, and the vessel's enclosed volume shrinks."""
+    data, vessel = liver_with_vessels()
+    topology = MutableTopology(data)
+    assert topology.embedded[vessel] and not topology.dissectable[vessel]
+    view = topology.topology()
+    before = vessel_volume(view, vessel)
+    particles = np.arange(*data.organs[vessel].particles)
+    rest = data.rest_position[particles]
+    axis = np.linalg.svd(rest - rest.mean(axis=0))[2][0]  # the trunk's main direction
+    along = (rest - rest.mean(axis=0)) @ axis
+    slab = particles[np.abs(along) < 0.0015]
+    triangles_before = topology.triangles["alive"].sum()
+    change = topology.remove(slab)
+
+    view = topology.topology()
+    assert check_topology(view) == []
+    assert len(change.new_triangles) > 0 and len(change.dead_triangles) > 0
+    caps = topology.triangles["organ"][change.new_triangles]
+    assert (caps == vessel).all()  # the liver around it was not touched
+    assert topology.triangles["alive"].sum() < triangles_before
+    assert 0.0 < vessel_volume(view, vessel) < before
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 10**6), st.floats(0.001, 0.004)), min_size=1, max_size=4))
+def test_random_cuts_of_a_vessel_keep_a_valid_topology(cuts):
+    """Balls of random places and radii removed from the portal vein one after the
+    other (later ones may cut caps earlier ones made): the validator passes."""
+    data, vessel = cached_liver()
+    topology = MutableTopology(data)
+    particles = np.arange(*data.organs[vessel].particles)
+    for pick, radius in cuts:
+        centre = data.rest_position[particles[pick % len(particles)]]
+        near = np.linalg.norm(data.rest_position[particles] - centre, axis=1) < radius
+        topology.remove(particles[near])
+        assert check_topology(topology.topology()) == []
+
+
+_LIVER = []
+
+
+def cached_liver():
+    """:func:`liver_with_vessels`, built once for the examples of a property test."""
+    if not _LIVER:
+        _LIVER.append(liver_with_vessels())
+    return _LIVER[0]

@@ -151,3 +151,35 @@ def test_a_hook_pressed_into_the_floor_of_a_cut_pit_indents_it_as_deep_as_it_goe
 def test_a_press_into_a_cut_pit_on_vulkan_matches_cpu():
     cpu = assert_vulkan_matches_cpu("tests.test_wound_collision:pit_press", 0.05)
     assert 0.9 <= cpu["ratio"][0] <= 1.15
+
+
+def test_a_vessel_cut_in_a_session_is_capped_collides_and_parts_at_its_own_temperature():
+    """The liver scene (coarse): the cautery ablates the vessels at their own, higher
+    temperature (120 °C against the parenchyma's 100 °C); a slab cut across the
+    portal vein through the session leaves a valid topology on the device, the caps
+    in the tissue collision, and frames that step without a fault."""
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.dissection.cautery import Cautery
+
+    session = Session(scene_mod.load("liver", {"scene.detail": 0.03}), progress=False)
+    data = session.data
+    names = [organ.name for organ in data.organs]
+    vessel = data.organs[names.index("portal_vein")]
+    ablation = Cautery(session.scene, data).heat.ablation_temperature.to_numpy()
+    assert (ablation[slice(*vessel.particles)] == 120.0).all()
+    assert (ablation[slice(*data.organs[names.index("liver")].particles)] == 100.0).all()
+
+    particles = np.arange(*vessel.particles)
+    rest = data.rest_position[particles]
+    axis = np.linalg.svd(rest - rest.mean(axis=0))[2][0]
+    slab = particles[np.abs((rest - rest.mean(axis=0)) @ axis) < 0.0015]
+    change = session.remove_particles(slab)
+    assert len(change.new_vertices) > 0  # the caps' centres
+    coll = session.solver.collision
+    caps = change.new_triangles
+    assert (coll.tri_live.to_numpy()[caps] == 1).all()
+    assert (coll.tri_vertex.to_numpy()[caps] == session._dissection.triangles[caps]).all()
+    for _ in range(10):
+        session.step()
+    session.check_topology()
+    session.close()

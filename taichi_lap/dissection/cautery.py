@@ -8,8 +8,10 @@ cooling towards body temperature), ablation temperature and, for a vessel, damag
 temperature (:data:`taichi_lap.scene.schema.MATERIAL_PARAMS`); each hook's ``power``
 [W] is shared by the particles touching its L-shaped electrode: those whose cell (half
 the lattice spacing around them) reaches within HOOK_HEAT_GAP shaft radii of the
-wire's surface. Only organs dissection can cut are ablated; the others (vessels bound in
-their tets) heat, conduct and report damage but keep their particles.
+wire's surface. Every tet organ is ablated at its own ablation temperature: a vessel
+(a damage temperature set) is damaged first and parts only at its higher ablation
+temperature where the scene sets one (the liver scene's vessels: 120 °C), its cut
+ends capped (:mod:`taichi_lap.dissection.removal`).
 
 The heat equation runs every frame while a hook is energised and afterwards as long as
 any particle is warmer than WARM_MARGIN above body temperature (it cools by perfusion),
@@ -24,7 +26,7 @@ import numpy as np
 
 from taichi_lap.core.instruments import HOOK_HEAT_GAP, HOOK_WIRE, MAX_TOOLS, hook_electrode
 from taichi_lap.dissection.heat import HeatField, HeatSource
-from taichi_lap.dissection.removal import dissectable_organs
+from taichi_lap.dissection.removal import cuttable_organs
 
 BODY_TEMPERATURE = 37.0
 """Core body temperature [°C]: the tissue's start and what perfusion cools it to."""
@@ -43,7 +45,7 @@ class Cautery:
     def __init__(self, scene, data):
         specs = {organ.name: organ for organ in scene.organs}
         n = data.particle_count
-        dissectable = dissectable_organs(data)
+        cuttable = cuttable_organs(data)
         per_particle = {  # organs without tets take no heat: their values stay unused
             "specific_heat": np.ones(n),
             "perfusion_rate": np.zeros(n),
@@ -58,7 +60,7 @@ class Cautery:
             rows = slice(*organ.particles)
             per_particle["specific_heat"][rows] = material["specific_heat"]
             per_particle["perfusion_rate"][rows] = material["perfusion_rate"]
-            if dissectable[k]:
+            if cuttable[k]:
                 per_particle["ablation"][rows] = material["ablation_temperature"]
             if material["damage_temperature"] is not None:
                 per_particle["damage"][rows] = material["damage_temperature"]

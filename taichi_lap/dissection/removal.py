@@ -22,8 +22,15 @@ next to the removed particles:
    edge's kept particle: bound to it with weight 1 and a rest offset, so a push on
    the wound moves that particle and the wound stays joined to the tissue it bounds.
 
-Only organs of tets whose surface vertices are their boundary particles (direct
-binding, the BCC liver of seed 002) can lose particles.
+5. embedded surfaces (a vessel's tube, bound barycentrically in the vessel's own tets,
+   seed 002 §3.2): a vertex bound to a removed particle dies with its triangles, and
+   each hole this leaves is closed by a cap: fans around new vertices across its
+   boundary loop (:func:`fan_arcs`), bound like wound vertices to their nearest live
+   particle: the cut vessel ends in sealed stumps.
+
+Organs of tets can lose particles: those whose surface vertices are their boundary
+particles (direct binding, the BCC liver of seed 002) get a marching-tetrahedra
+wound, those whose surface is embedded in their tets (the vessels) get caps.
 """
 
 from __future__ import annotations
@@ -55,8 +62,7 @@ weight sum of the two endpoints")."""
 
 def dissectable_organs(data) -> np.ndarray:
     """(organs,) bool: the tet organs whose surface vertices are their particles
-    (directly bound: the liver), which removal can cut; a vessel's surface is bound
-    barycentrically in its tets and cannot be cut yet."""
+    (directly bound: the liver), whose wound marching tetrahedra make."""
     weight = np.asarray(data.surface_weight, dtype=np.float64).reshape(-1, 4)
     return np.array(
         [
@@ -66,6 +72,69 @@ def dissectable_organs(data) -> np.ndarray:
         ],
         dtype=bool,
     )
+
+
+def embedded_organs(data) -> np.ndarray:
+    """(organs,) bool: the tet organs whose surface is bound barycentrically in their
+    tets (the vessels of seed 002 §3.2): cut, their holes are capped."""
+    return np.array(
+        [organ.tets[1] > organ.tets[0] for organ in data.organs], dtype=bool
+    ) & ~dissectable_organs(data)
+
+
+def cuttable_organs(data) -> np.ndarray:
+    """(organs,) bool: the organs removal can take particles from (tet organs)."""
+    return dissectable_organs(data) | embedded_organs(data)
+
+
+FAN_EDGES = 16
+"""Loop edges one cap vertex fans over at most: a longer loop takes several (a cap
+vertex stays within the incident rows of :data:`taichi_lap.core.mesh.INCIDENT_WIDTH`)."""
+
+
+def fan_arcs(loop: list[int], new_vertex) -> list[tuple[int, int, int]]:
+    """Triangles closing the hole bounded by ``loop`` (vertices in the order the cap's
+    edges run, the reverse of the surface's edges along the hole), oriented like it:
+    fans around new vertices, each made by ``new_vertex(arc)`` for the arc of loop
+    vertices it fans over. A loop of at most FAN_EDGES edges is one fan; a longer
+    one gives its first FAN_EDGES edges a fan, and the rest of the hole, closed
+    through that fan's vertex, is capped the same way."""
+    out = []
+    while True:
+        if len(loop) <= FAN_EDGES:
+            centre = new_vertex(loop)
+            ring = loop + loop[:1]
+            out += [(a, b, centre) for a, b in zip(ring[:-1], ring[1:])]
+            return out
+        arc = loop[: FAN_EDGES + 1]
+        centre = new_vertex(arc)
+        out += [(a, b, centre) for a, b in zip(arc[:-1], arc[1:])]
+        loop = loop[FAN_EDGES:] + [loop[0], centre]
+
+
+def boundary_loops(edges: list[tuple[int, int]]) -> list[list[int]]:
+    """Closed loops chained from directed ``edges`` (a, b); a chain that does not
+    close is left out."""
+    following: dict[int, list[int]] = {}
+    for a, b in edges:
+        following.setdefault(a, []).append(b)
+    loops = []
+    while following:
+        start = next(iter(following))
+        loop, at = [start], start
+        while True:
+            nexts = following.get(at)
+            if not nexts:
+                break
+            b = nexts.pop()
+            if not nexts:
+                del following[at]
+            if b == start:
+                loops.append(loop)
+                break
+            loop.append(b)
+            at = b
+    return loops
 
 
 def _none() -> np.ndarray:
@@ -151,9 +220,10 @@ class MutableTopology:
     # -- set-up ---------------------------------------------------------------------
 
     def _init_surface(self, data):
-        index = np.asarray(data.surface_index, dtype=np.int64).reshape(-1, 4)
-        weight = np.asarray(data.surface_weight, dtype=np.float64).reshape(-1, 4)
-        triangles = np.asarray(data.surface_triangles, dtype=np.int64).reshape(-1, 3)
+        # copies: reused slots are written in place, and the model data stays as built
+        index = np.array(data.surface_index, dtype=np.int64).reshape(-1, 4)
+        weight = np.array(data.surface_weight, dtype=np.float64).reshape(-1, 4)
+        triangles = np.array(data.surface_triangles, dtype=np.int64).reshape(-1, 3)
         v, f = len(index), len(triangles)
         vertex_organ = np.full(v, -1, dtype=np.int64)
         triangle_organ = np.full(f, -1, dtype=np.int64)
@@ -194,6 +264,17 @@ class MutableTopology:
         self.particle_vertex = np.full(len(self.rest), -1, dtype=np.int64)
         bound = self.dissectable[vertex_organ]
         self.particle_vertex[index[bound, 0]] = np.flatnonzero(bound)
+        self.embedded = embedded_organs(data)
+        self.cuttable = self.dissectable | self.embedded
+        embedded = np.flatnonzero(self.embedded[vertex_organ])  # vertex -> its particles
+        follows = weight[embedded] != 0.0  # barycentric weights may be negative
+        self.embedded_start, rows = incidence(index[embedded][follows], len(self.rest))
+        self.embedded_vertex = np.repeat(embedded, follows.sum(axis=1))[rows]
+        built = np.flatnonzero(self.embedded[triangle_organ])  # vertex -> its triangles
+        self.embedded_triangle_start, rows = incidence(triangles[built].ravel(), v)
+        self.embedded_triangle = built[rows // 3]
+        self.cap_triangles_at: dict[int, list[int]] = {}  # vertex -> caps made at it
+        self.cap_vertices_of: dict[int, list[int]] = {}  # particle -> cap vertices on it
 
     def _init_clusters(self, data):
         start = np.asarray(data.cluster_start, dtype=np.int64)
@@ -267,12 +348,10 @@ class MutableTopology:
         particles = np.unique(np.asarray(particles, dtype=np.int64))
         if len(particles) and (particles.min() < 0 or particles.max() >= len(self.rest)):
             raise ValueError(f"particle indices must lie in [0, {len(self.rest)})")
-        refused = np.unique(self.organ_of[particles][~self.dissectable[self.organ_of[particles]]])
+        refused = np.unique(self.organ_of[particles][~self.cuttable[self.organ_of[particles]]])
         if len(refused):
             names = ", ".join(self.data.organs[k].name for k in refused)
-            raise ValueError(
-                f"organ(s) {names}: only tet organs bound directly to their surface can be dissected"
-            )
+            raise ValueError(f"organ(s) {names}: only organs of tets can lose particles")
         removed, dead_tets = self._kill(particles[self.particle_alive[particles]])
         if not len(removed):
             return TopologyChange()
@@ -287,6 +366,14 @@ class MutableTopology:
         self.removed_volume += volume
         clusters = self._split_clusters(removed, dead_tets)
         surface = self._rebuild_surface(removed)
+        capped = self._cap_embedded(removed)
+        if capped:
+            new = np.union1d(surface["new_triangles"], capped["new_triangles"])
+            dead = np.union1d(surface["dead_triangles"], capped["dead_triangles"])
+            surface["new_triangles"], surface["dead_triangles"] = new, np.setdiff1d(dead, new)
+            new = np.union1d(surface["new_vertices"], capped["new_vertices"])
+            dead = np.union1d(surface["dead_vertices"], capped["dead_vertices"])
+            surface["new_vertices"], surface["dead_vertices"] = new, np.setdiff1d(dead, new)
         rebound = self._rebind(set(clusters.tolist()))
         return TopologyChange(
             removed_particles=removed,
@@ -469,6 +556,7 @@ class MutableTopology:
         their old triangles go, the new ones take free slots."""
         dead_label = ~self.particle_alive
         tets = np.unique(self.particle_tet[rows_of(self.tet_start, removed)])
+        tets = tets[self.dissectable[self.organ_of[self.tets[tets, 0]]]]
         originals = np.unique(self.particle_original[rows_of(self.original_start, removed)])
         old = [s for t in tets.tolist() for s in self.tet_wound.pop(t, [])]
         old += [
@@ -513,6 +601,94 @@ class MutableTopology:
             dead_vertices=np.setdiff1d(dead, new_vertices),
             new_vertices=new_vertices,
         )
+
+    def _triangles_at(self, vertex: int) -> list[int]:
+        """Live triangles of an embedded surface at ``vertex`` (as built, and caps;
+        a slot reused since is left out: it no longer holds the vertex)."""
+        a, b = self.embedded_triangle_start[vertex], self.embedded_triangle_start[vertex + 1]
+        at = self.embedded_triangle[a:b].tolist() + self.cap_triangles_at.get(vertex, [])
+        f = self.triangles
+        return sorted({t for t in at if f["alive"][t] and vertex in f["vertices"][t]})
+
+    def _cap_embedded(self, removed: np.ndarray) -> dict[str, np.ndarray]:
+        """Embedded surfaces at ``removed`` (module docstring, step 5): the vertices
+        bound to a removed particle die with their triangles; every edge a dying
+        triangle shares with a live one is on a hole, the holes' loops are capped
+        (:func:`cap_triangles`) and a vertex left in no triangle dies. Returns the
+        triangles and vertices it changed (empty when no embedded surface lost any)."""
+        v, f = self.vertices, self.triangles
+        caps = [s for i in removed.tolist() for s in self.cap_vertices_of.pop(i, [])]
+        dying = np.unique(
+            np.concatenate([self.embedded_vertex[rows_of(self.embedded_start, removed)], caps])
+        ).astype(np.int64)
+        dying = dying[v["alive"][dying] & self.embedded[v["organ"][dying]]]  # not reused
+        if not len(dying):
+            return {}
+        dead = sorted({t for s in dying.tolist() for t in self._triangles_at(s)})
+        dead_set, dying_set = set(dead), set(dying.tolist())
+        rim = []  # the caps' edges: a dying triangle's edges whose twin lives
+        for t in dead:
+            corners = f["vertices"][t].tolist()
+            for k in range(3):
+                a, b = corners[k], corners[(k + 1) % 3]
+                if a in dying_set or b in dying_set:
+                    continue
+                twins = set(self._triangles_at(a)) & set(self._triangles_at(b))
+                if twins - dead_set:
+                    rim.append((a, b))
+        dead = np.array(dead, dtype=np.int64)
+        f["alive"][dead] = False
+        old_vertices = f["vertices"][dead].ravel()
+        np.subtract.at(v["uses"], old_vertices, 1)
+        f.release(dead)
+        made: list[int] = []
+
+        def new_vertex(arc: list[int]) -> int:
+            made.append(self._cap_vertex(v["rest"][arc].mean(axis=0), int(v["organ"][arc[0]])))
+            return made[-1]
+
+        caps = [t for loop in boundary_loops(rim) for t in fan_arcs(loop, new_vertex)]
+        slots = f.take(len(caps))
+        if len(caps):
+            corners = np.array(caps, dtype=np.int64)
+            f["vertices"][slots] = corners
+            f["organ"][slots] = v["organ"][corners[:, 0]]
+            f["alive"][slots] = True
+            np.add.at(v["uses"], corners.ravel(), 1)
+            for slot, corner in zip(slots.tolist(), corners.tolist()):
+                for s in corner:
+                    self.cap_triangles_at.setdefault(s, []).append(slot)
+        touched = np.unique(old_vertices)
+        gone = touched[v["alive"][touched] & (v["uses"][touched] == 0)]
+        v["alive"][gone] = False
+        v["cluster"][gone] = -1
+        v.release(gone)
+        made = np.array(made, dtype=np.int64)
+        return dict(
+            dead_triangles=np.setdiff1d(dead, slots),
+            new_triangles=slots,
+            dead_vertices=np.setdiff1d(gone, made),
+            new_vertices=made,
+        )
+
+    def _cap_vertex(self, rest: np.ndarray, organ: int) -> int:
+        """A cap's new vertex at ``rest`` [m]: bound, as a wound vertex is, to the
+        nearest live particle of ``organ`` with its rest offset (its cluster is chosen
+        by :meth:`_rebind`); it dies with that particle."""
+        particles = np.arange(*self.data.organs[organ].particles)
+        particles = particles[self.particle_alive[particles]]
+        kept = int(particles[np.argmin(((self.rest[particles] - rest) ** 2).sum(axis=1))])
+        v = self.vertices
+        vertex = int(v.take(1)[0])
+        v["index"][vertex] = kept
+        v["weight"][vertex] = (1.0, 0.0, 0.0, 0.0)
+        v["organ"][vertex] = organ
+        v["alive"][vertex] = True
+        v["rest"][vertex] = rest
+        v["kept"][vertex], v["cut"][vertex], v["cluster"][vertex] = kept, -1, -1
+        v["uses"][vertex] = 0
+        self.cap_vertices_of.setdefault(kept, []).append(vertex)
+        return vertex
 
     def _name_vertices(self, named: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Vertex slots of the corners ``named`` (K, 3, 2): a kept corner's own
