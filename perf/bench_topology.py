@@ -10,7 +10,8 @@ Cases
   step: physics, heat and the update) while cutting and, for the same frames from the
   same start with the hook not energised, without.
 * ``random-removals-liver``: random removal events at full scale (a ball of radius
-  1.5-4 mm around a random live liver particle each), the topology validator after
+  1.5-4 mm around a random live liver particle each, the vessels' particles in it
+  too: their tubes are capped), the topology validator after
   every one: ``validator_failures`` (events whose topology failed it) and the host's
   ``ms_per_update``.
 
@@ -80,7 +81,7 @@ def random_removal_cases(detail: float, events: int, seed: int = 0) -> list[dict
     """``random-removals-liver`` at ``detail`` (module docstring)."""
     from taichi_lap import scene as scene_mod
     from taichi_lap.core.topology import check_topology
-    from taichi_lap.dissection.removal import MutableTopology
+    from taichi_lap.dissection.removal import MutableTopology, cuttable_organs
     from taichi_lap.preprocess.cache import build_model
 
     data = build_model(scene_mod.load("liver", {"scene.detail": detail}), progress=False)
@@ -88,6 +89,7 @@ def random_removal_cases(detail: float, events: int, seed: int = 0) -> list[dict
     rng = np.random.default_rng(seed)
     rest = data.rest_position
     liver = np.flatnonzero(data.organ == 0)
+    cuttable = np.flatnonzero(cuttable_organs(data)[data.organ])  # the vessels too
     failures, times, checks = 0, [], []
     for _ in range(events):
         alive = liver[topology.particle_alive[liver]]
@@ -95,7 +97,8 @@ def random_removal_cases(detail: float, events: int, seed: int = 0) -> list[dict
             break
         centre = rest[rng.choice(alive)]
         radius = rng.uniform(0.0015, 0.004)
-        ball = alive[np.linalg.norm(rest[alive] - centre, axis=1) < radius]
+        near = cuttable[topology.particle_alive[cuttable]]
+        ball = near[np.linalg.norm(rest[near] - centre, axis=1) < radius]
         begin = time.perf_counter()
         topology.remove(ball)
         times.append((time.perf_counter() - begin) * 1e3)
@@ -107,6 +110,7 @@ def random_removal_cases(detail: float, events: int, seed: int = 0) -> list[dict
         "particles": data.particle_count,
         "events": len(times),
         "removed": int((~topology.particle_alive).sum()),
+        "removed_vessel_particles": int((~topology.particle_alive[data.organ != 0]).sum()),
         "validator_ms_median": round(float(np.median(checks)), 1),
     }
     return [

@@ -57,7 +57,7 @@ from taichi_lap.kernels.collision.spheres import (
 )
 from taichi_lap.kernels.collision.tool_shapes import bounding_radius, control_pose, pose_motion
 
-from taichi_lap.core.instruments import MAX_TOOLS
+from taichi_lap.core.instruments import FAR, MAX_TOOLS
 
 NEAR = 32
 """Hash hits a scanning triangle keeps before testing them (it scans again for more):
@@ -359,3 +359,73 @@ def mark_active(coll: ti.template(), rows: ti.template()):
                     active = broad_overlap(coll, t, rows.partner[m], 0.0)
             if active:
                 coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
+
+
+@ti.kernel
+def write_triangle_rows(
+    coll: ti.template(),
+    rows: ti.types.ndarray(),
+    vertex: ti.types.ndarray(),
+    flags: ti.types.ndarray(),
+    rest: ti.types.ndarray(),
+    corner: ti.types.ndarray(),
+):
+    """The triangle ``rows`` a dissection removed or wrote, as they now are (one
+    launch for :meth:`taichi_lap.collision.TissueCollision.rewrite`): ``vertex``
+    (R, 3), ``flags`` (R, 3) live, organ, body; ``rest`` (R, 7) rest broad sphere and
+    unit rest normal; ``corner`` (R, 6) the corners' inverse masses and thickness.
+    They rescan their pairs (ref_sphere far away), the hash is rebuilt (hash_sphere
+    far away), no tool holds them, their corners leave the gather lists as built
+    (corner_built 0) and own no vertex until the owners are written."""
+    for k in range(rows.shape[0]):
+        t = rows[k]
+        coll.tri_vertex[t] = ti.Vector([vertex[k, 0], vertex[k, 1], vertex[k, 2]])
+        coll.tri_live[t] = flags[k, 0]
+        coll.tri_organ[t] = flags[k, 1]
+        coll.tri_body[t] = flags[k, 2]
+        coll.rest_sphere[t] = ti.Vector([rest[k, 0], rest[k, 1], rest[k, 2], rest[k, 3]])
+        coll.rest_normal[t] = ti.Vector([rest[k, 4], rest[k, 5], rest[k, 6]])
+        mass = 0.0
+        for j in ti.static(range(3)):
+            coll.corner_inv_mass[3 * t + j] = corner[k, j]
+            coll.corner_thickness[3 * t + j] = corner[k, 3 + j]
+            coll.corner_built[3 * t + j] = 0
+            coll.corner_owner[3 * t + j] = 0
+            mass += corner[k, j]
+        coll.tri_inv_mass[t] = mass / 3.0
+        coll.ref_sphere[t] = ti.Vector([FAR, FAR, FAR, FAR])
+        coll.hash_sphere[t] = ti.Vector([FAR, FAR, FAR, FAR])
+        coll.tool_held[t] = 0
+
+
+@ti.kernel
+def write_neighbours(coll: ti.template(), rows: ti.types.ndarray(), neighbour: ti.types.ndarray()):
+    """Edge neighbours (R, 3) of the triangle ``rows``; their curvature is computed
+    again at the next step (area_last 0, the lazy update of seed 000 §4.2.3)."""
+    for k in range(rows.shape[0]):
+        t = rows[k]
+        coll.tri_neighbour[t] = ti.Vector([neighbour[k, 0], neighbour[k, 1], neighbour[k, 2]])
+        coll.area_last[t] = 0.0
+
+
+@ti.kernel
+def write_gather(
+    coll: ti.template(),
+    gone: ti.types.ndarray(),
+    particle: ti.types.ndarray(),
+    start: ti.types.ndarray(),
+    corner: ti.types.ndarray(),
+    weight: ti.types.ndarray(),
+):
+    """The gather lists of the rewritten corners: the particles ``gone`` from them
+    lose their rank; ``particle`` (P,) get ranks 0..P-1 with the entries
+    ``start[r]:start[r + 1]`` of ``corner`` and ``weight``."""
+    for k in range(gone.shape[0]):
+        coll.written_rank[gone[k]] = -1
+    for r in range(particle.shape[0]):
+        coll.written_rank[particle[r]] = r
+    for r in range(start.shape[0]):
+        coll.written_start[r] = start[r]
+    for m in range(corner.shape[0]):
+        coll.written_corner[m] = corner[m]
+        coll.written_weight[m] = weight[m]

@@ -331,29 +331,20 @@ class TissueCollision:
             surface.inverse_mass,
             surface.contact_radius,
         )
-        corners = (3 * rows[:, None] + np.arange(3)).ravel()
-        scatter(self.tri_vertex, rows, new_vertices)
-        scatter(self.tri_live, rows, live[rows])
-        scatter(self.tri_organ, rows, organ)
-        scatter(self.tri_body, rows, self._body[organ])
-        scatter(self.rest_sphere, rows, rest_sphere)
-        scatter(self.rest_normal, rows, rest_normal)
-        scatter(self.tri_inv_mass, rows, inv_mass.reshape(-1, 3).mean(axis=1))
-        scatter(self.corner_inv_mass, corners, inv_mass)
-        scatter(self.corner_thickness, corners, thickness)
-        scatter(self.corner_built, corners, np.zeros(len(corners)))
-        scatter(self.corner_owner, corners, np.zeros(len(corners)))  # live ones: below
-        for name in ("ref_sphere", "hash_sphere"):  # rescan, rebuild the hash
-            scatter(getattr(self, name), rows, np.full((len(rows), 4), FAR))
-        scatter(self.tool_held, rows, np.zeros(len(rows)))
+        broad_phase.write_triangle_rows(
+            self,
+            rows.astype(np.int32),
+            new_vertices.astype(np.int32),
+            np.stack([live[rows], organ, self._body[organ]], axis=1).astype(np.int32),
+            np.concatenate([rest_sphere, rest_normal], axis=1).astype(np.float32),
+            np.concatenate([inv_mass.reshape(-1, 3), thickness.reshape(-1, 3)], axis=1).astype(
+                np.float32
+            ),
+        )
         nearby = live_neighbours(self._tri_vertex, live, surface.incident, rows[live[rows]])
         near = np.union1d(rows, nearby[nearby >= 0])
-        scatter(
-            self.tri_neighbour,
-            near,
-            live_neighbours(self._tri_vertex, live, surface.incident, near),
-        )
-        scatter(self.area_last, near, np.zeros(len(near)))
+        neighbours = live_neighbours(self._tri_vertex, live, surface.incident, near)
+        broad_phase.write_neighbours(self, near.astype(np.int32), neighbours.astype(np.int32))
         self._rewrite_owners(np.union1d(old_vertices.ravel(), new_vertices.ravel()), surface)
         self._set_rows_in_use(max(self.rows_in_use, int(rows[-1]) + 1), surface.vertex_rows)
         self._rewrite_gather(surface)
@@ -389,15 +380,14 @@ class TissueCollision:
         particle, corner, weight = particle[order], corner[order], weight[order]
         distinct, first = np.unique(particle, return_index=True)
         gone = np.setdiff1d(self._written_particles, distinct)
-        scatter(self.written_rank, gone, np.full(len(gone), -1))
-        scatter(self.written_rank, distinct, np.arange(len(distinct)))
-        scatter(
-            self.written_start,
-            np.arange(len(distinct) + 1),
-            np.append(first, len(particle)),
+        broad_phase.write_gather(
+            self,
+            gone.astype(np.int32),
+            distinct.astype(np.int32),
+            np.append(first, len(particle)).astype(np.int32),
+            corner.astype(np.int32),
+            weight.astype(np.float32),
         )
-        scatter(self.written_corner, np.arange(len(corner)), corner)
-        scatter(self.written_weight, np.arange(len(weight)), weight)
         self._written_particles = distinct
 
     def revive(self):
