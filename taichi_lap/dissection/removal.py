@@ -113,15 +113,17 @@ def fan_arcs(loop: list[int], new_vertex) -> list[tuple[int, int, int]]:
 
 
 def boundary_loops(edges: list[tuple[int, int]]) -> list[list[int]]:
-    """Closed loops chained from directed ``edges`` (a, b); a chain that does not
-    close is left out."""
+    """Simple closed loops chained from directed ``edges`` (a, b): a walk that comes
+    back to a vertex it passed (a hole pinched at a vertex) gives the loop since then
+    on its own, so no vertex is twice in a loop; a chain that does not close is left
+    out."""
     following: dict[int, list[int]] = {}
     for a, b in edges:
         following.setdefault(a, []).append(b)
     loops = []
     while following:
-        start = next(iter(following))
-        loop, at = [start], start
+        at = next(iter(following))
+        path, where = [at], {at: 0}
         while True:
             nexts = following.get(at)
             if not nexts:
@@ -129,10 +131,15 @@ def boundary_loops(edges: list[tuple[int, int]]) -> list[list[int]]:
             b = nexts.pop()
             if not nexts:
                 del following[at]
-            if b == start:
-                loops.append(loop)
-                break
-            loop.append(b)
+            if b in where:
+                i = where[b]
+                loops.append(path[i:])
+                for vertex in path[i + 1 :]:
+                    del where[vertex]
+                del path[i + 1 :]
+            else:
+                where[b] = len(path)
+                path.append(b)
             at = b
     return loops
 
@@ -605,8 +612,10 @@ class MutableTopology:
     def _triangles_at(self, vertex: int) -> list[int]:
         """Live triangles of an embedded surface at ``vertex`` (as built, and caps;
         a slot reused since is left out: it no longer holds the vertex)."""
-        a, b = self.embedded_triangle_start[vertex], self.embedded_triangle_start[vertex + 1]
-        at = self.embedded_triangle[a:b].tolist() + self.cap_triangles_at.get(vertex, [])
+        at = self.cap_triangles_at.get(vertex, [])
+        if vertex + 1 < len(self.embedded_triangle_start):  # a vertex as built
+            a, b = self.embedded_triangle_start[vertex], self.embedded_triangle_start[vertex + 1]
+            at = self.embedded_triangle[a:b].tolist() + at
         f = self.triangles
         return sorted({t for t in at if f["alive"][t] and vertex in f["vertices"][t]})
 
