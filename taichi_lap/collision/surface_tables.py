@@ -57,15 +57,22 @@ def corner_binding(
     return (weight * inverse_mass[index]).sum(axis=1), (weight * contact_radius[index]).sum(axis=1)
 
 
+def first_corners(corner_vertex: np.ndarray, corner: np.ndarray) -> np.ndarray:
+    """(K,) bool: whether each ``corner`` (3 t + k) is the lowest of those given at its
+    vertex ``corner_vertex`` (K,): the owner of that vertex."""
+    distinct, which = np.unique(corner_vertex, return_inverse=True)
+    first = np.full(len(distinct), np.iinfo(np.int64).max)
+    np.minimum.at(first, which, corner)
+    return first[which] == corner
+
+
 def corner_owners(triangles: np.ndarray, live: np.ndarray) -> np.ndarray:
     """(3 F,) 1 where a corner is the first corner of a live triangle at its vertex:
     one owner per vertex (the polygon method tests each vertex once)."""
     corner_vertex = np.asarray(triangles, dtype=np.int64).reshape(-1)
     corner = np.flatnonzero(np.repeat(live, 3))
-    first = np.full(int(corner_vertex.max(initial=-1)) + 1, len(corner_vertex))
-    np.minimum.at(first, corner_vertex[corner], corner)
     owner = np.zeros(len(corner_vertex), dtype=np.int32)
-    owner[corner] = first[corner_vertex[corner]] == corner
+    owner[corner] = first_corners(corner_vertex[corner], corner)
     return owner
 
 

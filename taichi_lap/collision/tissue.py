@@ -32,6 +32,7 @@ from taichi_lap.collision.pair_lists import FoundPairs, PairRows
 from taichi_lap.collision.surface_tables import (
     SurfaceRows,
     corner_binding,
+    first_corners,
     live_neighbours,
     organ_bodies,
     rest_tables,
@@ -358,12 +359,8 @@ class TissueCollision:
         corner_vertex = self._tri_vertex[triangles].ravel()
         corner = (3 * triangles[:, None] + np.arange(3)).ravel()
         mine = np.isin(corner_vertex, vertices)  # all of their live corners are here
-        corner_vertex, corner = corner_vertex[mine], corner[mine]
-        distinct, which = np.unique(corner_vertex, return_inverse=True)
-        first = np.full(len(distinct), 3 * self.triangle_count)
-        np.minimum.at(first, which, corner)
-        owner = first[which] == corner
-        scatter(self.corner_owner, corner, owner.astype(np.int32))
+        owner = first_corners(corner_vertex[mine], corner[mine])
+        scatter(self.corner_owner, corner[mine], owner.astype(np.int32))
 
     def _rewrite_gather(self, surface: SurfaceRows):
         """The gather lists of every live rewritten corner (particle -> corners bound

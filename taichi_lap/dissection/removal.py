@@ -74,17 +74,15 @@ def dissectable_organs(data) -> np.ndarray:
     )
 
 
+def cuttable_organs(data) -> np.ndarray:
+    """(organs,) bool: the organs removal can take particles from: the tet organs."""
+    return np.array([organ.tets[1] > organ.tets[0] for organ in data.organs], dtype=bool)
+
+
 def embedded_organs(data) -> np.ndarray:
     """(organs,) bool: the tet organs whose surface is bound barycentrically in their
     tets (the vessels of seed 002 §3.2): cut, their holes are capped."""
-    return np.array(
-        [organ.tets[1] > organ.tets[0] for organ in data.organs], dtype=bool
-    ) & ~dissectable_organs(data)
-
-
-def cuttable_organs(data) -> np.ndarray:
-    """(organs,) bool: the organs removal can take particles from (tet organs)."""
-    return dissectable_organs(data) | embedded_organs(data)
+    return cuttable_organs(data) & ~dissectable_organs(data)
 
 
 FAN_EDGES = 16
@@ -374,13 +372,10 @@ class MutableTopology:
         clusters = self._split_clusters(removed, dead_tets)
         surface = self._rebuild_surface(removed)
         capped = self._cap_embedded(removed)
-        if capped:
-            new = np.union1d(surface["new_triangles"], capped["new_triangles"])
-            dead = np.union1d(surface["dead_triangles"], capped["dead_triangles"])
-            surface["new_triangles"], surface["dead_triangles"] = new, np.setdiff1d(dead, new)
-            new = np.union1d(surface["new_vertices"], capped["new_vertices"])
-            dead = np.union1d(surface["dead_vertices"], capped["dead_vertices"])
-            surface["new_vertices"], surface["dead_vertices"] = new, np.setdiff1d(dead, new)
+        for kind in ("triangles", "vertices") if capped else ():  # a reused slot is new
+            new = np.union1d(surface[f"new_{kind}"], capped[f"new_{kind}"])
+            dead = np.union1d(surface[f"dead_{kind}"], capped[f"dead_{kind}"])
+            surface[f"new_{kind}"], surface[f"dead_{kind}"] = new, np.setdiff1d(dead, new)
         rebound = self._rebind(set(clusters.tolist()))
         return TopologyChange(
             removed_particles=removed,
@@ -623,7 +618,7 @@ class MutableTopology:
         """Embedded surfaces at ``removed`` (module docstring, step 5): the vertices
         bound to a removed particle die with their triangles; every edge a dying
         triangle shares with a live one is on a hole, the holes' loops are capped
-        (:func:`cap_triangles`) and a vertex left in no triangle dies. Returns the
+        (:func:`fan_arcs`) and a vertex left in no triangle dies. Returns the
         triangles and vertices it changed (empty when no embedded surface lost any)."""
         v, f = self.vertices, self.triangles
         caps = [s for i in removed.tolist() for s in self.cap_vertices_of.pop(i, [])]
