@@ -188,3 +188,46 @@ def test_the_published_surface_follows_a_dissection(fake_library):
     exposed = published - built
     assert exposed and published == set(session.surface_particles().tolist())
     assert built - removed <= published and len(published) <= capacity
+
+
+def test_a_wound_that_outgrows_the_snapshot_moves_it_and_the_servo_follows(
+    fake_library, monkeypatch
+):
+    """A snapshot made for the built surface alone (no spare rows) is outgrown by the
+    particles a wound exposes: it moves to a larger region, and the servo process
+    reads the new region's snapshots (their sequence numbers reach its feedback)."""
+    from taichi_lap.haptics import bridge as bridge_mod
+    from taichi_lap.haptics.servo import ServoState
+
+    monkeypatch.setattr(bridge_mod, "spare_rows", lambda count, *_: count)
+    scene = scene_mod.from_tables([BOX], tools=[{"name": "probe", "tip": [0.0, 0.05, 0.0]}])
+    session = Session(scene, use_cache=False, progress=False)
+    bridge = openhaptics_bridge(scene.tools[0], None, fake_library)
+    bridge.attach(session)
+    try:
+        first_name, capacity = bridge.snapshot.name, dict(bridge.snapshot.capacity)
+        assert capacity["particles"] == bridge.surface.particle_count
+        rest = session.data.rest_position  # a slot 4 mm wide, 2 cm deep: two new faces
+        session.remove_particles(
+            np.flatnonzero((np.abs(rest[:, 0]) < 0.002) & (rest[:, 1] > -0.008))
+        )
+        bridge.poses(0.0)
+        published = bridge.surface.particle_count
+        sequence = latest = -1
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline:
+            bridge.poses(0.0)  # publishes
+            latest = bridge.snapshot._region._next  # the sequence of that publication
+            sequence = bridge.servo.feedback.read().snapshot_sequence
+            if sequence >= latest - 1:
+                break
+            time.sleep(0.01)
+        state = bridge.servo.feedback.state
+        moved_capacity = dict(bridge.snapshot.capacity)
+        moved_name = bridge.snapshot.name
+    finally:
+        bridge.close()
+    assert published > capacity["particles"]  # the wound exposed more than was built
+    assert moved_name != first_name and moved_capacity["particles"] >= published
+    assert state == ServoState.RUNNING
+    assert latest > 1 and sequence >= latest - 1

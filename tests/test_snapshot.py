@@ -181,6 +181,59 @@ def test_publish_beyond_capacity_raises_naming_the_capacity():
         snapshot.close()
 
 
+def small_scene(sequence: int, clusters: int, particles: int) -> dict:
+    """A snapshot of ``clusters`` spheres over ``particles`` particles, every value
+    ``sequence``."""
+    start = np.linspace(0, particles, clusters + 1).astype(np.int64)
+    value = float(sequence)
+    return {
+        "cluster_center": np.full((clusters, 3), value),
+        "cluster_radius": np.full(clusters, value),
+        "cluster_start": start,
+        "particle_position": np.full((particles, 3), value),
+        "particle_radius": value,
+    }
+
+
+def test_a_snapshot_outgrown_moves_and_the_attached_reader_follows():
+    """reserve() beyond the capacities moves the snapshot to a larger region; a reader
+    in another mapping keeps the old scene until the new region's first snapshot, then
+    reads it with the sequence numbers going on, through two moves in a row; close()
+    unlinks every region the creator made."""
+    owner = SceneSnapshot.create(clusters=4, particles=10, grasp_edges=2)
+    servo_side = SceneSnapshot.attach(owner.name)
+    reader = servo_side.reader()
+    names = [owner.name]
+    try:
+        assert not owner.reserve(clusters=4, particles=10)  # fits: stays
+        owner.publish(**small_scene(1, 2, 10))
+        assert reader.poll() and reader.scene.sequence == 1
+        assert owner.reserve(clusters=3, particles=40)
+        names.append(owner.name)
+        assert owner.capacity == {"clusters": 4, "particles": 60, "grasp_edges": 2}
+        assert not reader.poll() and reader.scene.sequence == 1  # nothing new published
+        assert servo_side.capacity["particles"] == 60
+        owner.publish(**small_scene(2, 3, 40))
+        assert owner.reserve(clusters=9, particles=40)  # a second move before the poll
+        names.append(owner.name)
+        owner.publish(**small_scene(3, 9, 50))
+        assert reader.poll() and reader.scene.sequence == 3
+        assert reader.scene.particle_position.shape == (50, 3)
+        assert np.all(reader.scene.particle_position == 3.0)
+        assert np.all(reader.scene.cluster_center == 3.0) and len(reader.scene.cluster_start) == 10
+        assert servo_side.capacity == {"clusters": 14, "particles": 60, "grasp_edges": 2}
+        assert servo_side.name == owner.name
+        owner.publish(**small_scene(4, 1, 60))
+        assert reader.poll() and reader.scene.sequence == 4
+    finally:
+        servo_side.close()
+        owner.close()
+    assert len(set(names)) == 3
+    for name in names:
+        with pytest.raises(FileNotFoundError):
+            shared_memory.SharedMemory(name=name)
+
+
 def test_attach_rejects_a_foreign_region_and_close_unlinks():
     foreign = shared_memory.SharedMemory(create=True, size=4096)
     try:

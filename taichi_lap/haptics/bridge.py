@@ -34,7 +34,9 @@ graphical tool pose and the stylus buttons back. The tool's shaft is the stylus'
 snapshot carries their edges to free neighbours (the grasped end in the stylus
 frame), from which the servo adds the pull force of Hooke's law. After a dissection
 the published surface follows the tissue left: removed particles leave it and the
-particles a wound exposed join it (regrouped before the next publication).
+particles a wound exposed join it (regrouped before the next publication). A
+surface that outgrows the snapshot moves it to a larger shared-memory region, which
+the servo follows (:meth:`~taichi_lap.haptics.snapshot.SceneSnapshot.reserve`).
 """
 
 from __future__ import annotations
@@ -122,6 +124,16 @@ class HapticBridge:
         state = self.session.state
         if self._surface_version != self.session.model.topology_version:
             self._follow_surface()
+            surface = self.surface
+            if self.snapshot.reserve(
+                clusters=surface.cluster_count, particles=surface.particle_count
+            ):
+                log.info(
+                    "haptic snapshot of %s moved to a region for %d clusters, %d particles",
+                    self.device_label,
+                    self.snapshot.capacity["clusters"],
+                    self.snapshot.capacity["particles"],
+                )
         x = state.x.to_numpy()
         closed = bool(state.jaws_closed[self.tool_index])
         grasp = self._grasp(x) if closed else {}

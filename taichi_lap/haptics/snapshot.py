@@ -21,6 +21,7 @@ order on x86-64 (total store order), which the version protocol relies on.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from multiprocessing import shared_memory
@@ -29,9 +30,12 @@ import numpy as np
 
 ALIGN = 64  # [bytes] every array starts on its own cache line
 READ_RETRIES = 1000  # torn reads tolerated in one read before giving up for this tick
-SCENE_MAGIC, FEEDBACK_MAGIC, LAYOUT_VERSION = 0x5441_4C41_5053_4E50, 0x5441_4C41_5046_4442, 2
+SCENE_MAGIC, FEEDBACK_MAGIC, LAYOUT_VERSION = 0x5441_4C41_5053_4E50, 0x5441_4C41_5046_4442, 3
 HEADER_WORDS = 8
 MESSAGE_BYTES = 512
+SUCCESSOR_WORD = 5  # scene header: bytes of the successor region's name (0: none)
+SUCCESSOR_BYTES = 256
+GROWTH = 1.5  # a moved snapshot's capacities: this times the rows that did not fit
 
 
 class SnapshotCapacityError(ValueError):
@@ -181,6 +185,17 @@ def _rows(what: str, values, count: int, row: tuple, capacity: int, dtype) -> np
     return array
 
 
+_SUCCESSOR_FIELDS = (("successor", np.uint8, (SUCCESSOR_BYTES,)),)
+"""The scene region's unslotted field: the name of the region it moved to."""
+
+
+def _scene_region(name: str | None, counts: tuple) -> _Region:
+    """A new scene region (``counts``: 0, clusters, particles, grasp edges)."""
+    region = _Region.create(name, SCENE_MAGIC, _scene_fields(counts), _SUCCESSOR_FIELDS)
+    region.header[2:5] = counts[1:]
+    return region
+
+
 @dataclass(frozen=True)
 class HapticScene:
     """What the servo collides against, as read from one snapshot.
@@ -213,11 +228,22 @@ class SceneSnapshot:
     ``SceneSnapshot.create(clusters=, particles=, grasp_edges=)`` allocates for those
     capacities; the servo process calls ``SceneSnapshot.attach(name)`` and reads with
     :meth:`reader`. The creator's :meth:`close` unlinks the block.
+
+    A surface that outgrows the capacities (a wound exposes particles from inside)
+    moves the snapshot (:meth:`reserve`): the creator makes a larger region, carries
+    its sequence numbers on and writes the new region's name into the old one's
+    header; the attached side follows at its next :meth:`follow` (the reader's
+    poll). The creator keeps the regions it left until :meth:`close`, so a servo
+    that has not followed yet still finds each one.
     """
 
     def __init__(self, region: _Region):
         self._region = region
-        self._capacities = (0,) + tuple(int(v) for v in region.header[2:5])  # by count index
+        self._retired: list[_Region] = []  # regions moved from (creator only)
+        self._take_capacities()
+
+    def _take_capacities(self):
+        self._capacities = (0,) + tuple(int(v) for v in self._region.header[2:5])  # by count
         self.capacity = dict(zip(("clusters", "particles", "grasp_edges"), self._capacities[1:]))
 
     @classmethod
@@ -232,16 +258,46 @@ class SceneSnapshot:
             _capacity("SceneSnapshot.create: particles", particles),
             _capacity("SceneSnapshot.create: grasp_edges", grasp_edges),
         )
-        region = _Region.create(name, SCENE_MAGIC, _scene_fields(counts), ())
-        region.header[2:5] = counts[1:]
-        return cls(region)
+        return cls(_scene_region(name, counts))
 
     @classmethod
     def attach(cls, name: str) -> "SceneSnapshot":
         """The region another process created under ``name``."""
         shm = shared_memory.SharedMemory(name=name)
         counts = (0,) + tuple(int(v) for v in np.ndarray((5,), np.int64, buffer=shm.buf)[2:5])
-        return cls(_Region(shm, SCENE_MAGIC, _scene_fields(counts), (), False))
+        return cls(_Region(shm, SCENE_MAGIC, _scene_fields(counts), _SUCCESSOR_FIELDS, False))
+
+    def reserve(self, *, clusters: int = 0, particles: int = 0, grasp_edges: int = 0) -> bool:
+        """Make room for that many rows (creator only): when one exceeds its capacity,
+        move to a new region with :data:`GROWTH` times the rows that did not fit (the
+        others keep theirs). True when the snapshot moved; the next :meth:`publish`
+        writes to the new region."""
+        wanted = (0, int(clusters), int(particles), int(grasp_edges))
+        if all(w <= c for w, c in zip(wanted, self._capacities)):
+            return False
+        counts = tuple(
+            c if w <= c else math.ceil(GROWTH * w) for w, c in zip(wanted, self._capacities)
+        )
+        old, region = self._region, _scene_region(None, counts)
+        region._next = old._next  # sequence numbers go on: the reader compares versions
+        name = region.shm.name.encode()
+        old.extra["successor"][: len(name)] = np.frombuffer(name, np.uint8)
+        old.header[SUCCESSOR_WORD] = len(name)  # after the name (stores stay in order)
+        self._retired.append(old)
+        self._region = region
+        self._take_capacities()
+        return True
+
+    def follow(self):
+        """Attached side: move to the region the creator moved to, through every move
+        since (one header load when there was none; the creator's region never has a
+        successor)."""
+        while self._region.header[SUCCESSOR_WORD]:
+            old = self._region
+            name = bytes(old.extra["successor"][: int(old.header[SUCCESSOR_WORD])]).decode()
+            self._region = SceneSnapshot.attach(name)._region
+            old.close()
+            self._take_capacities()
 
     @property
     def name(self) -> str:
@@ -319,23 +375,37 @@ class SceneSnapshot:
         return SnapshotReader(self)
 
     def close(self):
-        """Detach; the creator also unlinks the region."""
+        """Detach; the creator also unlinks the region and those it moved from."""
         if self._region is not None:
-            self._region.close()
-            self._region = None
+            for region in [*self._retired, self._region]:
+                region.close()
+            self._retired, self._region = [], None
 
 
 class SnapshotReader:
     """Copies the newest complete snapshot into private buffers (the servo's side).
 
-    :meth:`poll` is cheap when nothing new was published (two version loads); a new
+    :meth:`poll` is cheap when nothing new was published (three header loads); a new
     snapshot is copied into the spare of two private buffer sets, so a torn read
     never spoils the scene in use. :attr:`scene` is None until the first snapshot.
+    A snapshot that moved (:meth:`SceneSnapshot.reserve`) is followed, with private
+    buffers of the new capacities; the scene in use stays until the new region's
+    first snapshot.
     """
 
     def __init__(self, snapshot: SceneSnapshot):
-        self._region = snapshot._region
-        self._capacities = snapshot._capacities
+        self._snapshot = snapshot
+        self._region = None
+        self._spare = 0
+        self._version = 0
+        self.scene: HapticScene | None = None
+        self.torn_reads = 0
+        self._take_region()
+
+    def _take_region(self):
+        """Buffers for the snapshot's region (at start and after it moved)."""
+        self._region = self._snapshot._region
+        self._capacities = self._snapshot._capacities
         self._buffers = [
             {
                 name: np.zeros(shape, dtype)
@@ -343,13 +413,12 @@ class SnapshotReader:
             }
             for _ in range(2)
         ]
-        self._spare = 0
-        self._version = 0
-        self.scene: HapticScene | None = None
-        self.torn_reads = 0
 
     def poll(self) -> bool:
         """Take the newest snapshot if one was published since; True when taken."""
+        self._snapshot.follow()
+        if self._snapshot._region is not self._region:
+            self._take_region()
         if self._region.newest() == self._version:
             return False
         buffers = self._buffers[self._spare]
