@@ -2,8 +2,8 @@
 
 Cases
 * ``liver-cautery``: the liver scene's own script (settled start, tissue collision):
-  the electrocautery hook, energised, cuts a groove along the liver's top at 5 mm/s
-  and deepens it on the way back (18 s). Metrics ``ms_per_update`` (the topology
+  the electrocautery hook, energised, transects the parenchyma along a 3 cm line at
+  5 mm/s in three passes, each deeper, down to a branch of the hepatic vein (20.4 s). Metrics ``ms_per_update`` (the topology
   update alone of each frame that removed tissue: host topology and the rows written
   to the device; median, p95, max; the first update, which compiles the row writes,
   is the parameter ``first_update_ms``) and ``ms_per_frame`` (a whole simulation
