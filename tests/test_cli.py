@@ -225,5 +225,5 @@ def test_a_headless_run_without_frames_plays_the_scene_script_to_its_end():
     scene = scene_mod.load("liver", dict(scene_mod.parse_override(t) for t in SMALL[1::2]))
     device = scene_script(scene)
     expected = math.ceil((device.duration() + SCRIPT_TAIL) / scene.settings["dt"])
-    assert device.duration() == 18.0 and _headless_frames(device, scene) == expected
+    assert device.duration() == 20.4 and _headless_frames(device, scene) == expected
     assert _headless_frames(None, scene) == HEADLESS_FRAMES

@@ -3,6 +3,8 @@ surface follows a topology change; seed 000 §4): the wound surface a removal ma
 collides as the surface as built does, its tables are those of the cut surface built
 anew, and an instrument pressed on the wound indents it."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -103,6 +105,7 @@ def test_the_collision_tables_after_cuts_are_those_of_the_cut_surface_built_anew
     fresh.close()
 
 
+@functools.cache  # the CPU test and the Vulkan comparison share the CPU run
 def pit_press(kind: str = "hook", wound_collides: bool = True, depth: float = 0.004) -> dict:
     """A ball of PIT_RADIUS removed from the top of the test block under the press
     point (collision ``off``: the contact that holds only), then ``kind`` lowered
