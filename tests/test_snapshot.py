@@ -20,20 +20,27 @@ from taichi_lap.haptics import (
 CLUSTERS, PARTICLES, GRASP = 600, 120_000, 32
 
 
-def pattern(sequence: int) -> dict:
-    """A snapshot whose every element equals ``sequence``, with counts that vary by it."""
-    c = 300 + sequence % 300
-    p = 60_000 + (sequence * 7919) % 60_000
-    g = sequence % GRASP
-    start = np.full(c + 1, p)
+def uniform_scene(sequence: int, clusters: int, particles: int) -> dict:
+    """The scene arrays of a snapshot of ``clusters`` spheres (all ``particles`` in
+    the first) whose every element equals ``sequence``."""
+    start = np.full(clusters + 1, particles)
     start[0] = 0
     value = float(sequence)
     return {
-        "cluster_center": np.full((c, 3), value),
-        "cluster_radius": np.full(c, value),
+        "cluster_center": np.full((clusters, 3), value),
+        "cluster_radius": np.full(clusters, value),
         "cluster_start": start,
-        "particle_position": np.full((p, 3), value),
+        "particle_position": np.full((particles, 3), value),
         "particle_radius": value,
+    }
+
+
+def pattern(sequence: int) -> dict:
+    """A snapshot whose every element equals ``sequence``, with counts that vary by it."""
+    g = sequence % GRASP
+    value = float(sequence)
+    return {
+        **uniform_scene(sequence, 300 + sequence % 300, 60_000 + (sequence * 7919) % 60_000),
         "grasp_local": np.full((g, 3), value),
         "grasp_neighbor": np.full((g, 3), value),
         "grasp_rest": np.full(g, value),
@@ -181,20 +188,6 @@ def test_publish_beyond_capacity_raises_naming_the_capacity():
         snapshot.close()
 
 
-def small_scene(sequence: int, clusters: int, particles: int) -> dict:
-    """A snapshot of ``clusters`` spheres over ``particles`` particles, every value
-    ``sequence``."""
-    start = np.linspace(0, particles, clusters + 1).astype(np.int64)
-    value = float(sequence)
-    return {
-        "cluster_center": np.full((clusters, 3), value),
-        "cluster_radius": np.full(clusters, value),
-        "cluster_start": start,
-        "particle_position": np.full((particles, 3), value),
-        "particle_radius": value,
-    }
-
-
 def test_a_snapshot_outgrown_moves_and_the_attached_reader_follows():
     """reserve() beyond the capacities moves the snapshot to a larger region; a reader
     in another mapping keeps the old scene until the new region's first snapshot, then
@@ -206,24 +199,24 @@ def test_a_snapshot_outgrown_moves_and_the_attached_reader_follows():
     names = [owner.name]
     try:
         assert not owner.reserve(clusters=4, particles=10)  # fits: stays
-        owner.publish(**small_scene(1, 2, 10))
+        owner.publish(**uniform_scene(1, 2, 10))
         assert reader.poll() and reader.scene.sequence == 1
         assert owner.reserve(clusters=3, particles=40)
         names.append(owner.name)
         assert owner.capacity == {"clusters": 4, "particles": 60, "grasp_edges": 2}
         assert not reader.poll() and reader.scene.sequence == 1  # nothing new published
         assert servo_side.capacity["particles"] == 60
-        owner.publish(**small_scene(2, 3, 40))
+        owner.publish(**uniform_scene(2, 3, 40))
         assert owner.reserve(clusters=9, particles=40)  # a second move before the poll
         names.append(owner.name)
-        owner.publish(**small_scene(3, 9, 50))
+        owner.publish(**uniform_scene(3, 9, 50))
         assert reader.poll() and reader.scene.sequence == 3
         assert reader.scene.particle_position.shape == (50, 3)
         assert np.all(reader.scene.particle_position == 3.0)
         assert np.all(reader.scene.cluster_center == 3.0) and len(reader.scene.cluster_start) == 10
         assert servo_side.capacity == {"clusters": 14, "particles": 60, "grasp_edges": 2}
         assert servo_side.name == owner.name
-        owner.publish(**small_scene(4, 1, 60))
+        owner.publish(**uniform_scene(4, 1, 60))
         assert reader.poll() and reader.scene.sequence == 4
     finally:
         servo_side.close()

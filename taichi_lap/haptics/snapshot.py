@@ -196,6 +196,13 @@ def _scene_region(name: str | None, counts: tuple) -> _Region:
     return region
 
 
+def _attached_scene_region(name: str) -> _Region:
+    """The scene region another process created under ``name``."""
+    shm = shared_memory.SharedMemory(name=name)
+    counts = (0,) + tuple(int(v) for v in np.ndarray((5,), np.int64, buffer=shm.buf)[2:5])
+    return _Region(shm, SCENE_MAGIC, _scene_fields(counts), _SUCCESSOR_FIELDS, False)
+
+
 @dataclass(frozen=True)
 class HapticScene:
     """What the servo collides against, as read from one snapshot.
@@ -263,9 +270,7 @@ class SceneSnapshot:
     @classmethod
     def attach(cls, name: str) -> "SceneSnapshot":
         """The region another process created under ``name``."""
-        shm = shared_memory.SharedMemory(name=name)
-        counts = (0,) + tuple(int(v) for v in np.ndarray((5,), np.int64, buffer=shm.buf)[2:5])
-        return cls(_Region(shm, SCENE_MAGIC, _scene_fields(counts), _SUCCESSOR_FIELDS, False))
+        return cls(_attached_scene_region(name))
 
     def reserve(self, *, clusters: int = 0, particles: int = 0, grasp_edges: int = 0) -> bool:
         """Make room for that many rows (creator only): when one exceeds its capacity,
@@ -295,7 +300,7 @@ class SceneSnapshot:
         while self._region.header[SUCCESSOR_WORD]:
             old = self._region
             name = bytes(old.extra["successor"][: int(old.header[SUCCESSOR_WORD])]).decode()
-            self._region = SceneSnapshot.attach(name)._region
+            self._region = _attached_scene_region(name)
             old.close()
             self._take_capacities()
 
