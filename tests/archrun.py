@@ -4,6 +4,10 @@
 ``python -m tests.archrun``, which initialises Taichi on the backend, calls
 ``compute(n=100)`` and returns its ``dict`` of NumPy arrays. A backend that is not
 available here makes the calling test skip with the reason.
+
+The tests marked ``vulkan`` compare :data:`COMPARE_ARCH` with the CPU: Vulkan unless
+``$TAICHI_LAP_COMPARE_ARCH`` names another backend (``cuda`` on a machine with an
+NVIDIA GPU).
 """
 
 from __future__ import annotations
@@ -20,6 +24,9 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+
+COMPARE_ARCH = os.environ.get("TAICHI_LAP_COMPARE_ARCH", "vulkan")
+"""The backend the ``vulkan``-marked tests compare with the CPU run."""
 
 
 def run_on_arch(arch: str, target: str, **kwargs) -> dict[str, np.ndarray]:
@@ -43,15 +50,17 @@ def run_on_arch(arch: str, target: str, **kwargs) -> dict[str, np.ndarray]:
             return {key: data[key] for key in data.files}
 
 
-def assert_vulkan_matches_cpu(target: str, tolerance: float, **kwargs) -> dict[str, np.ndarray]:
-    """Run ``target`` here (CPU) and on Vulkan; every array must agree within
-    ``tolerance`` (max abs difference). Returns the CPU arrays."""
+def assert_backend_matches_cpu(target: str, tolerance: float, **kwargs) -> dict[str, np.ndarray]:
+    """Run ``target`` here (CPU) and on :data:`COMPARE_ARCH`; every array must agree
+    within ``tolerance`` (max abs difference). Returns the CPU arrays."""
     module_name, func_name = target.split(":")
     cpu = getattr(importlib.import_module(module_name), func_name)(**kwargs)
-    vulkan = run_on_arch("vulkan", target, **kwargs)
+    other = run_on_arch(COMPARE_ARCH, target, **kwargs)
     for key, value in cpu.items():
-        difference = np.abs(np.asarray(value, dtype=np.float64) - vulkan[key]).max()
-        assert difference <= tolerance, f"{target} {key}: CPU and Vulkan differ by {difference}"
+        difference = np.abs(np.asarray(value, dtype=np.float64) - other[key]).max()
+        assert difference <= tolerance, (
+            f"{target} {key}: CPU and {COMPARE_ARCH} differ by {difference}"
+        )
     return cpu
 
 

@@ -14,7 +14,7 @@ from taichi_lap.collision.surface_tables import broad_spheres
 from taichi_lap.collision.tissue import TissueCollision
 from taichi_lap.core.instruments import ToolShape
 from taichi_lap.sim import Control, Solver
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import BOX, simulation
 
 DT = 1.0 / 60.0
@@ -460,7 +460,7 @@ def test_grasper_jaws_push_the_tissue_surface_and_a_probe_at_the_same_pose_does_
 
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
-    result = assert_vulkan_matches_cpu("tests.test_circumsphere:compute_collision_case", 2e-5)
+    result = assert_backend_matches_cpu("tests.test_circumsphere:compute_collision_case", 2e-5)
     assert result["collided"].sum() > 10
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import simulation
 
 
@@ -68,4 +68,4 @@ def compute_sweeps(solver_name: str) -> dict:
 @pytest.mark.vulkan
 @pytest.mark.parametrize("solver_name", ["jacobi", "gauss_seidel"])
 def test_vulkan_agrees_with_cpu(solver_name):
-    assert_vulkan_matches_cpu("tests.test_distance:compute_sweeps", 1e-5, solver_name=solver_name)
+    assert_backend_matches_cpu("tests.test_distance:compute_sweeps", 1e-5, solver_name=solver_name)

@@ -9,7 +9,7 @@ from taichi_lap.core.instruments import JAW_LENGTH, JAW_RADIUS
 from taichi_lap.devices import GRASP_BUTTON, ScriptedDevice
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
-from tests.archrun import run_on_arch
+from tests.archrun import COMPARE_ARCH, run_on_arch
 from tests.helpers import BOX
 
 TOP = BOX["geometry"]["half_extents"][1]
@@ -137,7 +137,7 @@ def test_grasp_vulkan_matches_cpu():
     optimisation on and off, put 3 of 980 particles 7-12 mm apart and every other
     within 0.6 mm; 2 cm everywhere when a real error made the backends disagree)."""
     cpu = lifted_block()
-    vulkan = run_on_arch("vulkan", "tests.test_grasp:lifted_block")
+    vulkan = run_on_arch(COMPARE_ARCH, "tests.test_grasp:lifted_block")
     cpu_held, vulkan_held = cpu["grasp_tool"] != FREE, vulkan["grasp_tool"] != FREE
     assert np.count_nonzero(cpu_held != vulkan_held) <= 0.1 * np.count_nonzero(cpu_held)
     both = cpu_held & vulkan_held

@@ -13,7 +13,7 @@ from taichi_lap.dissection.heat import (
     heat_capacity,
     stable_time_step,
 )
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.blocks import KUHN_TETS, block
 
 KAPPA, DENSITY, SPECIFIC_HEAT = 0.52, 1060.0, 3600.0  # liver: W/(m K), kg/m^3, J/(kg K)
@@ -232,5 +232,5 @@ def compute_diffusion(steps: int = 20) -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    cpu = assert_vulkan_matches_cpu("tests.test_heat:compute_diffusion", 1e-4)
+    cpu = assert_backend_matches_cpu("tests.test_heat:compute_diffusion", 1e-4)
     assert cpu["peak"].max() > BODY + 10.0

@@ -20,7 +20,7 @@ from taichi_lap.kernels.ibl import (
     tangent_frame,
 )
 
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 
 GREY = (0.6, 0.3, 0.25)
 
@@ -233,5 +233,5 @@ def lighting_arrays(count=64):
 def test_vulkan_matches_cpu():
     """SH coefficients, DFG table, prefiltered maps and shaded samples agree within 5e-4
     (values up to 2.7; measured 6e-5, from f32 transcendentals differing per backend)."""
-    cpu = assert_vulkan_matches_cpu("tests.test_ibl:lighting_arrays", tolerance=5e-4)
+    cpu = assert_backend_matches_cpu("tests.test_ibl:lighting_arrays", tolerance=5e-4)
     assert np.all(np.isfinite(cpu["shaded"]))

@@ -10,7 +10,7 @@ from taichi_lap.kernels.collision import intestine as kernels
 
 from taichi_lap.collision.intestine import IntestineCollision
 from taichi_lap.collision.intestine_reference import ExactDetector, region_labels
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import simulation
 
 H = 1.0 / 600.0  # substep [s]
@@ -333,5 +333,5 @@ def compute_planted_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
-    cpu = assert_vulkan_matches_cpu("tests.test_intestine_collision:compute_planted_case", 1e-5)
+    cpu = assert_backend_matches_cpu("tests.test_intestine_collision:compute_planted_case", 1e-5)
     assert (cpu["contacts"][:, 0] >= 0).sum() > 5

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from taichi_lap.kernels import distance
 
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import simulation, state_after
 
 DT = 1.0 / 60.0
@@ -89,4 +89,4 @@ def compute_fascia_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    assert_vulkan_matches_cpu("tests.test_lra:compute_fascia_case", 1e-4)
+    assert_backend_matches_cpu("tests.test_lra:compute_fascia_case", 1e-4)

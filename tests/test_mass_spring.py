@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import simulation, state_after
 
 INTESTINE = {
@@ -73,4 +73,4 @@ def compute_intestine_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    assert_vulkan_matches_cpu("tests.test_mass_spring:compute_intestine_case", 1e-4)
+    assert_backend_matches_cpu("tests.test_mass_spring:compute_intestine_case", 1e-4)

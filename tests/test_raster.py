@@ -9,7 +9,7 @@ import pytest
 import taichi as ti
 from taichi_lap.kernels.raster import BACKGROUND_DEPTH, GBuffer, camera_matrices
 
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 
 WIDTH, HEIGHT = 64, 48
 VERTEX_CAPACITY, TRIANGLE_CAPACITY = 1024, 2048
@@ -418,6 +418,6 @@ def compute_gbuffer() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
-    cpu = assert_vulkan_matches_cpu("tests.test_raster:compute_gbuffer", 1e-5)
+    cpu = assert_backend_matches_cpu("tests.test_raster:compute_gbuffer", 1e-5)
     floor = len(icosphere()[1])
     assert (cpu["triangle"] == floor).sum() > 100 and (cpu["triangle"] >= 0).sum() > 1000

@@ -20,7 +20,7 @@ from taichi_lap.render.renderer import Renderer
 from taichi_lap.render.scene_mesh import ArrayMesh, SceneMesh
 from taichi_lap.scene.materials import PRESETS
 from taichi_lap.session import Session
-from tests.archrun import run_on_arch
+from tests.archrun import COMPARE_ARCH, run_on_arch
 
 GOLDEN = Path(__file__).parent / "golden" / "materials.png"
 SIZE = (192, 144)
@@ -75,7 +75,7 @@ def test_material_spheres_match_the_golden_image():
 @pytest.mark.vulkan
 def test_vulkan_renders_the_golden_image_like_the_cpu():
     cpu = material_spheres()["image"]
-    vulkan = run_on_arch("vulkan", "tests.test_render:material_spheres")["image"]
+    vulkan = run_on_arch(COMPARE_ARCH, "tests.test_render:material_spheres")["image"]
     assert psnr(cpu, vulkan) >= 35.0
 
 

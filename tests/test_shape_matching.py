@@ -5,7 +5,7 @@ import pytest
 from taichi_lap.kernels import shape_matching
 
 from taichi_lap.sim.reference import ReferenceShapeMatching
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import BOX, simulation, state_after
 
 DT = 1.0 / 60.0
@@ -178,4 +178,4 @@ def compute_reference_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    assert_vulkan_matches_cpu("tests.test_shape_matching:compute_reference_case", 1e-4)
+    assert_backend_matches_cpu("tests.test_shape_matching:compute_reference_case", 1e-4)

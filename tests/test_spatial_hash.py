@@ -7,7 +7,7 @@ import taichi as ti
 from taichi_lap.core.fields import FieldGroup
 from taichi_lap.kernels.collision.spatial_hash import SpatialHash, store_pair
 
-from tests.archrun import run_on_arch
+from tests.archrun import COMPARE_ARCH, run_on_arch
 
 CELL = 0.01  # [m]
 
@@ -275,7 +275,7 @@ def test_a_build_of_more_points_than_the_capacity_is_refused():
 def test_vulkan_matches_cpu():
     kwargs = dict(n=3001, seed=8, table_size=2039, radius=0.9 * CELL)
     gpu, cpu = (
-        run_on_arch("vulkan", "tests.test_spatial_hash:compute_pairs", **kwargs),
+        run_on_arch(COMPARE_ARCH, "tests.test_spatial_hash:compute_pairs", **kwargs),
         compute_pairs(**kwargs),
     )
     for key in ("points", "sorted_index", "bucket_start", "neighbour_count", "pairs", "total"):

@@ -9,7 +9,7 @@ import pytest
 
 from taichi_lap.perf import bench_contact as contact
 from taichi_lap.sim import Control
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 
 TOLERANCE = (0.8, 1.25)
 """Displacement of the drawn surface under the tool over the tool's depth."""
@@ -93,7 +93,7 @@ def compute_press_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    assert_vulkan_matches_cpu("tests.test_tool_contact:compute_press_case", 2e-4)
+    assert_backend_matches_cpu("tests.test_tool_contact:compute_press_case", 2e-4)
 
 
 def haptic_rows(presses, model: str = "tet_clusters") -> dict[tuple, dict]:

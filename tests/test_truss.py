@@ -8,7 +8,7 @@ from taichi_lap.scenes.anatomy import GENERATORS
 
 from taichi_lap.core.geometry import TriangleMesh
 from taichi_lap.preprocess.truss import generate_truss, vertex_normals
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import simulation, state_after
 
 THRESHOLD = math.pi / 3
@@ -137,4 +137,4 @@ def compute_gland_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_agrees_with_cpu():
-    assert_vulkan_matches_cpu("tests.test_truss:compute_gland_case", 1e-4)
+    assert_backend_matches_cpu("tests.test_truss:compute_gland_case", 1e-4)

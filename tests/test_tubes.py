@@ -9,7 +9,7 @@ import taichi as ti
 
 from taichi_lap.core.fields import FieldGroup
 from taichi_lap.render.tubes import TessellationController, TubeMesh
-from tests.archrun import assert_vulkan_matches_cpu
+from tests.archrun import assert_backend_matches_cpu
 
 CAPACITY, TUBES, SIDES, MAX_LEVEL = 128, 3, 16, 3
 
@@ -309,5 +309,5 @@ def vulkan_case(level=2):
 
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
-    cpu = assert_vulkan_matches_cpu("tests.test_tubes:vulkan_case", 1e-5)
+    cpu = assert_backend_matches_cpu("tests.test_tubes:vulkan_case", 1e-5)
     assert len(cpu["triangles"]) > 1000

@@ -19,7 +19,7 @@ from taichi_lap.render.scene_mesh import ArrayMesh
 from taichi_lap.scene import from_tables
 from taichi_lap.scene.materials import CHAR_ALBEDO, CHAR_ROUGHNESS, PRESETS
 from taichi_lap.session import Session
-from tests.archrun import run_on_arch
+from tests.archrun import COMPARE_ARCH, run_on_arch
 from tests.helpers import BOX
 
 BODY = 37.0  # [°C]
@@ -240,7 +240,7 @@ def test_gbuffer_char_is_interpolated_at_the_hit_point():
 @pytest.mark.vulkan
 def test_vulkan_gives_the_char_gbuffer_of_the_cpu():
     cpu = wound_renders()
-    vulkan = run_on_arch("vulkan", "tests.test_wound_look:wound_renders")
+    vulkan = run_on_arch(COMPARE_ARCH, "tests.test_wound_look:wound_renders")
     assert np.array_equal(vulkan["triangle"], cpu["triangle"])
     assert np.abs(vulkan["char"] - cpu["char"]).max() < 1e-4
     assert np.abs(vulkan["wound char frame"] - cpu["wound char frame"]).max() < 1e-4
