@@ -15,12 +15,12 @@ def vertex_normals(
     normals: ti.template(),
 ):
     """normals[v] = normalize(Σ_t (b - a) × (c - a)) over the triangles t in row v of
-    ``incident`` (a vector field, -1 for none). ``triangles`` is a flat index field
+    ``incident`` (a 2-D table, -1 for none). ``triangles`` is a flat index field
     (3 per triangle); reads positions, writes normals."""
     for v in range(vertex_count):
         n = ti.Vector([0.0, 0.0, 0.0])
-        for k in ti.static(range(incident.n)):
-            t = incident[v][k]
+        for k in range(incident.shape[1]):
+            t = incident[v, k]
             if t >= 0:
                 a = positions[triangles[3 * t]]
                 b = positions[triangles[3 * t + 1]]

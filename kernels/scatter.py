@@ -21,6 +21,15 @@ def scatter_vectors(target: ti.template(), rows: ti.types.ndarray(), values: ti.
             target[rows[k]][a] = values[k, a]
 
 
+@ti.kernel
+def scatter_table_rows(
+    target: ti.template(), rows: ti.types.ndarray(), values: ti.types.ndarray()
+):
+    """target[rows[k], a] = values[k, a] for a 2-D table field."""
+    for k, a in ti.ndrange(rows.shape[0], values.shape[1]):
+        target[rows[k], a] = values[k, a]
+
+
 def scatter(target, rows, values):
     """Write ``values`` (R,) or (R, n) into the rows ``rows`` (R,) of ``target``
     (converted to its element type; nothing is launched for no rows)."""
@@ -31,5 +40,7 @@ def scatter(target, rows, values):
     values = np.ascontiguousarray(values, dtype=dtype)
     if values.ndim == 1:
         scatter_scalars(target, rows, values)
+    elif len(target.shape) == 2:
+        scatter_table_rows(target, rows, values)
     else:
         scatter_vectors(target, rows, values)

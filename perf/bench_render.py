@@ -1,6 +1,6 @@
 """Rendering benchmark (issue: rendering).
 
-A deforming blob (a UV sphere with moving bumps, 20k / 100k / 200k triangles)
+A deforming blob (a sphere with moving bumps, 20k / 100k / 200k triangles)
 filling most of a 640x480 or 1280x720 frame, drawn by the deferred renderer (seed
 000 §6.3): ``vertex`` (gathered vertex normals), ``visibility`` (rasterized
 visibility buffer and G-buffer resolve, near-plane clipping), ``shading`` (BRDF,
@@ -22,26 +22,34 @@ RADIUS = 0.05  # [m]
 EYE = (0.0, 0.01, 0.085)  # close, as an endoscope: the blob fills most of the frame
 
 
-def uv_sphere(triangles: int) -> tuple[np.ndarray, np.ndarray]:
-    """A UV sphere of about ``triangles`` triangles: (positions (V, 3), faces (F, 3))."""
-    rings = max(4, int(round(math.sqrt(triangles / 4.0))))
-    segments = 2 * rings
-    theta = np.linspace(0.0, math.pi, rings + 1)[1:-1]
-    phi = np.linspace(0.0, 2.0 * math.pi, segments, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    body = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], -1).reshape(-1, 3)
-    positions = RADIUS * np.concatenate([[[0.0, 1.0, 0.0]], body, [[0.0, -1.0, 0.0]]])
-    faces = []
-    ring = lambda r, s: 1 + r * segments + s % segments
-    for s in range(segments):
-        faces.append((0, ring(0, s + 1), ring(0, s)))
-        faces.append((len(positions) - 1, ring(rings - 2, s), ring(rings - 2, s + 1)))
-    r, s = np.meshgrid(np.arange(rings - 2), np.arange(segments), indexing="ij")
-    a, b, c, d = ring(r, s), ring(r, s + 1), ring(r + 1, s), ring(r + 1, s + 1)
-    quads = np.concatenate(
-        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)]
-    )
-    return positions.astype(np.float32), np.concatenate([np.asarray(faces), quads]).astype(np.int32)
+def cube_sphere(triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """A sphere of about ``triangles`` triangles, each face of a cube gridded and
+    projected onto it (no vertex in more than six triangles, as on an organ's mesh):
+    (positions (V, 3), faces (F, 3), counter-clockwise seen from outside)."""
+    n = max(2, int(round(math.sqrt(triangles / 12.0))))
+    t = np.linspace(-1.0, 1.0, n + 1)
+    u, v = np.meshgrid(t, t, indexing="ij")
+    points, faces = [], []
+    r, s = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    corner = lambda i, j: (i * (n + 1) + j).reshape(-1)
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            grid = np.zeros((n + 1, n + 1, 3))
+            grid[..., axis] = sign
+            grid[..., (axis + 1) % 3] = u
+            grid[..., (axis + 2) % 3] = v
+            base = sum(len(block) for block in points)
+            a, b, c, d = corner(r, s), corner(r + 1, s), corner(r, s + 1), corner(r + 1, s + 1)
+            faces += [base + np.stack([a, b, d], -1), base + np.stack([a, d, c], -1)]
+            points.append(grid.reshape(-1, 3))
+    cube, faces = np.concatenate(points), np.concatenate(faces)
+    cube, shared = np.unique(np.round(cube, 9), axis=0, return_inverse=True)
+    faces = shared.reshape(-1)[faces]
+    positions = RADIUS * cube / np.linalg.norm(cube, axis=1, keepdims=True)
+    x = positions[faces]
+    outward = np.einsum("ij,ij->i", np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), x.sum(1)) > 0
+    faces = np.where(outward[:, None], faces, faces[:, ::-1])
+    return positions.astype(np.float32), faces.astype(np.int32)
 
 
 def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
@@ -52,7 +60,7 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
     from taichi_lap.render.scene_mesh import ArrayMesh
     from taichi_lap.scene.materials import PRESETS
 
-    rest, faces = uv_sphere(triangles)
+    rest, faces = cube_sphere(triangles)
     mesh = ArrayMesh(
         faces,
         np.zeros(len(faces), np.int32),

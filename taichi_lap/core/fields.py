@@ -31,7 +31,7 @@ class FieldGroup:
     def __init__(self):
         self._builder = ti.FieldsBuilder()
         self._uploads: list = []
-        self._specs: dict[int, tuple] = {}  # id(field) -> (dtype, vector, matrix)
+        self._specs: dict[int, tuple] = {}  # id(field) -> (dtype, vector, matrix, columns)
         self.tree = None
 
     def field(
@@ -41,12 +41,22 @@ class FieldGroup:
         *,
         vector: int = 0,
         matrix: tuple[int, int] | None = None,
+        columns: int = 0,
         values=None,
     ):
         """A field of ``n`` entries (at least one; ``n=None`` for a 0-D field) of
         scalars, ``vector``-vectors, ``matrix`` matrices or structs (``dtype`` a
-        ``ti.types.struct``), filled with ``values`` (padded with zeros) when the group
-        is finalized."""
+        ``ti.types.struct``), or a table of ``n`` rows of ``columns`` scalars (a 2-D
+        field, read ``f[row, column]``: a row as wide as the data needs compiles as a
+        loop, where a vector's components are unrolled), filled with ``values`` (padded
+        with zeros) when the group is finalized."""
+        if columns:
+            f = ti.field(dtype)
+            self._specs[id(f)] = (dtype, 0, None, columns)
+            self._builder.dense(ti.ij, (max(int(n), 1), int(columns))).place(f)
+            if values is not None:
+                self.fill(f, values)
+            return f
         if isinstance(dtype, StructType):
             f = dtype.field()
         elif matrix:
@@ -55,7 +65,7 @@ class FieldGroup:
             f = ti.Vector.field(vector, dtype)
         else:
             f = ti.field(dtype)
-        self._specs[id(f)] = (dtype, vector, matrix)
+        self._specs[id(f)] = (dtype, vector, matrix, 0)
         if n is None:
             self._builder.place(f)
         else:
@@ -87,11 +97,13 @@ class FieldGroup:
             if rows[name] < len(values):
                 raise ValueError(f"regrown: {name} has {len(values)} rows, more than {rows[name]}")
             values = padded_rows(values, rows[name], fill.get(name, 0))
-            dtype, vector, matrix = self._specs[id(f)]
+            dtype, vector, matrix, columns = self._specs[id(f)]
             setattr(
                 owner,
                 name,
-                group.field(dtype, rows[name], vector=vector, matrix=matrix, values=values),
+                group.field(
+                    dtype, rows[name], vector=vector, matrix=matrix, columns=columns, values=values
+                ),
             )
         group.finalize()
         if whole:
@@ -115,7 +127,8 @@ class FieldGroup:
         self.tree = self._builder.finalize()
         for f, values in self._uploads:
             if len(values):
-                padded = np.zeros(f.shape + values.shape[1:], dtype=to_numpy_type(f.dtype))
+                shape = f.shape[:1] + values.shape[1:]
+                padded = np.zeros(shape, dtype=to_numpy_type(f.dtype))
                 padded[: len(values)] = values
                 f.from_numpy(padded)
         self._uploads = []

@@ -82,7 +82,7 @@ class ArrayMesh:
             smooth = np.flatnonzero(np.all(triangles < smooth_count, axis=1))
             rows = incident_table(triangles[smooth], smooth_count)
             rows = np.where(rows >= 0, smooth[rows], -1)
-            incident = group.field(ti.i32, smooth_count, vector=rows.shape[1], values=rows)
+            incident = group.field(ti.i32, smooth_count, columns=rows.shape[1], values=rows)
         self.incident = incident
         self.albedo = group.field(ti.f32, len(materials), vector=3, values=table["albedo"])
         self.roughness = group.field(ti.f32, len(materials), values=table["roughness"])

@@ -28,6 +28,9 @@ SURFACE_SPARE = 1.5
 
 ROW_KINDS = ("vertices", "triangles", "members", "clusters", "chunks")
 """The kinds of rows dissection appends to (:attr:`Model.capacity`, :meth:`Model.grow`)."""
+TABLES = ("surface_incident",)
+"""Fields whose rows are as wide as the mesh needs (a vertex's triangles): 2-D tables,
+read in a loop, not vectors unrolled into every kernel that reads them."""
 
 
 def spare_rows(count: int, dissectable: bool, spare: float = 0.5) -> int:
@@ -140,11 +143,15 @@ class Model(FieldOwner):
         self._group.finalize()
         self.finalize_counts()
 
-    def _ints(self, values, vector: int = 0, rows: int = 0):
+    def _ints(self, values, vector: int = 0, rows: int = 0, columns: int = 0):
         """An i32 field holding ``values`` (one entry per row; ``rows`` at least)."""
         values = np.asarray(values, dtype=np.int32)
         return self._group.field(
-            ti.i32, max(len(values), rows), vector=vector, values=padded_rows(values, rows)
+            ti.i32,
+            max(len(values), rows),
+            vector=vector,
+            columns=columns,
+            values=padded_rows(values, rows),
         )
 
     def _floats(self, values, vector: int = 0, rows: int = 0):
@@ -166,8 +173,11 @@ class Model(FieldOwner):
         for name, (values, kind, fill) in self._as_built(data).items():
             make = self._ints if values.dtype.kind in "iu" else self._floats
             values = padded_rows(values, self.capacity.get(kind, 0), fill)
-            vector = values.shape[1] if values.ndim > 1 else 0
-            setattr(self, name, make(values, vector=vector))
+            width = values.shape[1] if values.ndim > 1 else 0
+            if name in TABLES:
+                setattr(self, name, make(values, columns=width))
+            else:
+                setattr(self, name, make(values, vector=width))
             if kind is not None:
                 self._row_fill[name] = (kind, fill)
         self._set_capacities()
