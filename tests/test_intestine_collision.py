@@ -321,7 +321,10 @@ def compute_planted_case() -> dict:
     exact.run(state.p)
     pairs, gaps = exact.pairs()
     exact = pairs[gaps < -1e-6]
-    padded = lambda pairs: np.pad(pairs, ((0, 256 - len(pairs)), (0, 0)), constant_values=-1)
+    # pair lists fill by atomic appends, in an order each backend chooses: compare sorted
+    padded = lambda pairs: np.pad(
+        pairs[np.lexsort(pairs.T[::-1])], ((0, 256 - len(pairs)), (0, 0)), constant_values=-1
+    )
     return {
         "active": padded(active),
         "contacts": padded(contacts),
