@@ -22,9 +22,7 @@ def scatter_vectors(target: ti.template(), rows: ti.types.ndarray(), values: ti.
 
 
 @ti.kernel
-def scatter_table_rows(
-    target: ti.template(), rows: ti.types.ndarray(), values: ti.types.ndarray()
-):
+def scatter_table_rows(target: ti.template(), rows: ti.types.ndarray(), values: ti.types.ndarray()):
     """target[rows[k], a] = values[k, a] for a 2-D table field."""
     for k, a in ti.ndrange(rows.shape[0], values.shape[1]):
         target[rows[k], a] = values[k, a]
