@@ -309,5 +309,6 @@ def vulkan_case(level=2):
 
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
-    cpu = assert_backend_matches_cpu("tests.test_tubes:vulkan_case", 1e-5)
+    # unit normals: CUDA's fused multiply-adds left them 2.5e-5 from the CPU's (an H100)
+    cpu = assert_backend_matches_cpu("tests.test_tubes:vulkan_case", 1e-5, {"normals": 1e-4})
     assert len(cpu["triangles"]) > 1000
