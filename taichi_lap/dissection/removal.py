@@ -218,6 +218,7 @@ class MutableTopology:
         self._mask = np.zeros(n, dtype=bool)  # scratch, left all False
         self._reached = np.zeros(n, dtype=bool)  # scratch, left all False
         self._corner = np.zeros(n, dtype=bool)  # scratch, left all False
+        self._slot = np.full(n, -1, dtype=np.int64)  # scratch, left all -1
 
         self._init_surface(data)
         self._init_clusters(data)
@@ -421,22 +422,24 @@ class MutableTopology:
         search."""
         if not groups:
             return []
-        n = len(self.rest)
         sizes = [len(g) for g in groups]
         nodes = np.concatenate(groups)
         group = np.repeat(np.arange(len(groups)), sizes)
-        key = group * n + nodes
-        order = np.argsort(key, kind="stable")  # groups of sorted particles: in order
-        sorted_key = key[order]
+        distinct, slot = np.unique(nodes, return_inverse=True)
+        node_at = np.full((len(groups), len(distinct)), -1, dtype=np.int64)
+        node_at[group, slot] = np.arange(len(nodes))  # (group, particle) -> its node
+        slot_of = self._slot
+        slot_of[distinct] = np.arange(len(distinct))
         rows = rows_of(self.adjacency_start, nodes)
         owner = owners_of(self.adjacency_start, nodes)
         if live:
             keep = self.edge_live[self.adjacency_edge[rows]] > 0
             rows, owner = rows[keep], owner[keep]
-        other_key = group[owner] * n + self.adjacency_other[rows]
-        at = np.minimum(np.searchsorted(sorted_key, other_key), len(key) - 1)
-        inside = sorted_key[at] == other_key
-        a, b = owner[inside], order[at[inside]]
+        other = slot_of[self.adjacency_other[rows]]
+        slot_of[distinct] = -1
+        owner, other = owner[other >= 0], other[other >= 0]
+        b = node_at[group[owner], other]
+        a, b = owner[b >= 0], b[b >= 0]
         graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(nodes), len(nodes)))
         labels = connected_components(graph, directed=False)[1]
         return np.split(labels, np.cumsum(sizes)[:-1])
@@ -446,23 +449,35 @@ class MutableTopology:
         removal, given the ``seeds``, its members at the tets that died: they still
         reach each other within FRAGMENT_DEPTH live edges inside the cluster (a path
         broken by the removal entered and left the dead tets through them)."""
-        if len(seeds) <= 1:
-            return True
-        inside, reached = self._mask, self._reached
+        inside = self._mask
         inside[members] = True
-        reached[seeds[0]] = True
-        frontier, visited = seeds[:1], [seeds[:1]]
-        for _ in range(FRAGMENT_DEPTH):
-            _, other = self._neighbours(frontier)
-            frontier = np.unique(other[inside[other] & ~reached[other]])
-            reached[frontier] = True
-            visited.append(frontier)
-            if reached[seeds].all() or not len(frontier):
-                break
-        connected = bool(reached[seeds].all())
-        reached[np.concatenate(visited)] = False
+        connected = self._seeds_joined(seeds, inside)
         inside[members] = False
         return connected
+
+    def _seeds_joined(self, seeds: np.ndarray, inside=None, more_than: int = 0) -> bool:
+        """Whether ``seeds`` all reach each other within FRAGMENT_DEPTH live edges
+        (through particles the mask ``inside`` holds, when given), in a piece of more
+        than ``more_than`` particles: breadth-first from the first seed, stopping as
+        soon as both hold."""
+        if len(seeds) <= 1 and not more_than:
+            return True
+        reached = self._reached
+        reached[seeds[0]] = True
+        frontier, visited, count = seeds[:1], [seeds[:1]], 1
+        joined = False
+        for _ in range(FRAGMENT_DEPTH):
+            _, other = self._neighbours(frontier)
+            other = other[~reached[other]]
+            frontier = np.unique(other if inside is None else other[inside[other]])
+            reached[frontier] = True
+            visited.append(frontier)
+            count += len(frontier)
+            joined = bool(reached[seeds].all()) and count > more_than
+            if joined or not len(frontier):
+                break
+        reached[np.concatenate(visited)] = False
+        return joined
 
     def _fragments(self, corners: np.ndarray) -> list[np.ndarray]:
         """Pieces of live tissue cut off near the dead tets' ``corners``: breadth-first
@@ -470,6 +485,8 @@ class MutableTopology:
         reached that reach no further, hold at most FRAGMENT_PARTICLES particles and
         no pinned one."""
         seeds = corners[self.particle_alive[corners]]
+        if len(seeds) and self._seeds_joined(seeds, more_than=FRAGMENT_PARTICLES):
+            return []  # every piece the search could find holds all seeds: too large
         reached = np.zeros(len(self.rest), dtype=bool)
         reached[seeds] = True
         frontier, order = seeds, [seeds]
