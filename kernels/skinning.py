@@ -7,6 +7,8 @@ tissue around it, and turns with the cluster."""
 
 import taichi as ti
 
+from taichi_lap.kernels.scatter import serial_on_cpu
+
 
 @ti.func
 def skin(model: ti.template(), state: ti.template(), positions: ti.template(), s):
@@ -29,4 +31,14 @@ def skin_surface(model: ti.template(), state: ti.template()):
     """surface_position[s] from x (:func:`skin`). Reads x, cluster rotations; writes
     surface_position."""
     for s in range(model.surface_vertex_count):
+        state.surface_position[s] = skin(model, state, state.x, s)
+
+
+@ti.kernel
+def skin_surface_rows(model: ti.template(), state: ti.template(), rows: ti.types.ndarray()):
+    """surface_position of the surface vertices ``rows`` alone (those a topology
+    change bound anew) from x (:func:`skin`)."""
+    ti.loop_config(serialize=ti.static(serial_on_cpu()))
+    for k in range(rows.shape[0]):
+        s = rows[k]
         state.surface_position[s] = skin(model, state, state.x, s)

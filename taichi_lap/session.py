@@ -21,7 +21,7 @@ from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.dissection.cautery import Cautery
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import MutableTopology
-from taichi_lap.kernels.skinning import skin_surface
+from taichi_lap.kernels.skinning import skin_surface, skin_surface_rows
 from taichi_lap.preprocess.cache import (
     build_model,
     cache_dir,
@@ -231,7 +231,9 @@ class Session:
                 ):
                     collision = self.solver.collision = collision.regrown(surface)
                 collision.rewrite(np.union1d(change.dead_triangles, change.new_triangles), surface)
-            skin_surface(self.model, self.state)  # the wound is drawn where it is
+            bound = np.union1d(change.new_vertices, change.rebound_vertices)
+            if len(bound):  # the wound is drawn where it is
+                skin_surface_rows(self.model, self.state, bound.astype(np.int32))
             ti.sync()
         spent = (time.perf_counter() - start) * 1e3
         self.timings["topology"] = self.timings.get("topology", 0.0) + spent

@@ -56,6 +56,7 @@ from taichi_lap.kernels.collision.spheres import (
     skin_vertices,
 )
 from taichi_lap.kernels.collision.tool_shapes import bounding_radius, control_pose, pose_motion
+from taichi_lap.kernels.scatter import serial_on_cpu
 
 from taichi_lap.core.instruments import FAR, MAX_TOOLS
 
@@ -377,6 +378,7 @@ def write_triangle_rows(
     They rescan their pairs (ref_sphere far away), the hash is rebuilt (hash_sphere
     far away), no tool holds them, their corners leave the gather lists as built
     (corner_built 0) and own no vertex until the owners are written."""
+    ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for k in range(rows.shape[0]):
         t = rows[k]
         coll.tri_vertex[t] = ti.Vector([vertex[k, 0], vertex[k, 1], vertex[k, 2]])
@@ -402,6 +404,7 @@ def write_triangle_rows(
 def write_neighbours(coll: ti.template(), rows: ti.types.ndarray(), neighbour: ti.types.ndarray()):
     """Edge neighbours (R, 3) of the triangle ``rows``; their curvature is computed
     again at the next step (area_last 0, the lazy update of seed 000 §4.2.3)."""
+    ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for k in range(rows.shape[0]):
         t = rows[k]
         coll.tri_neighbour[t] = ti.Vector([neighbour[k, 0], neighbour[k, 1], neighbour[k, 2]])
@@ -420,12 +423,16 @@ def write_gather(
     """The gather lists of the rewritten corners: the particles ``gone`` from them
     lose their rank; ``particle`` (P,) get ranks 0..P-1 with the entries
     ``start[r]:start[r + 1]`` of ``corner`` and ``weight``."""
+    ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for k in range(gone.shape[0]):
         coll.written_rank[gone[k]] = -1
+    ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for r in range(particle.shape[0]):
         coll.written_rank[particle[r]] = r
+    ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for r in range(start.shape[0]):
         coll.written_start[r] = start[r]
+    ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for m in range(corner.shape[0]):
         coll.written_corner[m] = corner[m]
         coll.written_weight[m] = weight[m]

@@ -37,7 +37,7 @@ from taichi_lap.core.csr import owners_of, rows_of
 from taichi_lap.core.fields import padded_rows
 from taichi_lap.dissection.removal import MutableTopology, TopologyChange
 from taichi_lap.kernels.collision.particle_contact import FREE
-from taichi_lap.kernels.scatter import scatter
+from taichi_lap.kernels.scatter import RowWrites, gather, scatter
 from taichi_lap.sim.model import CHUNK, Model, member_chunks
 
 log = logging.getLogger("taichi_lap")
@@ -82,10 +82,11 @@ class DeviceTopology:
         model, topology, removed = self.model, self.topology, change.removed_particles
         new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
         self._fit(change, new, state)
-        scatter(model.inv_mass, removed, np.zeros(len(removed)))
+        writes = RowWrites()  # the rows of the update, written in one launch
+        writes.add(removed, {model.inv_mass: np.zeros(len(removed))})
         self.inverse_mass[removed] = 0.0
-        held = removed[state.grasp_tool.to_numpy()[removed] != FREE]
-        scatter(state.grasp_tool, held, np.full(len(held), FREE))
+        held = removed[gather(state.grasp_tool, removed) != FREE]
+        writes.add(held, {state.grasp_tool: np.full(len(held), FREE)})
         rows = rows_of(topology.membership_start, removed)
         left = [
             (
@@ -97,12 +98,13 @@ class DeviceTopology:
             members = topology.cluster_members[c]
             left.append((np.full(len(members), topology.cluster_parent[c]), members))
         self._drop_members(
-            np.concatenate([a for a, _ in left]), np.concatenate([b for _, b in left])
+            writes, np.concatenate([a for a, _ in left]), np.concatenate([b for _, b in left])
         )
         for c in new:
-            self._append_cluster(c, state)
+            self._append_cluster(writes, c, state)
         model.finalize_counts()
-        self._write_surface(change)
+        self._write_surface(writes, change)
+        writes.flush()
         model.topology_version += 1
 
     def surface_rows(self) -> SurfaceRows:
@@ -153,7 +155,7 @@ class DeviceTopology:
         self.triangle_live = padded_rows(self.triangle_live, model.surface_triangle_count, False)
         self.incident = padded_rows(self.incident, model.surface_vertex_count, -1)
 
-    def _drop_members(self, clusters: np.ndarray, particles: np.ndarray):
+    def _drop_members(self, writes: RowWrites, clusters: np.ndarray, particles: np.ndarray):
         """Members ``particles`` leave ``clusters`` (pairs): their rows weigh 0, and
         each cluster's mass and rest centre follow; its offsets stay and the kernels
         add ``cluster_rest_shift`` = origin - centre (q = x0 - x0_cm again)."""
@@ -184,12 +186,17 @@ class DeviceTopology:
         ]
         self.mass[changed] = np.where(kept, total, 0.0)
         self.center[changed] = center
-        scatter(model.cluster_member_mass, rows, np.zeros(len(rows)))
-        scatter(model.cluster_mass, changed, self.mass[changed])
-        scatter(model.cluster_rest_center, changed, center)
-        scatter(model.cluster_rest_shift, changed, self.origin[changed] - center)
+        writes.add(rows, {model.cluster_member_mass: np.zeros(len(rows))})
+        writes.add(
+            changed,
+            {
+                model.cluster_mass: self.mass[changed],
+                model.cluster_rest_center: center,
+                model.cluster_rest_shift: self.origin[changed] - center,
+            },
+        )
 
-    def _append_cluster(self, c: int, state):
+    def _append_cluster(self, writes: RowWrites, c: int, state):
         """Rows, chunks, rest data and a warm-started frame for split-off cluster
         ``c``; its members gather their goals from it."""
         model, topology = self.model, self.topology
@@ -207,29 +214,49 @@ class DeviceTopology:
         self.row_mass[rows] = mass
         self.mass[c] = mass.sum()
         self.center[c] = self.origin[c] = topology.rest_centers(np.array([c]))[0]
-        scatter(model.cluster_member, rows, members)
-        scatter(model.cluster_member_mass, rows, mass)
-        scatter(model.cluster_rest_offset, rows, rest - self.center[c])
-        scatter(model.cluster_mass, [c], [self.mass[c]])
-        scatter(model.cluster_rest_center, [c], self.center[c][None])
-        scatter(model.cluster_rest_shift, [c], np.zeros((1, 3)))
-        scatter(model.chunk_cluster, chunk_rows, np.full(len(chunk_rows), c))
-        scatter(model.chunk_begin, chunk_rows, chunks["begin"])
-        scatter(model.chunk_end, chunk_rows, chunks["end"])
-        scatter(model.cluster_chunk_begin, [c], chunks["first"][:1])
-        scatter(model.cluster_chunk_end, [c], chunks["first"][1:])
+        writes.add(
+            rows,
+            {
+                model.cluster_member: members,
+                model.cluster_member_mass: mass,
+                model.cluster_rest_offset: rest - self.center[c],
+            },
+        )
         parent = topology.cluster_parent[c]
-        scatter(state.cluster_quaternion, [c], state.cluster_quaternion.to_numpy()[[parent]])
+        writes.add(
+            [c],
+            {
+                model.cluster_mass: [self.mass[c]],
+                model.cluster_rest_center: self.center[c][None],
+                model.cluster_rest_shift: np.zeros((1, 3)),
+                model.cluster_chunk_begin: chunks["first"][:1],
+                model.cluster_chunk_end: chunks["first"][1:],
+                state.cluster_quaternion: state.cluster_quaternion.to_numpy()[[parent]],
+            },
+        )
+        writes.add(
+            chunk_rows,
+            {
+                model.chunk_cluster: np.full(len(chunk_rows), c),
+                model.chunk_begin: chunks["begin"],
+                model.chunk_end: chunks["end"],
+            },
+        )
         model.cluster_total = c + 1
         model.chunk_total += len(chunk_rows)
         membership = rows_of(topology.membership_start, members)
         owner = members[owners_of(topology.membership_start, members)]
         mine = topology.membership_cluster[membership] == c
         membership, owner = membership[mine], owner[mine]
-        scatter(model.membership_cluster, membership, np.full(len(membership), c))
-        scatter(model.membership_offset, membership, topology.rest[owner] - self.center[c])
+        writes.add(
+            membership,
+            {
+                model.membership_cluster: np.full(len(membership), c),
+                model.membership_offset: topology.rest[owner] - self.center[c],
+            },
+        )
 
-    def _write_surface(self, change: TopologyChange):
+    def _write_surface(self, writes: RowWrites, change: TopologyChange):
         """The triangles and vertices ``change`` touched, and the incident rows of
         their vertices."""
         model, v, f = self.model, self.topology.vertices, self.topology.triangles
@@ -243,17 +270,27 @@ class DeviceTopology:
         self.triangles[new] = f["vertices"][new]
         self.triangle_live[new] = True
         self._list(np.repeat(new, 3), self.triangles[new].ravel())
-        scatter(model.surface_triangles, rows, self.triangles[rows])
-        scatter(model.surface_triangle_organ, new, f["organ"][new])
+        writes.add(  # a dead row's organ is its last one: any value will do
+            rows,
+            {
+                model.surface_triangles: self.triangles[rows],
+                model.surface_triangle_organ: f["organ"][rows],
+            },
+        )
         touched = np.union1d(old_vertices.ravel(), self.triangles[new].ravel())
         scatter(model.surface_incident, touched, self.incident[touched])
         changed = np.union1d(np.union1d(vertices, change.dead_vertices), change.rebound_vertices)
-        scatter(model.surface_index, changed, v["index"][changed])
-        scatter(model.surface_weight, changed, v["weight"][changed])
-        scatter(model.surface_cluster, changed, v["cluster"][changed])
         offset = v["rest"][changed] - self.topology.rest[v["index"][changed, 0]]
         offset[v["cluster"][changed] < 0] = 0.0
-        scatter(model.surface_offset, changed, offset)
+        writes.add(
+            changed,
+            {
+                model.surface_index: v["index"][changed],
+                model.surface_weight: v["weight"][changed],
+                model.surface_cluster: v["cluster"][changed],
+                model.surface_offset: offset,
+            },
+        )
 
     def _unlist(self, triangles: np.ndarray, vertices: np.ndarray):
         """Take each triangle out of its vertex's incident row."""
