@@ -25,16 +25,23 @@ def _scatter_groups(
     floats: ti.types.ndarray(),
 ):
     """For each group g = (targets, layout) and each k in [bounds[g], bounds[g + 1]):
-    targets[t][rows[k]] = the columns of row k that layout[t] = (is_int, first column,
-    width; 0 for a scalar field) names, of ``ints`` or ``floats``."""
+    row rows[k] of targets[t] = the columns of row k that layout[t] = (is_int, first
+    column, width; 0 for a scalar field, is_table: a 2-D table field) names, of
+    ``ints`` or ``floats``."""
     ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for k in range(rows.shape[0]):
         for g in ti.static(range(len(groups))):
             if bounds[g] <= k and k < bounds[g + 1]:
                 for t in ti.static(range(len(groups[g][0]))):
                     target = ti.static(groups[g][0][t])
-                    is_int, first, width = ti.static(groups[g][1][t])
-                    if ti.static(width == 0):
+                    is_int, first, width, is_table = ti.static(groups[g][1][t])
+                    if ti.static(is_table):
+                        for a in range(width):  # a loop: a table's row can be wide
+                            if ti.static(is_int):
+                                target[rows[k], a] = ints[k, first + a]
+                            else:
+                                target[rows[k], a] = floats[k, first + a]
+                    elif ti.static(width == 0):
                         if ti.static(is_int):
                             target[rows[k]] = ints[k, first]
                         else:
@@ -48,16 +55,6 @@ def _scatter_groups(
 
 
 @ti.kernel
-def _scatter_table_rows(
-    target: ti.template(), rows: ti.types.ndarray(), values: ti.types.ndarray()
-):
-    """target[rows[k], a] = values[k, a] for a 2-D table field."""
-    ti.loop_config(serialize=ti.static(serial_on_cpu()))
-    for k, a in ti.ndrange(rows.shape[0], values.shape[1]):
-        target[rows[k], a] = values[k, a]
-
-
-@ti.kernel
 def _gather(source: ti.template(), rows: ti.types.ndarray(), out: ti.types.ndarray()):
     """out[k] = source[rows[k]] for a scalar field."""
     ti.loop_config(serialize=ti.static(serial_on_cpu()))
@@ -66,7 +63,7 @@ def _gather(source: ti.template(), rows: ti.types.ndarray(), out: ti.types.ndarr
 
 
 class RowWrites:
-    """Rows of scalar and vector fields (i32 or f32) to write, collected with
+    """Rows of scalar, vector and 2-D table fields (i32 or f32) to write, collected with
     :meth:`add` and written in one launch by :meth:`flush`: what one topology update
     changes. Adds to the same fields join one group, and a group stays when it has no
     rows, so that the launches of one caller compile once. No row of a field may be
@@ -86,7 +83,7 @@ class RowWrites:
         row_parts.append(rows)
         for parts, (target, values) in zip(value_parts, columns.items()):
             dtype = np.int32 if target.dtype == ti.i32 else np.float32
-            width = target.n if hasattr(target, "n") else 1
+            width = _row_width(target)
             parts.append(np.asarray(values, dtype=dtype).reshape(len(rows), width))
 
     def flush(self):
@@ -99,9 +96,9 @@ class RowWrites:
                 values = np.concatenate(parts)
                 dtype = values.dtype.type
                 first = sum(piece.shape[1] for piece in pieces[dtype])
-                layout.append(
-                    (dtype is np.int32, first, values.shape[1] if hasattr(target, "n") else 0)
-                )
+                table = len(target.shape) == 2
+                width = values.shape[1] if table or hasattr(target, "n") else 0
+                layout.append((dtype is np.int32, first, width, table))
                 pieces[dtype].append(values)
             for dtype, block in pieces.items():
                 blocks[dtype].append(
@@ -117,6 +114,13 @@ class RowWrites:
         _scatter_groups(tuple(groups), rows, bounds, ints, floats)
 
 
+def _row_width(target) -> int:
+    """Values in a row of a scalar, vector or 2-D table field."""
+    if len(target.shape) == 2:
+        return target.shape[1]
+    return target.n if hasattr(target, "n") else 1
+
+
 def _stacked(blocks: list[np.ndarray], dtype) -> np.ndarray:
     """The row blocks of the groups one under another, as wide as the widest."""
     width = max(1, max(block.shape[1] for block in blocks))
@@ -129,7 +133,7 @@ def _stacked(blocks: list[np.ndarray], dtype) -> np.ndarray:
 
 
 def scatter_fields(rows, columns: dict):
-    """Write the rows ``rows`` (R,) of several scalar or vector fields in one launch
+    """Write the rows ``rows`` (R,) of several fields in one launch
     (:class:`RowWrites` with one group; nothing is launched for no rows)."""
     writes = RowWrites()
     writes.add(rows, columns)
@@ -140,12 +144,6 @@ def scatter(target, rows, values):
     """Write ``values`` (R,) or (R, n) into the rows ``rows`` (R,) of ``target``, a
     scalar, vector or 2-D table field (converted to its element type; nothing is
     launched for no rows)."""
-    if len(target.shape) == 2:
-        rows = np.ascontiguousarray(rows, dtype=np.int32)
-        if len(rows):
-            dtype = np.int32 if target.dtype == ti.i32 else np.float32
-            _scatter_table_rows(target, rows, np.ascontiguousarray(values, dtype=dtype))
-        return
     scatter_fields(rows, {target: values})
 
 

@@ -37,7 +37,7 @@ from taichi_lap.core.csr import owners_of, rows_of
 from taichi_lap.core.fields import padded_rows
 from taichi_lap.dissection.removal import MutableTopology, TopologyChange
 from taichi_lap.kernels.collision.particle_contact import FREE
-from taichi_lap.kernels.scatter import RowWrites, gather, scatter
+from taichi_lap.kernels.scatter import RowWrites, gather
 from taichi_lap.sim.model import CHUNK, Model, member_chunks
 
 log = logging.getLogger("taichi_lap")
@@ -102,7 +102,8 @@ class DeviceTopology:
         )
         for c in new:
             self._append_cluster(writes, c, state)
-        model.finalize_counts()
+        if new:
+            model.finalize_counts()
         self._write_surface(writes, change)
         writes.flush()
         model.topology_version += 1
@@ -278,7 +279,7 @@ class DeviceTopology:
             },
         )
         touched = np.union1d(old_vertices.ravel(), self.triangles[new].ravel())
-        scatter(model.surface_incident, touched, self.incident[touched])
+        writes.add(touched, {model.surface_incident: self.incident[touched]})
         changed = np.union1d(np.union1d(vertices, change.dead_vertices), change.rebound_vertices)
         offset = v["rest"][changed] - self.topology.rest[v["index"][changed, 0]]
         offset[v["cluster"][changed] < 0] = 0.0
