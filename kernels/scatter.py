@@ -82,9 +82,8 @@ class RowWrites:
         )
         row_parts.append(rows)
         for parts, (target, values) in zip(value_parts, columns.items()):
-            dtype = np.int32 if target.dtype == ti.i32 else np.float32
-            width = _row_width(target)
-            parts.append(np.asarray(values, dtype=dtype).reshape(len(rows), width))
+            values = np.asarray(values, dtype=_host_type(target))
+            parts.append(values.reshape(len(rows), _row_width(target)))
 
     def flush(self):
         """Write what was added, in one launch (none when there are no rows)."""
@@ -114,6 +113,11 @@ class RowWrites:
         _scatter_groups(tuple(groups), rows, bounds, ints, floats)
 
 
+def _host_type(field):
+    """The NumPy type of ``field``'s i32 or f32 elements."""
+    return np.int32 if field.dtype == ti.i32 else np.float32
+
+
 def _row_width(target) -> int:
     """Values in a row of a scalar, vector or 2-D table field."""
     if len(target.shape) == 2:
@@ -132,25 +136,19 @@ def _stacked(blocks: list[np.ndarray], dtype) -> np.ndarray:
     return out
 
 
-def scatter_fields(rows, columns: dict):
-    """Write the rows ``rows`` (R,) of several fields in one launch
-    (:class:`RowWrites` with one group; nothing is launched for no rows)."""
-    writes = RowWrites()
-    writes.add(rows, columns)
-    writes.flush()
-
-
 def scatter(target, rows, values):
     """Write ``values`` (R,) or (R, n) into the rows ``rows`` (R,) of ``target``, a
     scalar, vector or 2-D table field (converted to its element type; nothing is
     launched for no rows)."""
-    scatter_fields(rows, {target: values})
+    writes = RowWrites()
+    writes.add(rows, {target: values})
+    writes.flush()
 
 
 def gather(source, rows) -> np.ndarray:
     """The values of the rows ``rows`` of the scalar field ``source``."""
     rows = np.ascontiguousarray(rows, dtype=np.int32)
-    out = np.zeros(len(rows), dtype=np.int32 if source.dtype == ti.i32 else np.float32)
+    out = np.zeros(len(rows), dtype=_host_type(source))
     if len(rows):
         _gather(source, rows, out)
     return out

@@ -8,7 +8,7 @@ import taichi as ti
 
 from taichi_lap import runtime
 from taichi_lap.core.fields import FieldGroup
-from taichi_lap.kernels.scatter import RowWrites, gather, scatter, scatter_fields
+from taichi_lap.kernels.scatter import RowWrites, gather, scatter
 from tests.archrun import assert_backend_matches_cpu
 
 N = 32
@@ -45,7 +45,9 @@ def written_rows() -> dict:
     f = fields()
     f["mass"].fill(1.0)
     write_update(f, np.array([3, 5]), np.array([7, 9, 11]), np.array([2, 4]))
-    scatter_fields([0], {f["mass"]: [0.5], f["center"]: [[4.0, 5.0, 6.0]]})
+    writes = RowWrites()
+    writes.add([0], {f["mass"]: [0.5], f["center"]: [[4.0, 5.0, 6.0]]})
+    writes.flush()
     scatter(f["table"], [1, 30], [[1, 2, 3, 4, 5, 6], [-1, -1, 7, -1, -1, -1]])
     out = {name: field.to_numpy() for name, field in f.items()}
     out["gathered"] = gather(f["member"], np.array([4, 2, 0]))

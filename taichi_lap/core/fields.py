@@ -50,13 +50,6 @@ class FieldGroup:
         field, read ``f[row, column]``: a row as wide as the data needs compiles as a
         loop, where a vector's components are unrolled), filled with ``values`` (padded
         with zeros) when the group is finalized."""
-        if columns:
-            f = ti.field(dtype)
-            self._specs[id(f)] = (dtype, 0, None, columns)
-            self._builder.dense(ti.ij, (max(int(n), 1), int(columns))).place(f)
-            if values is not None:
-                self.fill(f, values)
-            return f
         if isinstance(dtype, StructType):
             f = dtype.field()
         elif matrix:
@@ -64,10 +57,12 @@ class FieldGroup:
         elif vector:
             f = ti.Vector.field(vector, dtype)
         else:
-            f = ti.field(dtype)
-        self._specs[id(f)] = (dtype, vector, matrix, 0)
+            f = ti.field(dtype)  # scalars, or a table's
+        self._specs[id(f)] = (dtype, vector, matrix, columns)
         if n is None:
             self._builder.place(f)
+        elif columns:
+            self._builder.dense(ti.ij, (max(int(n), 1), int(columns))).place(f)
         else:
             self._builder.dense(ti.i, max(int(n), 1)).place(f)
         if values is not None:
