@@ -5,7 +5,7 @@ import numpy as np
 
 from taichi_lap.core.mesh import tet_volumes
 from taichi_lap.core.topology import OrganRecord
-from taichi_lap.preprocess.tetrahedralize import TET_FACES
+from taichi_lap.core.mesh import TET_FACES
 
 KUHN_TETS = np.array(
     [[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]]

@@ -12,7 +12,7 @@ from taichi_lap.dissection.marching import (
     clipped_triangles,
     wound_triangles,
 )
-from taichi_lap.preprocess.tetrahedralize import TET_FACES
+from taichi_lap.core.mesh import TET_FACES
 from tests.blocks import block
 
 

@@ -6,7 +6,8 @@ import trimesh
 
 from taichi_lap.core.geometry import Solid, TriangleMesh
 from taichi_lap.core.mesh import TET_EDGES, edge_defects, enclosed_volume, tet_volumes, unique_edges
-from taichi_lap.preprocess.tetrahedralize import TET_FACES, TetMesh, points_inside, tetrahedralize
+from taichi_lap.core.mesh import TET_FACES
+from taichi_lap.preprocess.tetrahedralize import TetMesh, points_inside, tetrahedralize
 
 RADIUS = 0.05  # m
 SPACING = RADIUS / 10  # m, cube edge of the lattice

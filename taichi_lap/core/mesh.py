@@ -10,6 +10,8 @@ from taichi_lap.core.csr import incidence
 TRIANGLE_EDGES = np.array([[0, 1], [1, 2], [2, 0]])
 """Edge k of a triangle joins corners k and k + 1."""
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+"""Faces of a tet, each opposite one corner, outward for a positive tet."""
 DEGENERATE_AREA = 1e-12
 """A triangle is degenerate below this area, as a fraction of its mesh's squared
 bounding-box diagonal."""
@@ -74,6 +76,21 @@ def incident_table(triangles: np.ndarray, vertices: int) -> np.ndarray:
     owner = np.repeat(np.arange(vertices), valence)
     table[owner, np.arange(len(rows)) - start[owner]] = rows // 3
     return table
+
+
+def boundary_faces(tets: np.ndarray) -> np.ndarray:
+    """Faces ``(F, 3)`` used by one tet, counter-clockwise seen from outside."""
+    faces = tets[:, TET_FACES].reshape(-1, 3)
+    n = np.int64(tets.max() + 1)
+    if n >= 1 << 21:
+        raise ValueError(f"{n} particles exceed the 2^21 face keys of boundary_faces")
+    ordered = np.sort(faces, axis=1)
+    _, first, count = np.unique(
+        (ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2],
+        return_index=True,
+        return_counts=True,
+    )
+    return faces[np.sort(first[count == 1])]
 
 
 def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

@@ -22,11 +22,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from taichi_lap.core.geometry import SignedDistance, Solid, TriangleMesh
-from taichi_lap.core.mesh import tet_volumes, unique_edges
+from taichi_lap.core.mesh import boundary_faces, tet_volumes, unique_edges
 
-# Outward faces of a positively oriented tet, face k opposite vertex k.
-TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
-"""Faces of a tet, each opposite one corner, outward for a positive tet."""
 # Deterministic ray shift (times the mesh diagonal) so rays miss vertices and edges.
 _RAY_SHIFT = np.array([0.7548776662466927e-9, 0.5698402909980532e-9])
 _SDF_CHUNK = 1 << 20  # points per sdf call
@@ -188,21 +185,6 @@ def _compact(lattice: _Lattice, kept: np.ndarray) -> tuple[np.ndarray, np.ndarra
     rank[used] = np.arange(len(used))
     tets = rank[corners]
     return used, tets[np.argsort(tets.min(axis=1), kind="stable")]
-
-
-def boundary_faces(tets: np.ndarray) -> np.ndarray:
-    """Faces ``(F, 3)`` used by one tet, counter-clockwise seen from outside."""
-    faces = tets[:, TET_FACES].reshape(-1, 3)
-    n = np.int64(tets.max() + 1)
-    if n >= 1 << 21:
-        raise ValueError(f"{n} particles exceed the 2^21 face keys of boundary_faces")
-    ordered = np.sort(faces, axis=1)
-    _, first, count = np.unique(
-        (ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2],
-        return_index=True,
-        return_counts=True,
-    )
-    return faces[np.sort(first[count == 1])]
 
 
 def _repair_ids(lattice: _Lattice, doubled: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -1,0 +1,148 @@
+"""Volumetric cutting by a line blade (seed 000 §5.3, taichi_lap.dissection.tet_cut):
+every separating bit code splits a tet into sub-tets of positive volume that fill it
+and bound two closed pieces; a cut that ends inside a tet leaves it whole until the
+blade passes through; a block and the rectum scene's polyp cut through fall into two
+closed pieces of the original volume."""
+
+import numpy as np
+import pytest
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from taichi_lap.core.mesh import (
+    TET_EDGES,
+    boundary_faces,
+    edge_defects,
+    enclosed_volume,
+    inconsistent_edges,
+    tet_volumes,
+)
+from taichi_lap.dissection.tet_cut import SEPARATING, BladePath, cut_tets
+from tests.blocks import block
+
+CORNERS = np.array([[0.0, 0.0, 0.0], [1.0, 0.1, 0.0], [0.2, 1.0, 0.1], [0.3, 0.2, 1.0]]) * 0.01
+"""A positively oriented tet of about 1 cm."""
+
+
+def slice_path(point, normal, size: float = 0.05, frames: int = 1) -> BladePath:
+    """A blade lying in the plane through ``point`` with ``normal``, drawn across a
+    square of ``size`` [m] in it over ``frames`` frames."""
+    normal = np.asarray(normal, float) / np.linalg.norm(normal)
+    u = np.cross(normal, [0.3, 0.5, 0.7])
+    u /= np.linalg.norm(u)
+    w = np.cross(normal, u)
+    steps = np.linspace(-size, size, frames + 1)
+    return BladePath.of([[point - size * u + s * w, point + size * u + s * w] for s in steps])
+
+
+def pieces(points, tets) -> list[np.ndarray]:
+    """The tets of each connected piece (sharing a vertex)."""
+    owner = np.repeat(np.arange(len(tets)), 4)
+    graph = coo_matrix((np.ones(owner.size), (owner, tets.ravel())), shape=(len(tets), len(points)))
+    joined = (graph @ graph.T).tocoo()
+    _, label = connected_components(joined, directed=False)
+    return [tets[label == k] for k in np.unique(label)]
+
+
+def assert_closed_pieces(points, tets, count: int, volume: float):
+    """``count`` pieces, each bounded by a closed, outward surface enclosing the
+    volume of its tets, all positive, summing to ``volume``."""
+    assert np.all(tet_volumes(points, tets) > 0.0)
+    assert tet_volumes(points, tets).sum() == pytest.approx(volume, rel=1e-9)
+    found = pieces(points, tets)
+    assert len(found) == count
+    for piece in found:
+        surface = boundary_faces(piece)
+        assert edge_defects(surface) == (0, 0)
+        assert inconsistent_edges(surface) == 0
+        assert enclosed_volume(points, surface) == pytest.approx(
+            tet_volumes(points, piece).sum(), rel=1e-9
+        )
+
+
+@pytest.mark.parametrize("code, side", sorted(SEPARATING.items()))
+def test_every_separating_code_splits_a_tet_into_positive_sub_tets_that_fill_it(code, side):
+    tet = np.array([[0, 1, 2, 3]])
+    one = [k for k in range(4) if side >> k & 1]
+    other = [k for k in range(4) if not side >> k & 1]
+    a, b = CORNERS[one].mean(axis=0), CORNERS[other].mean(axis=0)
+    # a plane between the two sides, nearer one of them (the parameters differ)
+    path = slice_path(0.6 * a + 0.4 * b, a - b)
+    cut = cut_tets(CORNERS, tet, path)
+    assert cut.edge_code[0] == code and cut.face_code[0] == 0
+    assert list(cut.removed_tets) == [0]
+    assert len(cut.vertex_parents) == 2 * bin(code).count("1")  # one per side
+    points, tets = cut.apply(CORNERS, tet)
+    # a tet and a prism (1 + 3) or two prisms (3 + 3)
+    assert len(tets) == (4 if len(one) in (1, 3) else 6)
+    assert_closed_pieces(points, tets, 2, tet_volumes(CORNERS, tet)[0])
+    # each new vertex lies on its edge, on the plane, and goes with its side
+    crossed = [TET_EDGES[k] for k in range(6) if code >> k & 1]
+    assert {tuple(sorted(p)) for p in cut.vertex_parents} == {tuple(e) for e in crossed}
+    normal = (a - b) / np.linalg.norm(a - b)
+    np.testing.assert_allclose((points[4:] - (0.6 * a + 0.4 * b)) @ normal, 0.0, atol=1e-12)
+    for vertex, side_corner in zip(range(4, len(points)), cut.vertex_side):
+        piece = next(p for p in pieces(points, tets) if vertex in p)
+        assert side_corner in piece
+
+
+def test_a_cut_ending_inside_a_tet_leaves_it_whole_until_the_blade_passes_through():
+    tet = np.array([[0, 1, 2, 3]])
+    a, b = CORNERS[[0]].mean(axis=0), CORNERS[1:].mean(axis=0)
+    normal = a - b
+    full = slice_path(0.5 * (a + b), normal, size=0.05, frames=10)
+    half = BladePath.of(full.segments[:6])  # the blade stops at the plane's middle
+    cut = cut_tets(CORNERS, tet, half)
+    assert cut.empty and list(cut.deferred) == [0]
+    assert cut.edge_code[0] not in SEPARATING and cut.edge_code[0] != 0
+    assert cut.face_code[0] != 0  # the blade's edge lies across the tet
+    path = half
+    for segment in full.segments[6:]:
+        path = path.then(segment)
+    done = cut_tets(CORNERS, tet, path)
+    assert list(done.removed_tets) == [0] and done.face_code[0] == 0
+    assert_closed_pieces(*done.apply(CORNERS, tet), 2, tet_volumes(CORNERS, tet)[0])
+
+
+def test_a_block_cut_over_frames_falls_into_two_closed_pieces():
+    b = block(3)
+    points, tets = b["rest_positions"], b["tets"]
+    volume = tet_volumes(points, tets).sum()
+    normal = np.array([1.0, 0.2, 0.1])
+    path = slice_path(np.array([0.013, 0.015, 0.014]), normal, size=0.04, frames=12)
+    # partway the cut leaves the tets it ends in whole and the mesh in one piece
+    partial = cut_tets(points, tets, BladePath.of(path.segments[:6]))
+    assert len(partial.deferred) > 0
+    part_points, part_tets = partial.apply(points, tets)
+    assert_closed_pieces(part_points, part_tets, 1, volume)
+    cut = cut_tets(points, tets, path)
+    assert len(cut.deferred) == 0
+    original = len(points)
+    points, tets = cut.apply(points, tets)
+    assert_closed_pieces(points, tets, 2, volume)
+    # the pieces are the two sides of the plane (the block's own vertices; the new ones
+    # are kept EDGE_MARGIN from the ends of their edges)
+    for piece in pieces(points, tets):
+        own = np.unique(piece)
+        side = np.sign((points[own[own < original]] - [0.013, 0.015, 0.014]) @ normal)
+        assert len(np.unique(side)) == 1
+
+
+def test_a_cut_across_the_polyps_stalk_frees_its_head():
+    from scenes.anatomy import GENERATORS, defaults
+    from taichi_lap.preprocess.tetrahedralize import tetrahedralize
+
+    params = defaults("polyp") | {"radius": 0.008, "stalk_radius": 0.003, "stalk_length": 0.006}
+    mesh = tetrahedralize(GENERATORS["polyp"].build(params), 0.0018)
+    points, tets = mesh.particles, mesh.tets
+    volume = tet_volumes(points, tets).sum()
+    low, high = points[:, 1].min(), points[:, 1].max()
+    # a horizontal blade drawn through the stalk a quarter of its length above its foot
+    height = low + 0.25 * params["stalk_length"]
+    path = slice_path(np.array([0.0, height, 0.0]), [0.0, 1.0, 0.0], size=0.02, frames=8)
+    cut = cut_tets(points, tets, path)
+    points, tets = cut.apply(points, tets)
+    assert_closed_pieces(points, tets, 2, volume)
+    head = max(pieces(points, tets), key=len)
+    assert points[np.unique(head), 1].min() >= height - 1e-9
+    assert points[np.unique(head), 1].max() == pytest.approx(high)
