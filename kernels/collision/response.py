@@ -35,7 +35,7 @@ Lengths in metres.
 """
 
 import taichi as ti
-from taichi_lap.kernels.collision.broad_phase import facing
+from taichi_lap.kernels.collision.broad_phase import broad_overlap, facing
 from taichi_lap.kernels.collision.closest_points import segment_triangle
 from taichi_lap.kernels.collision.polygon import add_corner, polygon_pair, polygon_tool
 from taichi_lap.kernels.collision.spheres import (
@@ -204,11 +204,14 @@ def sphere_pair(coll: ti.template(), t, u):
 
 @ti.func
 def tissue_contacts(coll: ti.template(), rows: ti.template(), t, acc, hits):
-    """Bounding-sphere and sphere phases of triangle t against its listed partners;
-    adds t's side of every contact to its corner accumulators. Pairs with a triangle
-    a tool holds (``tool_held``: the tool's contact that holds touched it in this
-    substep) are left out: the tool places it. Returns (bounding, contacts, acc,
-    hits)."""
+    """Bounding-sphere and sphere phases of triangle t against its listed partners
+    whose broad spheres overlap its own in this substep (those
+    :func:`~taichi_lap.kernels.collision.broad_phase.mark_active` made active, whose
+    spheres are up to date; another partner's are from the last substep it was
+    active, or from before a reset); adds t's side of every contact to its corner
+    accumulators. Pairs with a triangle a tool holds (``tool_held``: the tool's
+    contact that holds touched it in this substep) are left out: the tool places it.
+    Returns (bounding, contacts, acc, hits)."""
     bounding, contacts = 0, 0
     moved = ti.Vector([0.0, 0.0, 0.0])  # sphere methods: Σ translations of t
     for m in range(rows.start[t], rows.start[t + 1]):
@@ -218,7 +221,7 @@ def tissue_contacts(coll: ti.template(), rows: ti.template(), t, acc, hits):
             held = coll.tool_held[t] | coll.tool_held[u]
         if (
             not held
-            and coll.tri_live[u] != 0
+            and broad_overlap(coll, t, u, 0.0)
             and bounding_overlap(coll, t, u)
             and facing_pair(coll, t, u)
         ):

@@ -417,8 +417,10 @@ class TissueCollision:
         when listed, wherever the state jumped since, and a triangle that is now
         elsewhere rescans at the next step, as after any drift. With ``pairs`` the
         lists and the hash are forgotten too (every triangle rescans, as in a new
-        collision), and so is the count of oversize steps."""
+        collision), and so is the count of oversize steps. Which triangles a tool's
+        contact held is forgotten (the response reads it in the next step)."""
         self.area_last.fill(0.0)
+        self.tool_held.fill(0)
         if pairs:
             self.ref_sphere.fill(FAR)
             self._hashed = False
