@@ -15,11 +15,23 @@ Cases
   every one: ``validator_failures`` (events whose topology failed it) and the host's
   ``ms_per_update``.
 
+* ``fascia-cut-host`` (issue Dissection II, seed 000 Alg. 3, the host's part only: the
+  sheet is not yet a physical one that follows): the rectum scene's fascia sheet as
+  built (32 x 16 cells over 12 x 6 cm), a blade 0.5 mm thick drawn through it along its
+  attachment at 2 cm/s (0.33 mm a frame): ``ms_per_update`` (:func:`cut_surface` per
+  frame), ``validator_failures`` (frames after which the sheet had a
+  :func:`sheet_problems` problem) and the ``pieces`` at the end (2: the sheet is cut
+  free of its attached strip).
+* ``random-cuts-fascia-host``: random straight cuts through the same sheet, one after
+  the other (random ends beyond its edges, blades 0.2-2 mm thick, tilted up to 35°):
+  ``validator_failures`` and ``ms_per_update``.
+
 Seed 002 reports 98.3 ms per topology update on one CPU thread; the targets of this
 project are a median of at most 10 ms, p95 20 ms, no validator failure and frames
 while cutting at most 1.5 times frames without.
 
 Usage: python perf/bench_topology.py [--quick] [--arch cpu] [--json OUT]
+       [--cases cautery,removals,fascia]
 """
 
 from __future__ import annotations
@@ -119,14 +131,110 @@ def random_removal_cases(detail: float, events: int, seed: int = 0) -> list[dict
     ]
 
 
+def fascia_sheet():
+    """The rectum scene's fascia sheet, placed as the scene places it (points,
+    triangles)."""
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.preprocess.organs import make_geometry
+
+    scene = scene_mod.load("rectum")
+    organ = next(o for o in scene.organs if o.name == "fascia")
+    mesh = make_geometry(organ, "rectum")
+    return mesh.vertices.astype(np.float64), mesh.triangles.astype(np.int64)
+
+
+def blade(radius: float):
+    """A column through the sheet (along y) of ``radius`` [m]: a blade's cutting edge."""
+    from taichi_lap.core.instruments import ToolGeometry, ToolShape
+
+    return ToolGeometry((ToolShape.capsule((0, -0.01, 0), (0, 0.01, 0), radius),), 0.0, 0.0)
+
+
+def pieces(triangles: np.ndarray) -> int:
+    """Connected pieces of a triangle mesh."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]]])
+    n = int(triangles.max()) + 1
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    label = connected_components(graph, directed=False)[1]
+    return len(np.unique(label[triangles[:, 0]]))
+
+
+def fascia_cut_cases(quick: bool, random_cuts: int, seed: int = 0) -> list[dict]:
+    """``fascia-cut-host`` and ``random-cuts-fascia-host`` (module docstring)."""
+    from taichi_lap.dissection.surface_cut import Sweep, cut_surface, sheet_problems
+
+    points, triangles = fascia_sheet()
+    level = np.eye(3)
+    z = points[:, 2].min() + 0.004  # beside the attached strip
+    start, end = points[:, 0].min() - 0.005, points[:, 0].max() + 0.005
+    frames = np.arange(start, end, 0.02 / 60.0)
+    if quick:
+        frames = frames[: len(frames) // 4]
+    times, failures = [], 0
+    for a, b in zip(frames[:-1], frames[1:]):
+        sweep = Sweep.between(blade(0.00025), (a, 0, z), level, (b, 0, z), level)
+        begin = time.perf_counter()
+        cut = cut_surface(points, triangles, sweep)
+        points, triangles = cut.apply(points, triangles)
+        times.append((time.perf_counter() - begin) * 1e3)
+        failures += bool(sheet_problems(points, triangles))
+    params = {
+        "frames": len(times),
+        "speed_m_s": 0.02,
+        "blade_radius_m": 0.00025,
+        "cut_at_z_m": round(float(z), 4),
+        "vertices_after": len(points),
+        "triangles_after": len(triangles),
+        "pieces": pieces(triangles),
+    }
+    out = [
+        result("fascia-cut-host", params, "ms_per_update", times),
+        result("fascia-cut-host", params, "validator_failures", [failures]),
+    ]
+    points, triangles = fascia_sheet()
+    low, high = points.min(axis=0) - 0.01, points.max(axis=0) + 0.01
+    rng = np.random.default_rng(seed)
+    times, failures = [], 0
+    for _ in range(random_cuts):
+        a, b = rng.uniform(low, high, (2, 3))
+        a[1] = b[1] = 0.0
+        tilt = rng.uniform(-0.6, 0.6)
+        lean = np.array(
+            [[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)], [0, np.sin(tilt), np.cos(tilt)]]
+        )
+        sweep = Sweep.between(blade(rng.uniform(0.0001, 0.001)), a, lean, b, lean)
+        begin = time.perf_counter()
+        cut = cut_surface(points, triangles, sweep)
+        points, triangles = cut.apply(points, triangles)
+        times.append((time.perf_counter() - begin) * 1e3)
+        failures += bool(sheet_problems(points, triangles))
+        if not len(triangles):
+            break
+    params = {"cuts": len(times), "seed": seed, "triangles_after": len(triangles)}
+    out += [
+        result("random-cuts-fascia-host", params, "validator_failures", [failures]),
+        result("random-cuts-fascia-host", params, "ms_per_update", times),
+    ]
+    return out
+
+
 def main():
-    args = arguments("topology")
+    args = arguments("topology", ("cautery", "removals", "fascia"))
     from taichi_lap import runtime
 
     runtime.init(args.arch)
     detail = 0.3 if args.quick else 1.0
-    results = cautery_cases(detail)
-    results += random_removal_cases(detail, 100 if args.quick else (args.runs or 1000))
+    events = 100 if args.quick else (args.runs or 1000)
+    results = []
+    if "cautery" in args.cases:
+        results += cautery_cases(detail)
+    if "removals" in args.cases:
+        results += random_removal_cases(detail, events)
+    if "fascia" in args.cases:
+        results += fascia_cut_cases(args.quick, events)
     report("topology", args.arch, results, args.json)
 
 

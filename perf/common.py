@@ -47,13 +47,26 @@ def machine(arch: str = "cpu") -> dict:
     return {"cpu": cpu, "cores": os.cpu_count(), "gpu": gpu() if arch != "cpu" else None}
 
 
-def arguments(name: str) -> argparse.Namespace:
+def arguments(name: str, groups: tuple[str, ...] = ()) -> argparse.Namespace:
+    """The options every benchmark takes; with ``groups`` (names of its groups of
+    cases) also ``--cases``, a comma-separated choice of them (default: all)."""
     parser = argparse.ArgumentParser(description=f"{name} benchmark")
+    if groups:
+        parser.add_argument(
+            "--cases",
+            default=",".join(groups),
+            type=lambda text: text.split(","),
+            help=f"groups of cases to run, comma-separated, of: {', '.join(groups)}",
+        )
     parser.add_argument("--quick", action="store_true", help="small sizes, under a minute")
     parser.add_argument("--arch", default="cpu", choices=("cpu", "cuda", "vulkan", "metal"))
     parser.add_argument("--json", default=f"perf/results/{name}.json", help="output file")
     parser.add_argument("--runs", type=int, default=None, help="timed runs per case")
-    return parser.parse_args()
+    args = parser.parse_args()
+    unknown = set(getattr(args, "cases", ())) - set(groups)
+    if unknown:
+        parser.error(f"--cases: unknown {', '.join(sorted(unknown))}; of {', '.join(groups)}")
+    return args
 
 
 def timed(func, runs: int, warmup: int = 2) -> list[float]:

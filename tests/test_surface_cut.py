@@ -12,8 +12,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from taichi_lap.core.instruments import ToolGeometry, ToolShape
-from taichi_lap.core.mesh import degenerate_triangles, inconsistent_edges, unique_edges
-from taichi_lap.dissection.surface_cut import V_THRESHOLD, Sweep, cut_surface
+from taichi_lap.core.mesh import unique_edges
+from taichi_lap.dissection.surface_cut import V_THRESHOLD, Sweep, cut_surface, sheet_problems
 
 CM = 0.01
 LEVEL = np.eye(3)
@@ -58,11 +58,7 @@ def pieces(points, triangles) -> list[float]:
 
 def assert_valid(points, triangles):
     """An oriented, edge-manifold mesh (boundaries allowed) with no degenerate face."""
-    _, uses = unique_edges(triangles, return_counts=True)
-    assert not np.any(uses > 2), "an edge in more than two triangles"
-    assert inconsistent_edges(triangles) == 0, "neighbouring triangles turn unlike"
-    assert not degenerate_triangles(points, triangles).any()
-    assert np.isfinite(points[triangles]).all()
+    assert sheet_problems(points, triangles) == []
 
 
 def cut_along(points, triangles, start, end, frames: int, radius: float = 0.05 * CM):
@@ -80,7 +76,7 @@ def test_a_blade_drawn_across_a_sheet_leaves_exactly_the_expected_faces():
     cut = cut_surface(points, triangles, sweep((1.5 * CM, 0, -CM), (1.5 * CM, 0, 5 * CM)))
     # the column of cells between x = 1 and 2 cm: both of their triangles are replaced
     strip = np.flatnonzero(np.all(np.isin(points[triangles, 0], (CM, 2 * CM)), axis=1))
-    assert sorted(cut.removed_triangles) == sorted(strip)
+    assert sorted(cut.removed) == sorted(strip)
     # every edge across x = 1.5 cm (5 along x, 4 diagonals) is cut at its median point,
     # into one copy per side; nothing lies inside the thin sweep
     assert len(cut.removed_vertices) == 0
@@ -94,7 +90,7 @@ def test_a_blade_drawn_across_a_sheet_leaves_exactly_the_expected_faces():
     sides = points[cut.vertex_side, 0]
     assert np.count_nonzero(sides < 1.5 * CM) == np.count_nonzero(sides > 1.5 * CM) == 9
     # each strip triangle becomes its corner on one side and two on the other
-    assert len(cut.added_triangles) == 3 * len(strip)
+    assert len(cut.added) == 3 * len(strip)
     after_points, after = cut.apply(points, triangles)
     assert_valid(after_points, after)
     assert pieces(after_points, after) == pytest.approx([2.5 * 4 * CM**2, 1.5 * 4 * CM**2])
@@ -194,6 +190,18 @@ def test_a_cut_that_stops_inside_a_face_ends_at_its_tip_and_goes_on_from_it():
     points, triangles = cut_along(points, triangles, stop, (1.5 * CM, 0, 5 * CM), 6)
     assert_valid(points, triangles)
     assert len(pieces(points, triangles)) == 2
+
+
+def test_sheet_problems_name_what_is_wrong():
+    points, triangles = sheet(2)
+    assert sheet_problems(points, triangles) == []
+    flipped = triangles.copy()
+    flipped[0] = flipped[0, ::-1]
+    assert "turn unlike" in " ".join(sheet_problems(points, flipped))
+    fin = np.concatenate([triangles, [[4, 0, 2]]])  # a third triangle on edge 0-4
+    assert "more than two" in " ".join(sheet_problems(points, fin))
+    flat = np.concatenate([triangles, [[0, 1, 2]]])
+    assert "degenerate" in " ".join(sheet_problems(points, flat))
 
 
 def test_new_vertices_lie_on_their_parents_at_rest_and_deformed():

@@ -70,7 +70,7 @@ def test_every_separating_code_splits_a_tet_into_positive_sub_tets_that_fill_it(
     path = slice_path(0.6 * a + 0.4 * b, a - b)
     cut = cut_tets(CORNERS, tet, path)
     assert cut.edge_code[0] == code and cut.face_code[0] == 0
-    assert list(cut.removed_tets) == [0]
+    assert list(cut.removed) == [0]
     assert len(cut.vertex_parents) == 2 * bin(code).count("1")  # one per side
     points, tets = cut.apply(CORNERS, tet)
     # a tet and a prism (1 + 3) or two prisms (3 + 3)
@@ -100,7 +100,7 @@ def test_a_cut_ending_inside_a_tet_leaves_it_whole_until_the_blade_passes_throug
     for segment in full.segments[6:]:
         path = path.then(segment)
     done = cut_tets(CORNERS, tet, path)
-    assert list(done.removed_tets) == [0] and done.face_code[0] == 0
+    assert list(done.removed) == [0] and done.face_code[0] == 0
     assert_closed_pieces(*done.apply(CORNERS, tet), 2, tet_volumes(CORNERS, tet)[0])
 
 

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from taichi_lap.core.instruments import ToolGeometry, tool_distance
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import degenerate_triangles, inconsistent_edges, unique_edges
 
 V_THRESHOLD = 0.15
 """A sub-face smaller than this fraction of its parent's area is deleted (seed 000 §5.2
@@ -158,44 +158,50 @@ class Sweep:
 
 
 @dataclass(frozen=True)
-class SurfaceCut:
-    """What a cut changes in a triangle mesh of V vertices (:func:`cut_surface`).
-
-    ``removed_triangles`` (R,) rows of the input triangles that are deleted or
-    replaced; ``added_triangles`` (K, 3), orientation kept, numbering the input
-    vertices as before and new vertex j as V + j; new vertex j lies at
-    ``vertex_weights[j] @ x[vertex_parents[j]]`` for any per-vertex quantity x
-    (positions, rest positions, velocities); ``vertex_side[j]`` is the input vertex
-    whose side of the cut a split copy belongs to (-1 for vertices the cut does not
-    split); ``removed_vertices`` the input vertices inside V_sweep (no face uses them
-    after); ``removed_edges`` (E, 2) the input edges, sorted i < j, that no face uses
-    after the cut (the springs, distance constraints and struts across it)."""
+class MeshCut:
+    """What a cut changes in a mesh of ``vertex_count`` vertices: the rows of its
+    elements (triangles or tets) ``removed`` (R,), deleted or replaced, and the
+    elements ``added`` (K, 3 or 4), numbering the input vertices as before and new
+    vertex j as ``vertex_count + j``; new vertex j lies at ``vertex_weights[j] @
+    x[vertex_parents[j]]`` for any per-vertex quantity x (positions, rest positions,
+    velocities); ``vertex_side[j]`` is the input vertex whose side of the cut a split
+    copy belongs to (-1 for vertices the cut does not split)."""
 
     vertex_count: int
-    removed_triangles: np.ndarray
-    added_triangles: np.ndarray
+    removed: np.ndarray
+    added: np.ndarray
     vertex_parents: np.ndarray
     vertex_weights: np.ndarray
     vertex_side: np.ndarray
-    removed_vertices: np.ndarray
-    removed_edges: np.ndarray
 
     @property
     def empty(self) -> bool:
-        return not len(self.removed_triangles)
+        return not len(self.removed)
 
     def new_values(self, values: np.ndarray) -> np.ndarray:
         """A per-vertex quantity (V, ...) at the new vertices (N, ...)."""
         values = np.asarray(values)
         return np.einsum("nk,nk...->n...", self.vertex_weights, values[self.vertex_parents])
 
-    def apply(self, points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def apply(self, points: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The cut mesh: the input points followed by the new vertices, and the kept
-        triangles followed by the added ones."""
-        keep = np.ones(len(triangles), dtype=bool)
-        keep[self.removed_triangles] = False
+        elements followed by the added ones."""
+        keep = np.ones(len(elements), dtype=bool)
+        keep[self.removed] = False
         points = np.concatenate([np.asarray(points, np.float64), self.new_values(points)])
-        return points, np.concatenate([np.asarray(triangles)[keep], self.added_triangles])
+        return points, np.concatenate([np.asarray(elements)[keep], self.added])
+
+
+@dataclass(frozen=True)
+class SurfaceCut(MeshCut):
+    """A surface cut (:func:`cut_surface`; :class:`MeshCut`, its triangles keep their
+    orientation), with ``removed_vertices`` the input vertices inside V_sweep (no face
+    uses them after) and ``removed_edges`` (E, 2) the input edges, sorted i < j, that
+    no face uses after the cut (the springs, distance constraints and struts across
+    it)."""
+
+    removed_vertices: np.ndarray
+    removed_edges: np.ndarray
 
 
 def cut_surface(
@@ -280,6 +286,29 @@ def _triangle_distance(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     unit = normal / np.maximum(norm, 1e-30)[:, None]
     plane = np.abs(np.einsum("nqj,qj->nq", x - triangles[:, 0], unit))
     return np.where(within & flat, np.minimum(out, plane), out)
+
+
+def sheet_problems(points: np.ndarray, triangles: np.ndarray) -> list[str]:
+    """What makes a cut surface invalid (empty when it is valid): an edge in more
+    than two triangles, neighbouring triangles that run their edge alike (turn
+    unlike), degenerate triangles, positions that are not finite. Boundaries are
+    allowed: a cut sheet has them."""
+    points = np.asarray(points, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    if not len(triangles):
+        return []
+    problems = []
+    _, uses = unique_edges(triangles, return_counts=True)
+    if np.any(uses > 2):
+        problems.append(f"{int(np.sum(uses > 2))} edges in more than two triangles")
+    if inconsistent_edges(triangles):
+        problems.append(f"{inconsistent_edges(triangles)} edges whose triangles turn unlike")
+    degenerate = int(degenerate_triangles(points, triangles).sum())
+    if degenerate:
+        problems.append(f"{degenerate} degenerate triangles")
+    if not np.isfinite(points[triangles]).all():
+        problems.append("positions that are not finite")
+    return problems
 
 
 def _no_cut(vertex_count: int) -> SurfaceCut:

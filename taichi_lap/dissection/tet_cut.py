@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_lap.core.mesh import TET_EDGES, TET_FACES, tet_volumes, unique_edges
+from taichi_lap.dissection.surface_cut import MeshCut
 
 EDGE_MARGIN = 0.05
 """An intersection is kept this fraction of its edge away from the edge's ends, so no
@@ -142,40 +143,15 @@ def intersection_codes(
 
 
 @dataclass(frozen=True)
-class TetCut:
-    """What a cut changes in a tet mesh of V vertices (:func:`cut_tets`):
-    ``removed_tets`` (R,) rows replaced by ``added_tets`` (K, 4) (positively oriented;
-    new vertex j numbered V + j), new vertex j at ``vertex_weights[j] @
-    x[vertex_parents[j]]`` on the side of input vertex ``vertex_side[j]``; the
-    ``edge_code`` and ``face_code`` of every input tet, and which tets the cut
-    reached but left whole (``deferred``: it ends inside them or beside them)."""
+class TetCut(MeshCut):
+    """A volumetric cut (:func:`cut_tets`; :class:`MeshCut`, its added tets
+    positively oriented), with the ``edge_code`` and ``face_code`` of every input tet
+    and the tets the cut reached but left whole (``deferred``: it ends inside them or
+    beside them)."""
 
-    vertex_count: int
-    removed_tets: np.ndarray
-    added_tets: np.ndarray
-    vertex_parents: np.ndarray
-    vertex_weights: np.ndarray
-    vertex_side: np.ndarray
     edge_code: np.ndarray
     face_code: np.ndarray
     deferred: np.ndarray
-
-    @property
-    def empty(self) -> bool:
-        return not len(self.removed_tets)
-
-    def new_values(self, values: np.ndarray) -> np.ndarray:
-        """A per-vertex quantity (V, ...) at the new vertices (N, ...)."""
-        values = np.asarray(values)
-        return np.einsum("nk,nk...->n...", self.vertex_weights, values[self.vertex_parents])
-
-    def apply(self, points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The cut mesh: the input points then the new ones, the kept tets then the
-        added ones."""
-        keep = np.ones(len(tets), dtype=bool)
-        keep[self.removed_tets] = False
-        points = np.concatenate([np.asarray(points, np.float64), self.new_values(points)])
-        return points, np.concatenate([np.asarray(tets)[keep], self.added_tets])
 
 
 def cut_tets(
