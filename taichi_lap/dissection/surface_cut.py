@@ -31,6 +31,7 @@ an earlier cut's vertices are vertices like any other.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -336,6 +337,8 @@ def _classify_edges(points, edges, inside, sweep) -> tuple[np.ndarray, np.ndarra
     first = np.concatenate([[0], np.cumsum(per_edge)[:-1]])
     s = (np.arange(len(owner)) - first[owner]) / (per_edge[owner] - 1)
     inside_sample = sweep.distance(a[owner] + s[:, None] * (b - a)[owner]) < -sweep.tolerance
+    last = first + per_edge - 1  # the ends as the vertices were judged (b may round)
+    inside_sample[first], inside_sample[last] = inside[edges[:, 0]], inside[edges[:, 1]]
     change = np.flatnonzero((inside_sample[:-1] != inside_sample[1:]) & (owner[:-1] == owner[1:]))
     t = _bisect(a[owner[change]], b[owner[change]], s[change], s[change + 1], sweep)
     crossings = np.split(t, np.searchsorted(owner[change], np.arange(1, len(edges))))
@@ -355,17 +358,28 @@ def _classify_edges(points, edges, inside, sweep) -> tuple[np.ndarray, np.ndarra
     return kind, t_edge
 
 
-def _bisect(a, b, s_out, s_in, sweep, steps: int = 16) -> np.ndarray:
+def _bisect(a, b, s_out, s_in, sweep, steps: int = 6) -> np.ndarray:
     """The parameters in [s_out, s_in] where the segments a-b cross the sweep's
-    boundary (the two ends on either side), by bisection."""
+    boundary (the two ends on either side): ``steps`` bisections, then the root of
+    the distance interpolated linearly over the last interval (exact where the
+    sweep's boundary is flat)."""
+    level = -sweep.tolerance
+
+    def offset(s):
+        return sweep.distance(a + s[:, None] * (b - a)) - level
+
     lo, hi = s_out.copy(), s_in.copy()
-    side_lo = sweep.distance(a + lo[:, None] * (b - a)) < -sweep.tolerance
+    f_lo, f_hi = offset(lo), offset(hi)
     for _ in range(steps):
         mid = 0.5 * (lo + hi)
-        same = (sweep.distance(a + mid[:, None] * (b - a)) < -sweep.tolerance) == side_lo
-        lo = np.where(same, mid, lo)
-        hi = np.where(same, hi, mid)
-    return 0.5 * (lo + hi)
+        f_mid = offset(mid)
+        same = (f_mid < 0.0) == (f_lo < 0.0)
+        lo, f_lo = np.where(same, mid, lo), np.where(same, f_mid, f_lo)
+        hi, f_hi = np.where(same, hi, mid), np.where(same, f_hi, f_mid)
+    span = f_lo - f_hi
+    safe = np.abs(span) > 1e-30
+    share = np.clip(np.where(safe, f_lo / np.where(safe, span, 1.0), 0.5), 0.0, 1.0)
+    return lo + share * (hi - lo)
 
 
 def _tips(points, tri, sweep, candidate) -> np.ndarray:
@@ -464,7 +478,7 @@ class _Builder:
                 np.empty(0, np.int64),
             )
         x = np.array([[self._position(p) for p in c[:3]] for c in self.candidates])
-        area = np.array([_area(c) for c in x])
+        area = 0.5 * np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1)
         large = [
             c[3] is None or a >= self.v_threshold * c[3] for c, a in zip(self.candidates, area)
         ]
@@ -513,46 +527,66 @@ def _runs(cycle: list) -> list[list]:
 def _triangulate(polygon: np.ndarray) -> list[tuple[int, int, int]]:
     """Ear clipping of a convex polygon (n, 3) whose points may be collinear (points
     on one edge of the parent face): each ear has an area and leaves a polygon that
-    still has one; the ear with the largest smallest angle first."""
-    order = list(range(len(polygon)))
-    total = _polygon_area(polygon)
-    eps = 1e-9 * max(total, 1e-30)
+    still has one; the ear with the largest smallest angle first. (A few points: plain
+    Python arithmetic, faster than NumPy's at this size.)"""
+    x = [tuple(map(float, p)) for p in polygon]
+    order = list(range(len(x)))
+    eps = 1e-9 * max(_polygon_area([x[i] for i in order]), 1e-30)
     out = []
     while len(order) > 3:
         best = None
         for pos in range(len(order)):
             i, j, k = order[pos - 1], order[pos], order[(pos + 1) % len(order)]
-            if _area(polygon[[i, j, k]]) <= eps:
+            if _area((x[i], x[j], x[k])) <= eps:
                 continue
             rest = order[:pos] + order[pos + 1 :]
-            if _polygon_area(polygon[rest]) <= eps:
+            if _polygon_area([x[r] for r in rest]) <= eps:
                 continue
-            quality = _smallest_angle(polygon[[i, j, k]])
+            quality = _smallest_angle((x[i], x[j], x[k]))
             if best is None or quality > best[0]:
                 best = (quality, pos, (i, j, k))
         if best is None:
             return out
         out.append(best[2])
         order.pop(best[1])
-    if _area(polygon[order]) > eps:
+    if _area(tuple(x[i] for i in order)) > eps:
         out.append(tuple(order))
     return out
 
 
-def _area(x: np.ndarray) -> float:
-    return 0.5 * float(np.linalg.norm(np.cross(x[1] - x[0], x[2] - x[0])))
+def _sub(u, v):
+    return (u[0] - v[0], u[1] - v[1], u[2] - v[2])
 
 
-def _polygon_area(x: np.ndarray) -> float:
-    return 0.5 * float(np.linalg.norm(np.sum(np.cross(x - x[0], np.roll(x, -1, axis=0) - x[0]), 0)))
+def _cross(u, v):
+    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
 
 
-def _smallest_angle(x: np.ndarray) -> float:
+def _norm(u) -> float:
+    return math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+
+
+def _area(x) -> float:
+    """Area of the triangle of three points."""
+    return 0.5 * _norm(_cross(_sub(x[1], x[0]), _sub(x[2], x[0])))
+
+
+def _polygon_area(x) -> float:
+    """Area of a planar polygon of points."""
+    total = (0.0, 0.0, 0.0)
+    for k in range(1, len(x) - 1):
+        c = _cross(_sub(x[k], x[0]), _sub(x[k + 1], x[0]))
+        total = (total[0] + c[0], total[1] + c[1], total[2] + c[2])
+    return 0.5 * _norm(total)
+
+
+def _smallest_angle(x) -> float:
+    """The smallest angle of the triangle of three points."""
     angles = []
     for k in range(3):
-        u, v = x[(k + 1) % 3] - x[k], x[(k + 2) % 3] - x[k]
-        cos = u @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-30)
-        angles.append(np.arccos(np.clip(cos, -1.0, 1.0)))
+        u, v = _sub(x[(k + 1) % 3], x[k]), _sub(x[(k + 2) % 3], x[k])
+        cos = (u[0] * v[0] + u[1] * v[1] + u[2] * v[2]) / max(_norm(u) * _norm(v), 1e-30)
+        angles.append(math.acos(min(1.0, max(-1.0, cos))))
     return min(angles)
 
 
