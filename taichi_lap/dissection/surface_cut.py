@@ -3,9 +3,10 @@ Fig. 12-13), on the host.
 
 The instrument's cutting part is a union of implicit shapes
 (:class:`~taichi_lap.core.instruments.ToolGeometry`). :class:`Sweep` connects its
-poses of two frames into the sweep volume V_sweep: the union of the shapes at poses
-interpolated so finely that no point of them moves more than half the thinnest shape
-between two (seed 000 §5.1, "connecting the implicit shapes at different times").
+poses of two frames into the sweep volume V_sweep (seed 000 §5.1, "connecting the
+implicit shapes at different times"): a round shape (capsule, sphere) sweeps the
+points within its radius of the surface its axis traces, exact for a translation and
+sliced finely for a turn; a box sweeps the union of its interpolated poses.
 
 :func:`cut_surface` then runs Algorithm 3 on a triangle mesh:
 
@@ -21,7 +22,10 @@ between two (seed 000 §5.1, "connecting the implicit shapes at different times"
   continuously over frames at any mesh resolution;
 * each intersected face is subdivided at these points (Fig. 13 c; lines 6-8), and a
   sub-face is deleted when its centroid is inside V_sweep or its area is below
-  ``v_threshold`` of its parent's (lines 9-15; seed 000 §7: v_threshold = 0.15).
+  ``v_threshold`` of its parent's (lines 9-15; seed 000 §7: v_threshold = 0.15). The
+  fan around a tip is kept whatever its size: its thin triangles are where the cut
+  goes on next frame, and deleting them frame after frame opened holes wider than the
+  blade (our choice; the paper does not say how a cut that ends in a face is held).
 
 The result (:class:`SurfaceCut`) names the faces it replaces, the new faces, and each
 new vertex as a weighted sum of its parent face's corners, so positions, rest
