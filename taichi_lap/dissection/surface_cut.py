@@ -230,11 +230,12 @@ def cut_surface(
     tolerance = sweep.tolerance
 
     used = np.unique(tri)
-    inside = np.zeros(len(points), dtype=bool)
-    inside[used] = sweep.distance(points[used]) < -tolerance
+    distance = np.full(len(points), np.inf)
+    distance[used] = sweep.distance(points[used])
+    inside = distance + tolerance < 0.0  # as _classify_edges judges the edges' ends
     edges, edge_of = unique_edges(tri, return_inverse=True)
     face_edges = edge_of.reshape(-1, 3)
-    kind, t_edge = _classify_edges(points, edges, inside, sweep)
+    kind, t_edge = _classify_edges(points, edges, distance, sweep)
 
     face_inside = inside[tri]
     corners_in = face_inside.sum(axis=1)
@@ -306,8 +307,9 @@ def sheet_problems(points: np.ndarray, triangles: np.ndarray) -> list[str]:
     _, uses = unique_edges(triangles, return_counts=True)
     if np.any(uses > 2):
         problems.append(f"{int(np.sum(uses > 2))} edges in more than two triangles")
-    if inconsistent_edges(triangles):
-        problems.append(f"{inconsistent_edges(triangles)} edges whose triangles turn unlike")
+    flipped = inconsistent_edges(triangles)
+    if flipped:
+        problems.append(f"{flipped} edges whose triangles turn unlike")
     degenerate = int(degenerate_triangles(points, triangles).sum())
     if degenerate:
         problems.append(f"{degenerate} degenerate triangles")
@@ -330,24 +332,39 @@ def _no_cut(vertex_count: int) -> SurfaceCut:
     )
 
 
-def _classify_edges(points, edges, inside, sweep) -> tuple[np.ndarray, np.ndarray]:
+def _classify_edges(points, edges, distance, sweep) -> tuple[np.ndarray, np.ndarray]:
     """Each edge's :data:`_NONE` .. :data:`_MEDIAN` and the parameter t along (i, j) of
     its point: the boundary intersection nearest the outside end, or the median of
-    the boundary intersections of an edge the sweep passes through (Fig. 13 b)."""
+    the boundary intersections of an edge the sweep passes through (Fig. 13 b).
+    ``distance`` holds the vertices' distances to the sweep; the edges are sampled
+    between their ends at half the thinnest shape."""
     a, b = points[edges[:, 0]], points[edges[:, 1]]
     length = np.linalg.norm(b - a, axis=1)
     per_edge = np.clip(np.ceil(length / (0.5 * sweep.thickness)).astype(int) + 1, 2, 512)
     owner = np.repeat(np.arange(len(edges)), per_edge)
     first = np.concatenate([[0], np.cumsum(per_edge)[:-1]])
+    last = first + per_edge - 1
     s = (np.arange(len(owner)) - first[owner]) / (per_edge[owner] - 1)
-    inside_sample = sweep.distance(a[owner] + s[:, None] * (b - a)[owner]) < -sweep.tolerance
-    last = first + per_edge - 1  # the ends as the vertices were judged (b may round)
-    inside_sample[first], inside_sample[last] = inside[edges[:, 0]], inside[edges[:, 1]]
+    level = np.empty(len(owner))  # distance - (-tolerance): negative inside
+    level[first], level[last] = distance[edges[:, 0]], distance[edges[:, 1]]
+    between = np.ones(len(owner), dtype=bool)
+    between[first] = between[last] = False
+    level[between] = sweep.distance(a[owner[between]] + s[between, None] * (b - a)[owner[between]])
+    level += sweep.tolerance
+    inside_sample = level < 0.0
     change = np.flatnonzero((inside_sample[:-1] != inside_sample[1:]) & (owner[:-1] == owner[1:]))
-    t = _bisect(a[owner[change]], b[owner[change]], s[change], s[change + 1], sweep)
+    t = _bisect(
+        a[owner[change]],
+        b[owner[change]],
+        s[change],
+        s[change + 1],
+        level[change],
+        level[change + 1],
+        sweep,
+    )
     crossings = np.split(t, np.searchsorted(owner[change], np.arange(1, len(edges))))
 
-    ends_in = inside[edges]
+    ends_in = inside_sample[np.stack([first, last], axis=1)]
     kind = np.full(len(edges), _NONE)
     t_edge = np.zeros(len(edges))
     kind[ends_in.all(axis=1)] = _INSIDE
@@ -362,21 +379,15 @@ def _classify_edges(points, edges, inside, sweep) -> tuple[np.ndarray, np.ndarra
     return kind, t_edge
 
 
-def _bisect(a, b, s_out, s_in, sweep, steps: int = 6) -> np.ndarray:
-    """The parameters in [s_out, s_in] where the segments a-b cross the sweep's
-    boundary (the two ends on either side): ``steps`` bisections, then the root of
-    the distance interpolated linearly over the last interval (exact where the
-    sweep's boundary is flat)."""
-    level = -sweep.tolerance
-
-    def offset(s):
-        return sweep.distance(a + s[:, None] * (b - a)) - level
-
-    lo, hi = s_out.copy(), s_in.copy()
-    f_lo, f_hi = offset(lo), offset(hi)
+def _bisect(a, b, s_lo, s_hi, f_lo, f_hi, sweep, steps: int = 6) -> np.ndarray:
+    """The parameters in [s_lo, s_hi] where the segments a-b cross the sweep's
+    boundary, given f, the distance less the inside level (-tolerance), at both ends
+    (of unlike signs): ``steps`` bisections, then the root of f interpolated linearly
+    over the last interval (exact where the sweep's boundary is flat)."""
+    lo, hi = s_lo.copy(), s_hi.copy()
     for _ in range(steps):
         mid = 0.5 * (lo + hi)
-        f_mid = offset(mid)
+        f_mid = sweep.distance(a + mid[:, None] * (b - a)) + sweep.tolerance
         same = (f_mid < 0.0) == (f_lo < 0.0)
         lo, f_lo = np.where(same, mid, lo), np.where(same, f_mid, f_lo)
         hi, f_hi = np.where(same, hi, mid), np.where(same, f_hi, f_mid)
@@ -437,19 +448,25 @@ class _Builder:
         self.parents: list[tuple[int, int, int]] = []
         self.weights: list[tuple[float, float, float]] = []
         self.side: list[int] = []
-        self.candidates: list[tuple[tuple, tuple, tuple, float]] = []
+        self.candidates: list[tuple[tuple, tuple, tuple, float | None]] = []  # 3 items, parent area
+
+    def _item(self, key: tuple, parents: tuple, weights: tuple) -> tuple:
+        """A point of a face's boundary cycle: its key, parents, weights and position."""
+        return key, parents, weights, np.asarray(weights) @ self.points[list(parents)]
 
     def _edge_point(self, e: int, side: int) -> tuple:
         i, j = self.edges[e]
         t = self.t_edge[e]
-        return ("e", int(e), int(side)), (int(i), int(j), int(i)), (1.0 - t, t, 0.0)
+        return self._item(("e", int(e), int(side)), (int(i), int(j), int(i)), (1.0 - t, t, 0.0))
 
     def subdivide(self, f, corners, face_edges, kind, split, inside, tip_bary):
         """Queue the sub-faces of face ``f`` (its corners, its edges' indices)."""
-        cycle = []  # (key, parents, weights) or None where the cut separates neighbours
+        cycle = []  # items (_item), None where the cut separates neighbours, "in"
         for k in range(3):
             v, w = int(corners[k]), int(corners[(k + 1) % 3])
-            cycle.append((("v", v), (v, v, v), (1.0, 0.0, 0.0)) if not inside[v] else "in")
+            cycle.append(
+                self._item(("v", v), (v, v, v), (1.0, 0.0, 0.0)) if not inside[v] else "in"
+            )
             e = int(face_edges[k])
             if kind[e] == _CROSSED:
                 cycle.append(self._edge_point(e, w if inside[v] else v))
@@ -459,18 +476,14 @@ class _Builder:
                 cycle.append(self._edge_point(e, -1))
         area = _area(self.points[corners])
         if np.isfinite(tip_bary[0]):
-            tip = (("t", int(f)), tuple(int(c) for c in corners), tuple(tip_bary))
+            tip = self._item(("t", int(f)), tuple(int(c) for c in corners), tuple(tip_bary))
             for p, q in zip(cycle, cycle[1:] + cycle[:1]):
                 if p not in (None, "in") and q not in (None, "in"):
                     self.candidates.append((p, q, tip, None))
             return
         for run in _runs(cycle):
-            for i, j, k in _triangulate(np.array([self._position(p) for p in run])):
+            for i, j, k in _triangulate([p[3] for p in run]):
                 self.candidates.append((run[i], run[j], run[k], area))
-
-    def _position(self, item) -> np.ndarray:
-        _, parents, weights = item
-        return np.asarray(weights) @ self.points[list(parents)]
 
     def finish(self):
         """The kept sub-faces numbered after the input vertices, and the new vertices."""
@@ -481,7 +494,7 @@ class _Builder:
                 np.empty((0, 3)),
                 np.empty(0, np.int64),
             )
-        x = np.array([[self._position(p) for p in c[:3]] for c in self.candidates])
+        x = np.array([[p[3] for p in c[:3]] for c in self.candidates])
         area = 0.5 * np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1)
         large = [
             c[3] is None or a >= self.v_threshold * c[3] for c, a in zip(self.candidates, area)
@@ -499,7 +512,7 @@ class _Builder:
         )
 
     def _vertex(self, item) -> int:
-        key, parents, weights = item
+        key, parents, weights, _ = item
         if key[0] == "v":
             return key[1]
         if key not in self.keys:
@@ -528,8 +541,8 @@ def _runs(cycle: list) -> list[list]:
     return [r for r in runs if len(r) >= 3]
 
 
-def _triangulate(polygon: np.ndarray) -> list[tuple[int, int, int]]:
-    """Ear clipping of a convex polygon (n, 3) whose points may be collinear (points
+def _triangulate(polygon) -> list[tuple[int, int, int]]:
+    """Ear clipping of a convex polygon (n points) whose points may be collinear (points
     on one edge of the parent face): each ear has an area and leaves a polygon that
     still has one; the ear with the largest smallest angle first. (A few points: plain
     Python arithmetic, faster than NumPy's at this size.)"""
