@@ -116,30 +116,36 @@ def segment_crossings(
     return hit, t
 
 
+def _edge_codes(crossed: np.ndarray, tet_edges: np.ndarray) -> np.ndarray:
+    """Each tet's edge code: bit k set where its edge k (``tet_edges`` (T, 6), rows of
+    the distinct edges) is ``crossed``."""
+    return (crossed[tet_edges] * (1 << np.arange(6))).sum(axis=1)
+
+
 def intersection_codes(
     points: np.ndarray, tets: np.ndarray, path: BladePath
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Seed 000 §5.3's intersection state of each tet: edge codes (T,), face codes
-    (T,), and the tets' distinct edges (E, 2) with each one's crossing parameter
-    along (i, j) (NaN where the path does not cross it: no crossing, or an even
-    number of them)."""
+    (T,), the tets' distinct edges (E, 2) with each one's crossing parameter along
+    (i, j) (NaN where the path does not cross it: no crossing, or an even number of
+    them), and each tet's edges as rows of those (T, 6)."""
     points = np.asarray(points, dtype=np.float64)
     tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
     edges, edge_of = unique_edges(tets, return_inverse=True)
+    tet_edges = edge_of.reshape(-1, 6)
     hit, t = segment_crossings(points[edges[:, 0]], points[edges[:, 1]], path.triangles)
     count = hit.sum(axis=1)
     t_edge = np.full(len(edges), np.nan)
     for e in np.flatnonzero(count % 2 == 1):
         t_edge[e] = float(np.median(t[e][hit[e]]))
-    crossed = np.isfinite(t_edge)[edge_of.reshape(-1, 6)]
-    edge_code = (crossed * (1 << np.arange(6))).sum(axis=1)
+    edge_code = _edge_codes(np.isfinite(t_edge), tet_edges)
 
     boundary = path.boundary
     faces = points[tets[:, TET_FACES]].reshape(-1, 3, 3)
     face_hit, _ = segment_crossings(boundary[:, 0], boundary[:, 1], faces)
     through = face_hit.any(axis=0).reshape(-1, 4)
     face_code = (through * (1 << np.arange(4))).sum(axis=1)
-    return edge_code, face_code, edges, t_edge
+    return edge_code, face_code, edges, t_edge, tet_edges
 
 
 @dataclass(frozen=True)
@@ -163,13 +169,11 @@ def cut_tets(
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
     rest = points if rest is None else np.asarray(rest, dtype=np.float64).reshape(-1, 3)
-    edge_code, face_code, edges, t_edge = intersection_codes(points, tets, path)
-    _, edge_of = unique_edges(tets, return_inverse=True)
-    tet_edges = edge_of.reshape(-1, 6)
+    edge_code, face_code, edges, t_edge, tet_edges = intersection_codes(points, tets, path)
     crossed = np.isfinite(t_edge)
     reached = edge_code != 0
     while True:  # a tet the cut does not separate keeps its edges whole, for all
-        code = (crossed[tet_edges] * (1 << np.arange(6))).sum(axis=1)
+        code = _edge_codes(crossed, tet_edges)
         partial = (code != 0) & ~np.isin(code, list(SEPARATING))
         if not partial.any():
             break
