@@ -150,20 +150,9 @@ def blade(radius: float):
     return ToolGeometry((ToolShape.capsule((0, -0.01, 0), (0, 0.01, 0), radius),), 0.0, 0.0)
 
 
-def pieces(triangles: np.ndarray) -> int:
-    """Connected pieces of a triangle mesh."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]]])
-    n = int(triangles.max()) + 1
-    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    label = connected_components(graph, directed=False)[1]
-    return len(np.unique(label[triangles[:, 0]]))
-
-
 def fascia_cut_cases(quick: bool, random_cuts: int, seed: int = 0) -> list[dict]:
     """``fascia-cut-host`` and ``random-cuts-fascia-host`` (module docstring)."""
+    from taichi_lap.core.mesh import element_pieces
     from taichi_lap.dissection.surface_cut import Sweep, cut_surface, sheet_problems
 
     points, triangles = fascia_sheet()
@@ -188,7 +177,7 @@ def fascia_cut_cases(quick: bool, random_cuts: int, seed: int = 0) -> list[dict]
         "cut_at_z_m": round(float(z), 4),
         "vertices_after": len(points),
         "triangles_after": len(triangles),
-        "pieces": pieces(triangles),
+        "pieces": int(element_pieces(triangles).max()) + 1,
     }
     out = [
         result("fascia-cut-host", params, "ms_per_update", times),

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from taichi_lap.core.mesh import edge_neighbours, element_edges, unique_edges
+from taichi_lap.core.mesh import edge_neighbours, element_edges, element_pieces, unique_edges
 
 
 def test_tet_edges_are_listed_once_each_sorted():
@@ -38,3 +38,12 @@ def test_edge_neighbours_of_a_closed_surface_are_symmetric():
     for t, row in enumerate(neighbours):
         for u in row:
             assert t in neighbours[u]
+
+
+def test_elements_sharing_a_vertex_are_one_piece():
+    # two triangles joined at vertex 2 only, a third apart; tets joined at a vertex
+    triangles = np.array([[0, 1, 2], [2, 3, 4], [5, 6, 7]])
+    assert element_pieces(triangles).tolist() == [0, 0, 1]
+    tets = np.array([[9, 8, 7, 6], [0, 1, 2, 3], [3, 4, 5, 10]])
+    assert element_pieces(tets).tolist() == [0, 1, 1]
+    assert element_pieces(np.zeros((0, 3), dtype=int)).tolist() == []

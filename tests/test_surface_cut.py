@@ -8,11 +8,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from taichi_lap.core.instruments import ToolGeometry, ToolShape
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import element_pieces, unique_edges
 from taichi_lap.dissection.surface_cut import V_THRESHOLD, Sweep, cut_surface, sheet_problems
 
 CM = 0.01
@@ -48,10 +46,7 @@ def areas(points, triangles) -> np.ndarray:
 
 def pieces(points, triangles) -> list[float]:
     """The areas of the connected pieces of the mesh, largest first."""
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]]])
-    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(points),) * 2)
-    _, label = connected_components(graph, directed=False)
-    piece = label[triangles[:, 0]]
+    piece = element_pieces(triangles)
     a = areas(points, triangles)
     return sorted((float(a[piece == p].sum()) for p in np.unique(piece)), reverse=True)
 

@@ -6,13 +6,12 @@ closed pieces of the original volume."""
 
 import numpy as np
 import pytest
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from taichi_lap.core.mesh import (
     TET_EDGES,
     boundary_faces,
     edge_defects,
+    element_pieces,
     enclosed_volume,
     inconsistent_edges,
     tet_volumes,
@@ -37,10 +36,7 @@ def slice_path(point, normal, size: float = 0.05, frames: int = 1) -> BladePath:
 
 def pieces(points, tets) -> list[np.ndarray]:
     """The tets of each connected piece (sharing a vertex)."""
-    owner = np.repeat(np.arange(len(tets)), 4)
-    graph = coo_matrix((np.ones(owner.size), (owner, tets.ravel())), shape=(len(tets), len(points)))
-    joined = (graph @ graph.T).tocoo()
-    _, label = connected_components(joined, directed=False)
+    label = element_pieces(tets)
     return [tets[label == k] for k in np.unique(label)]
 
 

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
 from taichi_lap.core.csr import incidence
 
 TRIANGLE_EDGES = np.array([[0, 1], [1, 2], [2, 0]])
@@ -91,6 +94,21 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
         return_counts=True,
     )
     return faces[np.sort(first[count == 1])]
+
+
+def element_pieces(elements: np.ndarray) -> np.ndarray:
+    """(E,) the connected piece of each element (triangles (E, 3) or tets (E, 4)),
+    numbered from 0 in the order of their first elements: elements that share a
+    vertex are in one piece."""
+    elements = np.asarray(elements, dtype=np.int64)
+    count, corners = elements.shape if elements.size else (0, 1)
+    owner = np.repeat(np.arange(count), corners)
+    graph = coo_matrix(
+        (np.ones(owner.size), (owner, count + elements.ravel())),
+        shape=(count + int(elements.max(initial=-1)) + 1,) * 2,
+    )
+    label = connected_components(graph, directed=False)[1][:count]
+    return np.unique(label, return_inverse=True)[1].reshape(-1)
 
 
 def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
