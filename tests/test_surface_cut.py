@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from taichi_lap.core.instruments import ToolGeometry, ToolShape
+from perf.bench_topology import blade  # a column across the sheet (along y)
 from taichi_lap.core.mesh import element_pieces, unique_edges
 from taichi_lap.dissection.surface_cut import V_THRESHOLD, Sweep, cut_surface, sheet_problems
 
@@ -28,11 +28,6 @@ def sheet(cells: int, size: float = 4 * CM):
     c, d = at[1:, 1:].ravel(), at[1:, :-1].ravel()
     triangles = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     return points, triangles
-
-
-def blade(radius: float = 0.05 * CM) -> ToolGeometry:
-    """A column across the sheet (along y), of ``radius``."""
-    return ToolGeometry((ToolShape.capsule((0, -CM, 0), (0, CM, 0), radius),), 0.0, 0.0)
 
 
 def sweep(start, end, radius: float = 0.05 * CM) -> Sweep:
