@@ -14,13 +14,22 @@ import taichi as ti
 
 from taichi_lap import runtime
 from taichi_lap.core.errors import SimulationFault
-from taichi_lap.core.instruments import CAUTERY_BUTTON, DISSECTOR_REACH, MAX_TOOLS, tool_geometry
+from taichi_lap.core.instruments import (
+    CAUTERY_BUTTON,
+    DISSECTOR_REACH,
+    GRASP_BUTTON,
+    MAX_TOOLS,
+    cutting_geometry,
+    tool_geometry,
+)
 from taichi_lap.core.topology import Topology, TopologyError
 from taichi_lap.core.topology import check_topology as topology_problems
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.dissection.cautery import Cautery
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import MutableTopology
+from taichi_lap.dissection.sheet_cut import SheetCutter
+from taichi_lap.dissection.surface_cut import Sweep
 from taichi_lap.kernels.skinning import skin_surface, skin_surface_rows
 from taichi_lap.preprocess.cache import (
     build_model,
@@ -140,6 +149,8 @@ class Session:
         self._dissection = None  # a DeviceTopology once tissue was removed
         self._checked_version = None  # what check_topology last validated
         self._cautery = None  # a Cautery once a hook was energised
+        self._cutter = None  # a SheetCutter once a tool cut
+        self._cut_poses: dict[int, tuple] = {}  # each cutting tool's tip and frame
         self._energised: set[str] = set()  # the hooks energised in the last step
         parts = _take_parked(self.key)
         if parts is not None:
@@ -202,6 +213,7 @@ class Session:
         if self._cautery is not None:
             self._cautery.reset()
         self._energised = set()
+        self._cut_poses = {}
         if self._start_state is None:
             self.state.reset(self.model)
         else:
@@ -220,25 +232,64 @@ class Session:
         change = self._dissected().topology.remove(particles)
         if not change.empty:
             self._dissection.apply(change, self.state)
-            if self._cautery is not None:
-                self._cautery.remove(change.removed_particles)
-            collision = self.solver.collision
-            if collision is not None:
-                surface = self._dissection.surface_rows()
-                if (collision.triangle_count, collision.vertex_count) != (
-                    self.model.surface_triangle_count,
-                    self.model.surface_vertex_count,
-                ):
-                    collision = self.solver.collision = collision.regrown(surface)
-                collision.rewrite(np.union1d(change.dead_triangles, change.new_triangles), surface)
-            bound = np.union1d(change.new_vertices, change.rebound_vertices)
-            if len(bound):  # the wound is drawn where it is
-                skin_surface_rows(self.model, self.state, bound.astype(np.int32))
-            ti.sync()
+            self._follow(change)
         spent = (time.perf_counter() - start) * 1e3
         self.timings["topology"] = self.timings.get("topology", 0.0) + spent
         self.events += [{"kind": "fragment", "particles": count} for count in change.fragments]
         return change
+
+    def _follow(self, change):
+        """After a topology ``change`` was written to the model: the heat, the tissue
+        collision and the drawn surface follow it."""
+        if self._cautery is not None:
+            self._cautery.remove(change.removed_particles)
+        collision = self.solver.collision
+        if collision is not None:
+            surface = self._dissection.surface_rows()
+            if (collision.triangle_count, collision.vertex_count) != (
+                self.model.surface_triangle_count,
+                self.model.surface_vertex_count,
+            ):
+                collision = self.solver.collision = collision.regrown(surface)
+            collision.rewrite(np.union1d(change.dead_triangles, change.new_triangles), surface)
+        bound = np.union1d(change.new_vertices, change.rebound_vertices)
+        if len(bound):  # the wound is drawn where it is
+            skin_surface_rows(self.model, self.state, bound.astype(np.int32))
+        ti.sync()
+
+    def _cut(self, buttons: dict[str, int]):
+        """Cutting (seed 000 Alg. 3, :mod:`taichi_lap.dissection.sheet_cut`): scissors
+        whose GRASP_BUTTON is held and hooks whose CAUTERY_BUTTON is held cut the
+        sheets their cutting shapes (:func:`cutting_geometry`) swept from their pose
+        at the last step to the one the devices gave now, before the physics moves
+        the tissue; event ``cut`` with the tool and the triangles made."""
+        if not self.model.cuttable:
+            return
+        control = self.control
+        for k, tool in enumerate(self.scene.tools[:MAX_TOOLS]):
+            geometry = cutting_geometry(tool)
+            if geometry is None:
+                continue
+            pose = (control.tips[k].copy(), control.frames[k].copy())
+            before = self._cut_poses.get(k, pose)
+            self._cut_poses[k] = pose
+            button = GRASP_BUTTON if tool["kind"] == "scissors" else CAUTERY_BUTTON
+            if not buttons.get(tool["name"], 0) & button:
+                continue
+            start = time.perf_counter()
+            if self._cutter is None:
+                materials = [organ.material for organ in self.scene.organs]
+                self._cutter = SheetCutter(self._dissected(), materials)
+            sweep = Sweep.between(geometry, *before, *pose)
+            x, v = (field.to_numpy().astype(np.float64) for field in (self.state.x, self.state.v))
+            changes = self._cutter.cut(sweep, x, v, self.state)
+            for change in changes:
+                self._follow(change)
+            spent = (time.perf_counter() - start) * 1e3
+            self.timings["topology"] = self.timings.get("topology", 0.0) + spent
+            if changes:
+                made = sum(len(change.new_triangles) for change in changes)
+                self.events.append({"kind": "cut", "tool": tool["name"], "triangles": made})
 
     def _dissect(self):
         """Blunt dissection (seed 002 §3.3: "physical particles are removed
@@ -353,7 +404,8 @@ class Session:
             raise SimulationFault(f"frame {self.state.frame}: {TopologyError(problems)}")
 
     def _restore_topology(self):
-        """Put the model back as built if tissue was removed."""
+        """Put the model back as built if tissue was removed or cut."""
+        self._cutter = None
         if self._dissection is not None:
             self.model.reset_topology()
             if self.solver.collision is not None:
@@ -404,11 +456,14 @@ class Session:
         for stage in ("topology", "heat"):
             self.timings.pop(stage, None)
         apply_poses(self.control, self.scene.tools, poses or {}, buttons)
+        self.events = []
+        self._cut(buttons or {})
         self.solver.step(self.state, self.control, self.dt, collide=collide)
         ti.sync()
-        self.timings["physics"] = (time.perf_counter() - start) * 1e3
+        spent = (time.perf_counter() - start) * 1e3
+        self.timings["physics"] = spent - self.timings.get("topology", 0.0)
         names = [tool["name"] for tool in self.scene.tools]
-        self.events = [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
+        self.events += [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
         self._energise(buttons or {})
         self._dissect()
         self._cauterize()

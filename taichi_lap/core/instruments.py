@@ -57,6 +57,9 @@ HOOK_HEAT_GAP = 0.2
 """An energised hook heats the tissue particles whose cell (half the lattice spacing
 around them) reaches within this many shaft radii of its electrode's surface (stem
 and foot): those the wire touches, where it rests on the surface between them."""
+CUT_REACH = 0.2
+"""A cutting shape reaches this many shaft radii beyond the shape the tissue touches
+(:func:`cutting_geometry`)."""
 GRASP_BUTTON = 1
 """Bitmask of the button that closes a grasper's jaws (button 1, as on a stylus)."""
 CAUTERY_BUTTON = 2
@@ -184,6 +187,26 @@ def tool_geometry(tool) -> ToolGeometry:
             radius,
         )
     return ToolGeometry((ToolShape("shaft"),), length, radius)
+
+
+def cutting_geometry(tool) -> ToolGeometry | None:
+    """The part of a scene tool that cuts sheets (seed 000 §5.1, the "implicit shapes"
+    swept by :class:`~taichi_lap.dissection.surface_cut.Sweep`), or None for a tool
+    that does not cut: the closed jaws of scissors and the electrode of a hook, each
+    :data:`CUT_REACH` shaft radii thicker than the shape the tissue touches (the
+    contact keeps the tissue on that shape's surface, where a cut of the shape alone
+    would never reach it)."""
+    kind, radius, length = tool["kind"], float(tool["radius"]), float(tool["length"])
+    reach = CUT_REACH * radius
+    if kind == "scissors":
+        jaws = (np.array([0.0, 0.0, -JAW_LENGTH * radius]), np.zeros(3))
+        shapes = (ToolShape.capsule(*jaws, JAW_RADIUS * radius + reach),)
+    elif kind == "hook":
+        wire = HOOK_WIRE * radius + reach
+        shapes = tuple(ToolShape.capsule(*segment, wire) for segment in hook_electrode(radius))
+    else:
+        return None
+    return ToolGeometry(shapes, length, radius)
 
 
 def hook_electrode(radius: float) -> tuple[tuple[np.ndarray, np.ndarray], ...]:

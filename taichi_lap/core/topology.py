@@ -79,6 +79,7 @@ class OrganRecord:
     struts: int = 0
     springs: int = 0
     row_length: int = 0  # spring sheets: masses per row (row 0 is the intestine)
+    reserve: int = 0  # rows at the end of ``particles`` a cut takes for new vertices
 
 
 @dataclass

@@ -108,6 +108,18 @@ class DeviceTopology:
         writes.flush()
         model.topology_version += 1
 
+    def add_particles(self, particles, rest, mass, x, v, state):
+        """Give the particle rows ``particles`` (a sheet's reserve, taken by a cut,
+        :mod:`taichi_lap.dissection.sheet_cut`) their rest position, mass, inverse
+        mass, position and velocity ((P, 3) or (P,) each) in the model and ``state``."""
+        model = self.model
+        inverse = 1.0 / np.asarray(mass, dtype=np.float64)
+        self.inverse_mass[particles] = inverse
+        writes = RowWrites()
+        columns = {model.rest_position: rest, model.mass: mass, model.inv_mass: inverse}
+        writes.add(particles, {**columns, state.x: x, state.p: x, state.v: v})
+        writes.flush()
+
     def surface_rows(self) -> SurfaceRows:
         """The model's surface rows as the changes so far left them (what the tissue
         collision follows, :meth:`~taichi_lap.collision.tissue.TissueCollision.rewrite`)."""

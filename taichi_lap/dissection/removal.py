@@ -200,10 +200,12 @@ class MutableTopology:
     def __init__(self, data):
         self.data = data
         n = data.particle_count
-        self.rest = np.asarray(data.rest_position, dtype=np.float64)
+        self.rest = np.array(data.rest_position, dtype=np.float64)  # a cut sets rows
         self.organ_of = np.asarray(data.organ, dtype=np.int64)
         self.pinned = np.asarray(data.pinned, dtype=bool)
         self.particle_alive = np.ones(n, dtype=bool)
+        for organ in data.organs:  # a sheet's reserve rows live once a cut takes them
+            self.particle_alive[organ.particles[1] - organ.reserve : organ.particles[1]] = False
         self.removed_volume = 0.0
 
         self.tets = np.asarray(data.tets, dtype=np.int64).reshape(-1, 4)

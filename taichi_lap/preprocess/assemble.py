@@ -12,7 +12,9 @@ from taichi_lap.core.errors import InputError
 from taichi_lap.preprocess import clusters as clustering
 from taichi_lap.preprocess.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
 from taichi_lap.preprocess.organs import (
+    CUTTABLE_SHEETS,
     OrganParts,
+    add_cut_reserve,
     add_long_range_attachments,
     build_organ,
     select_region,
@@ -50,6 +52,8 @@ def assemble(scene: Scene, *, progress: bool = True) -> ModelData:
 
         organ_parts = build_organ(organ, scene.source, scene.settings["detail"], report)
         _apply_region_attachments(scene, organ, organ_parts)
+        if organ.model in CUTTABLE_SHEETS:
+            add_cut_reserve(organ_parts)
         parts.append(organ_parts)
         bar.n = len(parts)
         bar.refresh()
@@ -110,6 +114,7 @@ def _concatenate(scene: Scene, parts: list[OrganParts]) -> ModelData:
                 struts=part.struts,
                 springs=len(part.spring_pairs),
                 row_length=part.row_length,
+                reserve=part.reserve,
             )
         )
         triangles += len(part.surface_triangles)

@@ -68,6 +68,7 @@ class OrganParts:
     surface_triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     struts: int = 0
     row_length: int = 0
+    reserve: int = 0
 
 
 def make_geometry(organ: OrganSpec, source: str) -> Geometry:
@@ -173,6 +174,26 @@ def build_shape_matching(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
         clustering.lattice_clusters(parts.positions, radius), parts.positions, organ.material
     )
     return parts
+
+
+CUTTABLE_SHEETS = ("fascia_lra",)
+"""Tissue models whose sheets instruments cut (seed 000 Alg. 3,
+:mod:`taichi_lap.dissection.sheet_cut`): their vertices are their particles."""
+CUT_RESERVE = 1.0
+"""Particle rows a cuttable sheet keeps for the vertices cuts make, as a fraction of
+its vertices (a cut across the rectum's fascia makes about two per edge it crosses;
+the vertices a cut removes give their rows back)."""
+
+
+def add_cut_reserve(parts: OrganParts):
+    """Append the rows of :data:`CUT_RESERVE`: pinned (inverse mass 0), in no
+    constraint or surface, parked at the first vertex, until a cut takes them."""
+    count = int(np.ceil(CUT_RESERVE * len(parts.positions)))
+    parts.positions = np.concatenate([parts.positions, np.repeat(parts.positions[:1], count, 0)])
+    parts.mass = np.concatenate([parts.mass, np.full(count, parts.mass[0])])
+    parts.radius = np.concatenate([parts.radius, np.full(count, parts.radius[0])])
+    parts.pinned = np.concatenate([parts.pinned, np.ones(count, dtype=bool)])
+    parts.reserve = count
 
 
 def build_fascia(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:

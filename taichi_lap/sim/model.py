@@ -26,7 +26,16 @@ SURFACE_SPARE = 1.5
 """Spare surface rows of a model with tets, as a fraction of its surface."""
 
 
-ROW_KINDS = ("vertices", "triangles", "members", "clusters", "chunks")
+ROW_KINDS = (
+    "vertices",
+    "triangles",
+    "members",
+    "clusters",
+    "chunks",
+    "distances",
+    "distance_ends",
+    "attachments",
+)
 """The kinds of rows dissection appends to (:attr:`Model.capacity`, :meth:`Model.grow`)."""
 TABLES = ("surface_incident",)
 """Fields whose rows are as wide as the mesh needs (a vertex's triangles): 2-D tables,
@@ -126,17 +135,15 @@ class Model(FieldOwner):
         self.cluster_total = data.cluster_count
         self.constraint_solver = constraint_solver
 
-        self.dissectable = len(data.tets) > 0
-        self.rest_position = self._floats(data.rest_position, vector=3)
-        self.mass = self._floats(data.mass)
+        self.iterations = iterations
+        self.cuttable = any(organ.reserve for organ in data.organs)
+        self.dissectable = len(data.tets) > 0 or self.cuttable
         self.radius = self._floats(data.radius)
         self.contact_radius = self._floats(data.contact_radius())
         for name, values in data.material.items():
             setattr(self, name, self._floats(values))
 
         self._init_clusters(data)
-        self._init_distance(data, n, iterations)
-        self._init_lra(data, n)
         self._init_springs(data, n)
         self._init_tubes(data)
         self._init_planes(planes)
@@ -245,11 +252,17 @@ class Model(FieldOwner):
                 "vertices": len(data.surface_index),
                 "triangles": len(data.surface_triangles),
             }
+            constraints = {
+                "distances": len(data.distance_pair),
+                "distance_ends": 2 * len(data.distance_pair),
+                "attachments": len(data.lra_particle),
+            }
             self.capacity = {
                 **{k: spare_rows(n, self.dissectable, SURFACE_SPARE) for k, n in surface.items()},
                 "members": spare_rows(len(data.cluster_member), self.dissectable),
                 "clusters": spare_rows(self.cluster_total, self.dissectable),
                 "chunks": spare_rows(self.chunk_total, self.dissectable),
+                **{k: max(spare_rows(n, self.cuttable), 1) for k, n in constraints.items()},
             }
         organ = np.zeros(len(data.surface_triangles), dtype=np.int64)
         for k, record in enumerate(data.organs):
@@ -267,6 +280,8 @@ class Model(FieldOwner):
                 -1,
             ),
             "inv_mass": (data.inverse_mass(), None, 0),
+            "rest_position": (data.rest_position, None, 0),
+            "mass": (data.mass, None, 0),
             "cluster_member": (data.cluster_member, "members", 0),
             "cluster_member_mass": (tables["member_mass"], "members", 0),
             "cluster_rest_offset": (tables["offset"], "members", 0),
@@ -281,35 +296,29 @@ class Model(FieldOwner):
             "chunk_cluster": (chunks["cluster"], "chunks", 0),
             "chunk_begin": (chunks["begin"], "chunks", 0),
             "chunk_end": (chunks["end"], "chunks", 0),
+            **self._constraint_tables(
+                data.distance_pair.reshape(-1, 2),
+                data.distance_rest,
+                data.distance_stiffness,
+                data.lra_particle,
+                data.lra_anchor,
+                data.lra_rest,
+            ),
         }
 
-    def reset_topology(self):
-        """Put back every field dissection changes as it was built (off the frame's
-        path: whole fields are written; rows a :meth:`grow` added stay, spare)."""
-        for name, (values, kind, fill) in self._as_built(self.data).items():
-            dtype = np.int32 if values.dtype.kind in "iu" else np.float32
-            rows = self.capacity.get(kind, 0)
-            getattr(self, name).from_numpy(padded_rows(values.astype(dtype), rows, fill))
-        self.finalize_counts()
-        self.topology_version += 1
-
-    def finalize_counts(self):
-        """Write the Python-side counts of clusters and chunks to their fields."""
-        self.cluster_count[None] = self.cluster_total
-        self.chunk_count[None] = self.chunk_total
-
-    def _init_distance(self, data: ModelData, n: int, iterations: int):
-        """Distance constraints (struts, sheet edges): per-particle lists for the
-        Jacobi gather, and the same constraints sorted by colour for Gauss-Seidel."""
-        pairs = data.distance_pair.reshape(-1, 2)
-        stiff = iteration_stiffness(data.distance_stiffness, iterations)
+    def _constraint_tables(
+        self, pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest
+    ) -> dict[str, tuple[np.ndarray, str | None, int]]:
+        """The distance constraints (struts, sheet edges; ``stiffness`` per
+        constraint, made per iteration) as per-particle lists for the Jacobi gather
+        and sorted by colour for Gauss-Seidel, and the long-range attachments per
+        constrained particle (seed 000 §3.2), as :meth:`_as_built` entries. Sets the
+        counts and :attr:`color_ranges`."""
+        n = self.particle_count
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        rest = np.asarray(rest, dtype=np.float64)
+        stiff = iteration_stiffness(stiffness, self.iterations)
         start, edge, other = both_ends(pairs, n)
-        self.distance_count = len(pairs)
-        self.distance_start = self._ints(start)
-        self.distance_other = self._ints(other)
-        self.distance_rest = self._floats(data.distance_rest[edge])
-        self.distance_stiffness = self._floats(stiff[edge])
-
         colors = (
             greedy_colors(pairs, n)
             if self.constraint_solver == "gauss_seidel"
@@ -318,17 +327,54 @@ class Model(FieldOwner):
         order = np.argsort(colors, kind="stable")
         bounds = np.searchsorted(colors[order], np.arange(colors.max() + 2)) if len(pairs) else [0]
         self.color_ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-        self.colored_pair = self._ints(pairs[order], vector=2)
-        self.colored_rest = self._floats(data.distance_rest[order])
-        self.colored_stiffness = self._floats(stiff[order])
-
-    def _init_lra(self, data: ModelData, n: int):
-        """Long-range attachments per constrained particle (seed 000 §3.2)."""
-        start, rows = incidence(data.lra_particle, n)
+        self.distance_count = len(pairs)
+        lra_start, rows = incidence(np.asarray(lra_particle, dtype=np.int64), n)
         self.lra_count = len(rows)
-        self.lra_start = self._ints(start)
-        self.lra_anchor = self._ints(data.lra_anchor[rows])
-        self.lra_rest = self._floats(data.lra_rest[rows])
+        lra_anchor, lra_rest = np.asarray(lra_anchor)[rows], np.asarray(lra_rest)[rows]
+        return {
+            "distance_start": (start, None, 0),
+            "distance_other": (other, "distance_ends", 0),
+            "distance_rest": (rest[edge], "distance_ends", 0),
+            "distance_stiffness": (stiff[edge], "distance_ends", 0),
+            "colored_pair": (pairs[order], "distances", 0),
+            "colored_rest": (rest[order], "distances", 0),
+            "colored_stiffness": (stiff[order], "distances", 0),
+            "lra_start": (lra_start, None, 0),
+            "lra_anchor": (lra_anchor, "attachments", 0),
+            "lra_rest": (lra_rest, "attachments", 0),
+        }
+
+    def write_constraints(self, pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest):
+        """Replace the distance constraints and long-range attachments (a cut sheet's,
+        :mod:`taichi_lap.dissection.sheet_cut`): whole fields are written, after
+        growing the rows (:meth:`grow`) when there are more than are spare."""
+        tables = self._constraint_tables(pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest)
+        need = {"distances": self.distance_count, "distance_ends": 2 * self.distance_count}
+        need["attachments"] = self.lra_count
+        short = {k: n for k, n in need.items() if n > self.capacity[k]}
+        if short:
+            self.grow(**{k: max(n, int(1.5 * self.capacity[k])) for k, n in short.items()})
+        self._write_whole(tables)
+
+    def _write_whole(self, tables: dict[str, tuple[np.ndarray, str | None, int]]):
+        """Write each field of ``tables`` (:meth:`_as_built` entries) whole, its spare
+        rows filled (an empty table has one row)."""
+        for name, (values, _, fill) in tables.items():
+            dtype = np.int32 if values.dtype.kind in "iu" else np.float32
+            target = getattr(self, name)
+            target.from_numpy(padded_rows(values.astype(dtype), target.shape[0], fill))
+
+    def reset_topology(self):
+        """Put back every field dissection changes as it was built (off the frame's
+        path: whole fields are written; rows a :meth:`grow` added stay, spare)."""
+        self._write_whole(self._as_built(self.data))
+        self.finalize_counts()
+        self.topology_version += 1
+
+    def finalize_counts(self):
+        """Write the Python-side counts of clusters and chunks to their fields."""
+        self.cluster_count[None] = self.cluster_total
+        self.chunk_count[None] = self.chunk_total
 
     def _init_springs(self, data: ModelData, n: int):
         """Damped springs gathered per particle (seed 001 §3.2)."""

@@ -1,0 +1,221 @@
+"""Cutting sheets in a session (seed 000 §5.1-5.2, Alg. 3): an instrument's cutting
+shapes swept between two frames cut the fascia, and its physics follows the cut.
+
+:func:`~taichi_lap.dissection.surface_cut.cut_surface` decides on the host, at the
+sheet's current positions, which faces go and which come; :class:`SheetCutter` makes
+that the sheet's topology:
+
+* a new vertex takes a particle row from the sheet's reserve (rows the model was
+  built with, pinned and in nothing until taken,
+  :func:`~taichi_lap.preprocess.organs.add_cut_reserve`); its position, rest position,
+  velocity and mass are its parents' by the cut's weights. A vertex the cut removes
+  gives its particle row back;
+* the sheet's distance constraints are its edges and bending pairs again (seed 000
+  §3.2: the constraints across the cut are gone, those along it are new), their rest
+  lengths from the rest positions;
+* its relaxed long-range attachments (Eq. 3) are found again on the cut sheet: each
+  vertex keeps its geodesically nearest anchors that its piece still holds, so a
+  piece cut free hangs from nothing and falls;
+* the surface rows, the drawn mesh and the tissue collision follow the triangles
+  (:class:`~taichi_lap.dissection.device.DeviceTopology`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_lap.core.geometry import TriangleMesh
+from taichi_lap.core.mesh import unique_edges
+from taichi_lap.dissection.device import DeviceTopology
+from taichi_lap.dissection.removal import TopologyChange
+from taichi_lap.dissection.surface_cut import Sweep, cut_surface
+from taichi_lap.preprocess.sheets import bending_pairs, long_range_attachments
+
+log = logging.getLogger("taichi_lap")
+
+
+@dataclass
+class _Sheet:
+    """One cuttable organ: its index, the particle rows its reserve still holds
+    (taken from the end), the material of its constraints, its anchors, and its
+    constraints now (global particle indices)."""
+
+    organ: int
+    free: list[int]
+    edge_stiffness: float
+    bending_stiffness: float
+    anchors_per_vertex: int
+    anchors: np.ndarray
+    pairs: np.ndarray
+    rest: np.ndarray
+    stiffness: np.ndarray
+    lra: tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+class SheetCutter:
+    """Cuts the sheets of a session's model (module docstring). ``materials`` are the
+    scene organs' material tables (``edge_stiffness``, ``bending_stiffness``,
+    ``lra_anchors`` of the cuttable ones)."""
+
+    def __init__(self, dissection: DeviceTopology, materials: list[dict]):
+        self.dissection = dissection
+        topology, data = dissection.topology, dissection.model.data
+        self.mass = np.array(data.mass, dtype=np.float64)
+        organ_of = np.asarray(data.organ, dtype=np.int64)
+        pairs = np.asarray(data.distance_pair, dtype=np.int64).reshape(-1, 2)
+        lra_particle = np.asarray(data.lra_particle, dtype=np.int64)
+        self.sheets = []
+        for k, organ in enumerate(data.organs):
+            if not organ.reserve:
+                continue
+            first, end = organ.particles
+            mine, attached = organ_of[pairs[:, 0]] == k, organ_of[lra_particle] == k
+            built = np.arange(first, end - organ.reserve)
+            material = materials[k]
+            sheet = _Sheet(
+                organ=k,
+                free=list(range(end - 1, end - organ.reserve - 1, -1)),
+                edge_stiffness=float(material["edge_stiffness"]),
+                bending_stiffness=float(material["bending_stiffness"]),
+                anchors_per_vertex=int(material["lra_anchors"]),
+                anchors=built[np.asarray(data.pinned)[built]],
+                pairs=pairs[mine],
+                rest=data.distance_rest[mine],
+                stiffness=data.distance_stiffness[mine],
+                lra=(lra_particle[attached], data.lra_anchor[attached], data.lra_rest[attached]),
+            )
+            self.sheets.append(sheet)
+        sheet_organ = np.isin(organ_of, [s.organ for s in self.sheets])
+        kept = ~sheet_organ[pairs[:, 0]]
+        self.other = (pairs[kept], data.distance_rest[kept], data.distance_stiffness[kept])
+        kept = ~sheet_organ[lra_particle]
+        self.other_lra = (lra_particle[kept], data.lra_anchor[kept], data.lra_rest[kept])
+
+    def cut(self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state) -> list[TopologyChange]:
+        """Cut every sheet ``sweep`` reaches, with its particles at ``x`` moving at
+        ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``; returns
+        them (none where nothing was cut)."""
+        changes = []
+        for sheet in self.sheets:
+            change = self._cut_sheet(sheet, sweep, x, v, state)
+            if change is not None:
+                changes.append(change)
+        if changes:
+            self._write_constraints()
+        return changes
+
+    def _cut_sheet(self, sheet: _Sheet, sweep, x, v, state) -> TopologyChange | None:
+        topology = self.dissection.topology
+        vertices, triangles = topology.vertices, topology.triangles
+        rows = np.flatnonzero(
+            triangles["alive"][: triangles.used] & (triangles["organ"][: triangles.used] == sheet.organ)
+        )
+        used, local = np.unique(triangles["vertices"][rows], return_inverse=True)
+        particles = vertices["index"][used, 0]
+        cut = cut_surface(x[particles], local.reshape(-1, 3), sweep)
+        if cut.empty:
+            return None
+        count = len(used)
+        kept_faces = np.ones(len(rows), dtype=bool)
+        kept_faces[cut.removed] = False
+        faces = np.concatenate([local.reshape(-1, 3)[kept_faces], cut.added])
+        in_use = np.zeros(count + len(cut.vertex_parents), dtype=bool)
+        in_use[faces.ravel()] = True
+        made = np.flatnonzero(in_use[count:])
+        if len(made) > len(sheet.free):
+            log.warning(
+                "cut of %s: its reserve of particle rows is spent (%d needed, %d left); "
+                "this cut is not made",
+                self.dissection.model.data.organs[sheet.organ].name,
+                len(made),
+                len(sheet.free),
+            )
+            return None
+        new_particles = np.array([sheet.free.pop() for _ in made], dtype=np.int64)
+        weights, parents = cut.vertex_weights[made], particles[cut.vertex_parents[made]]
+
+        def blend(values):
+            return np.einsum("nk,nk...->n...", weights, values[parents])
+
+        rest, mass = blend(topology.rest), blend(self.mass)
+        topology.rest[new_particles] = rest
+        topology.particle_alive[new_particles] = True
+        self.mass[new_particles] = mass
+        new_vertices = vertices.take(len(made))
+        vertices["index"][new_vertices] = new_particles[:, None]
+        vertices["weight"][new_vertices] = [1.0, 0.0, 0.0, 0.0]
+        vertices["organ"][new_vertices] = sheet.organ
+        vertices["alive"][new_vertices] = True
+        vertices["rest"][new_vertices] = rest
+        for name in ("cluster", "kept", "cut"):
+            vertices[name][new_vertices] = -1
+        dead_vertices = used[~in_use[:count]]
+        vertices["alive"][dead_vertices] = False
+        vertices.release(dead_vertices)
+        dead_particles = particles[~in_use[:count]]
+        topology.particle_alive[dead_particles] = False
+
+        slot = np.full(len(in_use), -1, dtype=np.int64)
+        slot[:count] = used
+        slot[count + made] = new_vertices
+        dead_triangles = rows[cut.removed]
+        triangles["alive"][dead_triangles] = False
+        np.subtract.at(vertices["uses"], triangles["vertices"][dead_triangles].ravel(), 1)
+        triangles.release(dead_triangles)
+        new_triangles = triangles.take(len(cut.added))
+        triangles["vertices"][new_triangles] = slot[cut.added]
+        triangles["organ"][new_triangles] = sheet.organ
+        triangles["alive"][new_triangles] = True
+        np.add.at(vertices["uses"], slot[cut.added].ravel(), 1)
+
+        self.dissection.add_particles(new_particles, rest, mass, blend(x), blend(v), state)
+        change = TopologyChange(
+            removed_particles=dead_particles,
+            dead_triangles=dead_triangles,
+            new_triangles=new_triangles,
+            dead_vertices=dead_vertices,
+            new_vertices=new_vertices,
+        )
+        self.dissection.apply(change, state)
+        sheet.free.extend(int(p) for p in dead_particles[::-1])
+        self._rebuild(sheet)
+        return change
+
+    def _rebuild(self, sheet: _Sheet):
+        """The sheet's edges, bending pairs and relaxed LRAs on its live triangles
+        (module docstring)."""
+        topology = self.dissection.topology
+        vertices, triangles = topology.vertices, topology.triangles
+        rows = np.flatnonzero(
+            triangles["alive"][: triangles.used] & (triangles["organ"][: triangles.used] == sheet.organ)
+        )
+        faces = vertices["index"][triangles["vertices"][rows], 0]  # particles
+        edges, bending = unique_edges(faces), bending_pairs(faces)
+        sheet.pairs = np.concatenate([edges, bending])
+        sheet.rest = np.linalg.norm(
+            topology.rest[sheet.pairs[:, 0]] - topology.rest[sheet.pairs[:, 1]], axis=1
+        )
+        sheet.stiffness = np.concatenate(
+            [np.full(len(edges), sheet.edge_stiffness), np.full(len(bending), sheet.bending_stiffness)]
+        )
+        live, local = np.unique(faces, return_inverse=True)
+        anchors = np.flatnonzero(np.isin(live, sheet.anchors))
+        if len(anchors):
+            mesh = TriangleMesh(topology.rest[live], local.reshape(-1, 3))
+            lra = long_range_attachments(mesh, anchors, sheet.anchors_per_vertex)
+            sheet.lra = (live[lra.particle], live[lra.anchor], lra.rest)
+        else:
+            sheet.lra = (np.zeros(0, np.int64),) * 2 + (np.zeros(0),)
+
+    def _write_constraints(self):
+        """Every organ's distance constraints and LRAs, the sheets' as cut, to the
+        model."""
+        sheets = self.sheets
+        pairs = np.concatenate([self.other[0], *[s.pairs for s in sheets]])
+        rest = np.concatenate([self.other[1], *[s.rest for s in sheets]])
+        stiffness = np.concatenate([self.other[2], *[s.stiffness for s in sheets]])
+        lra = [np.concatenate([self.other_lra[i], *[s.lra[i] for s in sheets]]) for i in range(3)]
+        self.dissection.model.write_constraints(pairs, rest, stiffness, *lra)

@@ -1,0 +1,190 @@
+"""Cutting a fascia sheet in a session (seed 000 Alg. 3 with its physics following:
+:mod:`taichi_lap.dissection.sheet_cut`): scissors cut a hanging sheet in two, the
+constraints across the cut are gone, the piece cut free loses its long-range
+attachments and falls, the topology stays valid, a reset puts the sheet back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON
+from taichi_lap.core.mesh import element_pieces
+from taichi_lap.devices import ScriptedDevice
+from taichi_lap.preprocess.organs import CUT_RESERVE
+from taichi_lap.scene import from_tables
+from taichi_lap.session import Session
+
+SHEET = {
+    "name": "fascia",
+    "model": "fascia_lra",
+    "geometry": {
+        "generator": "sheet",
+        "width": 0.1,
+        "depth": 0.06,
+        "resolution_x": 16,
+        "resolution_z": 10,
+        "sag": 0.0,
+    },
+    "material": {
+        "lra_relaxation": 0.25,
+        "lra_anchors": 4,
+        "edge_stiffness": 1.0,
+        "bending_stiffness": 0.05,
+        "damping": 4.0,
+    },
+    # anchored along its edge at x = -0.05: settled, it hangs below that edge
+    "attachments": [{"kind": "lra_anchor", "box_min": [-1, -1, -1], "box_max": [-0.049, 1, 1]}],
+}
+CUT_HEIGHT = -0.05
+"""The blade crosses the hanging sheet halfway down."""
+
+
+def cutting_session(kind: str) -> Session:
+    tool = {
+        "name": kind,
+        "kind": kind,
+        "radius": 0.0025,
+        "length": 0.2,
+        "tip": [0.0, CUT_HEIGHT, -0.045],
+        "direction": [1.0, 0.0, 0.0],
+    }
+    scene = from_tables([SHEET], tools=[tool], gravity=[0.0, -9.81, 0.0], settle_time=1.0)
+    return Session(scene, use_cache=False, progress=False)
+
+
+def sweep_across(session: Session, button: int, frames: int = 50) -> list[dict]:
+    """Move the tool's cutting part through the hanging sheet along z (10 cm in 0.5 s)
+    with ``button`` held, then away; the session's events."""
+    name = session.scene.tools[0]["name"]
+    x = session.state.x.to_numpy()
+    band = np.abs(x[:, 1] - CUT_HEIGHT) < 0.006
+    x0 = float(x[band, 0].mean()) + 0.004  # the jaws / electrode reach back through it
+    held = {GRASP_BUTTON: "grasp", CAUTERY_BUTTON: "cautery"}.get(button)
+    script = [
+        {"time": 0.0, "tool": name, "tip": [x0, CUT_HEIGHT, -0.045]},
+        {"time": 0.5, "tool": name, "tip": [x0, CUT_HEIGHT, 0.045]},
+        {"time": 0.6, "tool": name, "tip": [x0 + 0.04, CUT_HEIGHT, 0.045]},
+    ]
+    if held:
+        script[0][held], script[2][held] = True, False
+    device = ScriptedDevice.from_tables("cut", script, session.scene.tools)
+    events = []
+    for _ in range(frames):
+        time = session.state.time
+        session.step(device.poses(time), device.buttons(time))
+        events += session.events
+    return events
+
+
+def live_sheet(session: Session) -> np.ndarray:
+    """The sheet's live triangles as particle triples."""
+    topology = session._dissection.topology
+    f, v = topology.triangles, topology.vertices
+    live = f["alive"][: f.used]
+    return v["index"][f["vertices"][: f.used][live], 0]
+
+
+def sheet_particles(session: Session) -> np.ndarray:
+    """The particles the sheet was built with (its reserve rows left out)."""
+    organ = session.data.organs[0]
+    return np.arange(organ.particles[0], organ.particles[1] - organ.reserve)
+
+
+def model_pairs(model) -> np.ndarray:
+    """The distance constraints the model's Jacobi gather reads, (i, j) i < j."""
+    start = model.distance_start.to_numpy()
+    other = model.distance_other.to_numpy()
+    owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
+    pairs = np.sort(np.stack([owner, other[: start[-1]]], axis=1), axis=1)
+    return np.unique(pairs, axis=0)
+
+
+@pytest.fixture(scope="module")
+def cut_sheet():
+    session = cutting_session("scissors")
+    before = session.state.x.to_numpy()
+    events = sweep_across(session, GRASP_BUTTON)
+    yield session, before, events
+    session.close()
+
+
+def test_scissors_cut_the_sheet_in_two_and_the_free_piece_falls(cut_sheet):
+    session, before, events = cut_sheet
+    cuts = [e for e in events if e["kind"] == "cut"]
+    assert len(cuts) > 10 and all(e["tool"] == "scissors" for e in cuts)
+    session.check_topology()  # raises on any problem
+    triangles = live_sheet(session)
+    pieces = element_pieces(triangles)
+    sizes = np.bincount(pieces)
+    big = np.argsort(sizes)[::-1][:2]
+    assert sizes[big].min() > 100  # two halves of 160 triangles (fragments of the kerf aside)
+    x = session.state.x.to_numpy()
+    built = sheet_particles(session)
+    heights = {}
+    for piece in big:
+        particles = np.unique(triangles[pieces == piece])
+        anchors = np.intersect1d(particles, built[session.data.pinned[built]])
+        heights[len(anchors) > 0] = x[particles, 1].mean()
+    # the free piece fell for about 0.6 s; the anchored one hangs where it hung
+    assert heights[False] < CUT_HEIGHT - 0.5
+    assert heights[True] > before[built, 1].mean() - 0.01
+
+
+def test_no_constraint_joins_the_pieces_and_the_free_piece_has_no_anchor(cut_sheet):
+    session, _, _ = cut_sheet
+    model = session.model
+    triangles = live_sheet(session)
+    piece_of = np.full(session.data.particle_count, -1)
+    piece_of[triangles.ravel()] = np.repeat(element_pieces(triangles), 3)
+    pairs = model_pairs(model)
+    assert len(pairs) > 0
+    assert (piece_of[pairs] >= 0).all()  # every constraint is between live sheet particles
+    assert (piece_of[pairs[:, 0]] == piece_of[pairs[:, 1]]).all()
+    start = model.lra_start.to_numpy()
+    anchor = model.lra_anchor.to_numpy()[: start[-1]]
+    owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
+    assert (piece_of[owner] == piece_of[anchor]).all()
+    anchored_pieces = np.unique(piece_of[anchor])
+    free = np.setdiff1d(np.unique(piece_of[piece_of >= 0]), anchored_pieces)
+    assert len(free) >= 1 and not np.isin(piece_of[owner], free).any()
+
+
+def test_new_vertices_take_reserve_rows_where_their_parents_were(cut_sheet):
+    session, _, _ = cut_sheet
+    built = sheet_particles(session)
+    assert session.data.organs[0].reserve == int(np.ceil(CUT_RESERVE * len(built)))
+    taken = np.setdiff1d(live_sheet(session), built)
+    assert len(taken) > 20
+    inverse_mass = session.model.inv_mass.to_numpy()
+    assert (inverse_mass[taken] > 0.0).all()
+    rest = session.model.rest_position.to_numpy()[taken]
+    # the cut ran at the height CUT_HEIGHT of the settled sheet: its new vertices at
+    # rest lie on the sheet's rest plane y = 0, inside its extent
+    assert np.allclose(rest[:, 1], 0.0, atol=1e-6)
+    assert (np.abs(rest[:, 0]) <= 0.05 + 1e-6).all() and (np.abs(rest[:, 2]) <= 0.03 + 1e-6).all()
+
+
+def test_a_reset_puts_the_sheet_and_its_constraints_back(cut_sheet):
+    session, _, _ = cut_sheet
+    session.reset()
+    data = session.data
+    expected = np.unique(np.sort(data.distance_pair.reshape(-1, 2), axis=1), axis=0)
+    assert np.array_equal(model_pairs(session.model), expected)
+    assert session.model.lra_start.to_numpy()[-1] == len(data.lra_particle)
+    assert np.array_equal(session.model.inv_mass.to_numpy(), data.inverse_mass().astype(np.float32))
+    session.step()
+    session.check_topology()
+
+
+def test_an_energised_hook_cuts_the_sheet_and_a_cold_one_does_not():
+    session = cutting_session("hook")
+    try:
+        assert not [e for e in sweep_across(session, 0, frames=20) if e["kind"] == "cut"]
+        session.reset()
+        cuts = [e for e in sweep_across(session, CAUTERY_BUTTON) if e["kind"] == "cut"]
+        assert len(cuts) > 10
+        session.check_topology()
+        assert np.bincount(element_pieces(live_sheet(session))).max() < 300
+    finally:
+        session.close()
