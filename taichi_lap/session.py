@@ -290,6 +290,11 @@ class Session:
             if changes:
                 made = sum(len(change.new_triangles) for change in changes)
                 self.events.append({"kind": "cut", "tool": tool["name"], "triangles": made})
+            self.events += [
+                {"kind": "fragment", "particles": count}
+                for change in changes
+                for count in change.fragments
+            ]
 
     def _dissect(self):
         """Blunt dissection (seed 002 §3.3: "physical particles are removed

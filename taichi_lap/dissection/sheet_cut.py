@@ -16,6 +16,8 @@ that the sheet's topology:
 * its relaxed long-range attachments (Eq. 3) are found again on the cut sheet: each
   vertex keeps its geodesically nearest anchors that its piece still holds, so a
   piece cut free hangs from nothing and falls;
+* a small piece the cut leaves holding no anchor (a sliver of the kerf,
+  :data:`FRAGMENT_TRIANGLES`) goes with the cut, and is reported;
 * the surface rows, the drawn mesh and the tissue collision follow the triangles
   (:class:`~taichi_lap.dissection.device.DeviceTopology`).
 """
@@ -28,13 +30,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_lap.core.geometry import TriangleMesh
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import element_pieces, unique_edges
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
 from taichi_lap.preprocess.sheets import bending_pairs, long_range_attachments
 
 log = logging.getLogger("taichi_lap")
+
+FRAGMENT_TRIANGLES = 8
+"""A piece of a cut sheet of at most this many triangles holding no anchor is a
+fragment, removed with the cut (the slivers the kerf leaves between its edges)."""
 
 
 @dataclass
@@ -119,11 +125,15 @@ class SheetCutter:
         if cut.empty:
             return None
         count = len(used)
-        kept_faces = np.ones(len(rows), dtype=bool)
-        kept_faces[cut.removed] = False
-        faces = np.concatenate([local.reshape(-1, 3)[kept_faces], cut.added])
+        kept = np.ones(len(rows), dtype=bool)
+        kept[cut.removed] = False
+        faces = np.concatenate([local.reshape(-1, 3)[kept], cut.added])
+        row_of = np.concatenate([rows[kept], np.full(len(cut.added), -1)])  # -1: made
+        fragment, fragments = self._fragments(sheet, faces, particles)
+        dead_triangles = np.concatenate([rows[cut.removed], row_of[fragment & (row_of >= 0)]])
+        added = faces[~fragment & (row_of < 0)]
         in_use = np.zeros(count + len(cut.vertex_parents), dtype=bool)
-        in_use[faces.ravel()] = True
+        in_use[faces[~fragment].ravel()] = True
         made = np.flatnonzero(in_use[count:])
         if len(made) > len(sheet.free):
             log.warning(
@@ -161,15 +171,14 @@ class SheetCutter:
         slot = np.full(len(in_use), -1, dtype=np.int64)
         slot[:count] = used
         slot[count + made] = new_vertices
-        dead_triangles = rows[cut.removed]
         triangles["alive"][dead_triangles] = False
         np.subtract.at(vertices["uses"], triangles["vertices"][dead_triangles].ravel(), 1)
         triangles.release(dead_triangles)
-        new_triangles = triangles.take(len(cut.added))
-        triangles["vertices"][new_triangles] = slot[cut.added]
+        new_triangles = triangles.take(len(added))
+        triangles["vertices"][new_triangles] = slot[added]
         triangles["organ"][new_triangles] = sheet.organ
         triangles["alive"][new_triangles] = True
-        np.add.at(vertices["uses"], slot[cut.added].ravel(), 1)
+        np.add.at(vertices["uses"], slot[added].ravel(), 1)
 
         self.dissection.add_particles(new_particles, rest, mass, blend(x), blend(v), state)
         change = TopologyChange(
@@ -178,11 +187,29 @@ class SheetCutter:
             new_triangles=new_triangles,
             dead_vertices=dead_vertices,
             new_vertices=new_vertices,
+            fragments=fragments,
         )
         self.dissection.apply(change, state)
         sheet.free.extend(int(p) for p in dead_particles[::-1])
         self._rebuild(sheet)
         return change
+
+    def _fragments(self, sheet: _Sheet, faces: np.ndarray, particles: np.ndarray):
+        """Which of the cut sheet's ``faces`` (vertices numbered as the cut numbers
+        them, the first ``len(particles)`` those of ``particles``) belong to a
+        fragment: a piece of at most :data:`FRAGMENT_TRIANGLES` triangles that holds
+        no anchor (a sliver left in the kerf, removed with the cut); and the
+        particle count of each fragment."""
+        pieces = element_pieces(faces)
+        sizes = np.bincount(pieces)
+        known = faces < len(particles)
+        anchor = np.zeros(faces.shape, dtype=bool)
+        anchor[known] = np.isin(particles[faces[known]], sheet.anchors)
+        anchored = np.zeros(len(sizes), dtype=bool)
+        anchored[pieces[anchor.any(axis=1)]] = True
+        small = (sizes <= FRAGMENT_TRIANGLES) & ~anchored
+        counts = [len(np.unique(faces[pieces == k])) for k in np.flatnonzero(small)]
+        return small[pieces], counts
 
     def _rebuild(self, sheet: _Sheet):
         """The sheet's edges, bending pairs and relaxed LRAs on its live triangles
