@@ -311,7 +311,7 @@ class Model(FieldOwner):
     ) -> dict[str, tuple[np.ndarray, str | None, int]]:
         """The distance constraints (struts, sheet edges; ``stiffness`` per
         constraint, made per iteration) as per-particle lists for the Jacobi gather
-        and sorted by colour for Gauss-Seidel, and the long-range attachments per
+        and, for the Gauss-Seidel solver, sorted by colour, and the long-range attachments per
         constrained particle (seed 000 §3.2), as :meth:`_as_built` entries. Sets the
         counts and :attr:`color_ranges`."""
         n = self.particle_count
@@ -319,11 +319,8 @@ class Model(FieldOwner):
         rest = np.asarray(rest, dtype=np.float64)
         stiff = iteration_stiffness(stiffness, self.iterations)
         start, edge, other = both_ends(pairs, n)
-        colors = (
-            greedy_colors(pairs, n)
-            if self.constraint_solver == "gauss_seidel"
-            else np.zeros(len(pairs), dtype=np.int64)
-        )
+        gauss_seidel = self.constraint_solver == "gauss_seidel"
+        colors = greedy_colors(pairs, n) if gauss_seidel else np.zeros(len(pairs), dtype=np.int64)
         order = np.argsort(colors, kind="stable")
         bounds = np.searchsorted(colors[order], np.arange(colors.max() + 2)) if len(pairs) else [0]
         self.color_ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
@@ -331,18 +328,20 @@ class Model(FieldOwner):
         lra_start, rows = incidence(np.asarray(lra_particle, dtype=np.int64), n)
         self.lra_count = len(rows)
         lra_anchor, lra_rest = np.asarray(lra_anchor)[rows], np.asarray(lra_rest)[rows]
-        return {
+        tables = {
             "distance_start": (start, None, 0),
             "distance_other": (other, "distance_ends", 0),
             "distance_rest": (rest[edge], "distance_ends", 0),
             "distance_stiffness": (stiff[edge], "distance_ends", 0),
-            "colored_pair": (pairs[order], "distances", 0),
-            "colored_rest": (rest[order], "distances", 0),
-            "colored_stiffness": (stiff[order], "distances", 0),
             "lra_start": (lra_start, None, 0),
             "lra_anchor": (lra_anchor, "attachments", 0),
             "lra_rest": (lra_rest, "attachments", 0),
         }
+        if gauss_seidel:  # the same constraints sorted by colour (Jacobi does not read them)
+            tables["colored_pair"] = (pairs[order], "distances", 0)
+            tables["colored_rest"] = (rest[order], "distances", 0)
+            tables["colored_stiffness"] = (stiff[order], "distances", 0)
+        return tables
 
     def write_constraints(self, pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest):
         """Replace the distance constraints and long-range attachments (a cut sheet's,
