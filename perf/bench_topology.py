@@ -26,12 +26,24 @@ Cases
   the other (random ends beyond its edges, blades 0.2-2 mm thick, tilted up to 35°):
   ``validator_failures`` and ``ms_per_update``.
 
+* ``rectum-fascia-cut`` (issue Dissection II, the cut in a session): the rectum
+  scene's own script (settled start, tissue collision): after the grasper's work, the
+  scissors, closing, cut the hanging fascia along its attachment at 5 cm/s (2.7 s),
+  and its physics follows (reserve particles, edges, bending pairs and relaxed LRAs
+  rebuilt, surface rows, drawn mesh and collision). Metrics ``ms_per_update`` (the
+  session's topology stage of each frame that cut: the cut on the host and every
+  row written; the first, which compiles the row writes, is ``first_update_ms``),
+  ``ms_per_frame`` while cutting and, for the same frames with the scissors' jaws
+  open, without, and ``validator_failures`` (frames after which the topology
+  validator found a problem). Parameters: the sheet's pieces at the end and how far
+  the piece cut free fell.
+
 Seed 002 reports 98.3 ms per topology update on one CPU thread; the targets of this
 project are a median of at most 10 ms, p95 20 ms, no validator failure and frames
 while cutting at most 1.5 times frames without.
 
 Usage: python perf/bench_topology.py [--quick] [--arch cpu] [--json OUT]
-       [--cases cautery,removals,fascia]
+       [--cases cautery,removals,fascia,session]
 """
 
 from __future__ import annotations
@@ -210,8 +222,72 @@ def fascia_cut_cases(quick: bool, random_cuts: int, seed: int = 0) -> list[dict]
     return out
 
 
+def rectum_cut_cases() -> list[dict]:
+    """``rectum-fascia-cut`` (module docstring)."""
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.core.errors import SimulationFault
+    from taichi_lap.core.mesh import element_pieces
+    from taichi_lap.session import Session, scene_script
+
+    session = Session(scene_mod.load("rectum"), progress=False)
+    device = scene_script(session.scene)
+    fascia = next(k for k, o in enumerate(session.data.organs) if o.name == "fascia")
+    frames = int(round(device.duration() / session.dt))
+    session.step()  # compile
+    organ = session.data.organs[fascia]
+    built = organ.particles[1] - organ.reserve  # the sheet's rows below are as built
+    updates, cut_frames, frame_ms, failures = [], [], {True: [], False: []}, 0
+    for cut in (True, False):
+        session.reset()
+        start = session.state.x.to_numpy()
+        for frame in range(frames):
+            time = session.state.time
+            buttons = device.buttons(time)
+            if not cut:
+                buttons.pop("scissors", None)
+            begin = time_ms()
+            session.step(device.poses(time), buttons)
+            frame_ms[cut].append(time_ms() - begin)
+            if cut and any(event["kind"] == "cut" for event in session.events):
+                cut_frames.append(frame)
+                updates.append(session.timings["topology"])
+                try:
+                    session.check_topology()
+                except SimulationFault:
+                    failures += 1
+        if cut:
+            topology = session._dissection.topology
+            f, v = topology.triangles, topology.vertices
+            live = f["alive"][: f.used] & (f["organ"][: f.used] == fascia)
+            triangles = v["index"][f["vertices"][: f.used][live], 0]
+            pieces = element_pieces(triangles)
+            x = session.state.x.to_numpy()
+            sizes, drops = np.bincount(pieces).tolist(), []
+            for piece in range(len(sizes)):
+                particles = np.unique(triangles[pieces == piece])
+                old = particles[particles < built]
+                drops.append(round(float(start[old, 1].mean() - x[old, 1].mean()), 4))
+    params = {
+        "particles": session.data.particle_count,
+        "frames": frames,
+        "updates": len(updates),
+        "first_update_ms": round(updates[0], 1),
+        "fascia_pieces_triangles": sizes,
+        "fascia_pieces_drop_m": drops,
+    }
+    cutting = [frame_ms[True][k] for k in cut_frames]
+    plain = [frame_ms[False][k] for k in cut_frames]
+    session.close()
+    return [
+        result("rectum-fascia-cut", params, "ms_per_update", updates[1:]),
+        result("rectum-fascia-cut", params, "validator_failures", [failures]),
+        result("rectum-fascia-cut", dict(params, cutting=True), "ms_per_frame", cutting),
+        result("rectum-fascia-cut", dict(params, cutting=False), "ms_per_frame", plain),
+    ]
+
+
 def main():
-    args = arguments("topology", ("cautery", "removals", "fascia"))
+    args = arguments("topology", ("cautery", "removals", "fascia", "session"))
     from taichi_lap import runtime
 
     runtime.init(args.arch)
@@ -224,6 +300,8 @@ def main():
         results += random_removal_cases(detail, events)
     if "fascia" in args.cases:
         results += fascia_cut_cases(args.quick, events)
+    if "session" in args.cases:
+        results += rectum_cut_cases()
     report("topology", args.arch, results, args.json)
 
 
