@@ -150,6 +150,23 @@ def test_no_constraint_joins_the_pieces_and_the_free_piece_has_no_anchor(cut_she
     assert len(free) >= 1 and not np.isin(piece_of[owner], free).any()
 
 
+def test_the_tables_spliced_after_each_cut_are_those_written_whole(cut_sheet):
+    """A cut writes the sheet's constraint lists into the model's tables from the first
+    row that changed on; the tables equal those of all constraints written whole."""
+    session, _, _ = cut_sheet
+    model = session.model
+    whole = model._constraint_tables(*model._constraint_host.values())
+    for name in ("distance_start", "lra_start"):
+        assert np.array_equal(getattr(model, name).to_numpy(), whole[name][0]), name
+    for name in ("distance_other", "distance_rest", "distance_stiffness", "lra_anchor", "lra_rest"):
+        values = whole[name][0]
+        np.testing.assert_array_equal(
+            getattr(model, name).to_numpy()[: len(values)],
+            values.astype(getattr(model, name).to_numpy().dtype),
+            err_msg=name,
+        )
+
+
 def test_new_vertices_take_reserve_rows_where_their_parents_were(cut_sheet):
     session, _, _ = cut_sheet
     built = sheet_particles(session)

@@ -46,8 +46,7 @@ fragment, removed with the cut (the slivers the kerf leaves between its edges)."
 @dataclass
 class _Sheet:
     """One cuttable organ: its index, the particle rows its reserve still holds
-    (taken from the end), the material of its constraints, its anchors, and its
-    constraints now (global particle indices)."""
+    (taken from the end), the material of its constraints and its anchors."""
 
     organ: int
     free: list[int]
@@ -55,10 +54,6 @@ class _Sheet:
     bending_stiffness: float
     anchors_per_vertex: int
     anchors: np.ndarray
-    pairs: np.ndarray
-    rest: np.ndarray
-    stiffness: np.ndarray
-    lra: tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 class SheetCutter:
@@ -68,17 +63,13 @@ class SheetCutter:
 
     def __init__(self, dissection: DeviceTopology, materials: list[dict]):
         self.dissection = dissection
-        topology, data = dissection.topology, dissection.model.data
+        data = dissection.model.data
         self.mass = np.array(data.mass, dtype=np.float64)
-        organ_of = np.asarray(data.organ, dtype=np.int64)
-        pairs = np.asarray(data.distance_pair, dtype=np.int64).reshape(-1, 2)
-        lra_particle = np.asarray(data.lra_particle, dtype=np.int64)
         self.sheets = []
         for k, organ in enumerate(data.organs):
             if not organ.reserve:
                 continue
             first, end = organ.particles
-            mine, attached = organ_of[pairs[:, 0]] == k, organ_of[lra_particle] == k
             built = np.arange(first, end - organ.reserve)
             material = materials[k]
             sheet = _Sheet(
@@ -88,17 +79,8 @@ class SheetCutter:
                 bending_stiffness=float(material["bending_stiffness"]),
                 anchors_per_vertex=int(material["lra_anchors"]),
                 anchors=built[np.asarray(data.pinned)[built]],
-                pairs=pairs[mine],
-                rest=data.distance_rest[mine],
-                stiffness=data.distance_stiffness[mine],
-                lra=(lra_particle[attached], data.lra_anchor[attached], data.lra_rest[attached]),
             )
             self.sheets.append(sheet)
-        sheet_organ = np.isin(organ_of, [s.organ for s in self.sheets])
-        kept = ~sheet_organ[pairs[:, 0]]
-        self.other = (pairs[kept], data.distance_rest[kept], data.distance_stiffness[kept])
-        kept = ~sheet_organ[lra_particle]
-        self.other_lra = (lra_particle[kept], data.lra_anchor[kept], data.lra_rest[kept])
 
     def cut(self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state) -> list[TopologyChange]:
         """Cut every sheet ``sweep`` reaches, with its particles at ``x`` moving at
@@ -109,15 +91,16 @@ class SheetCutter:
             change = self._cut_sheet(sheet, sweep, x, v, state)
             if change is not None:
                 changes.append(change)
-        if changes:
-            self._write_constraints()
+                first, end = self.dissection.model.data.organs[sheet.organ].particles
+                self.dissection.model.replace_constraints(first, end, *self._constraints(sheet))
         return changes
 
     def _cut_sheet(self, sheet: _Sheet, sweep, x, v, state) -> TopologyChange | None:
         topology = self.dissection.topology
         vertices, triangles = topology.vertices, topology.triangles
         rows = np.flatnonzero(
-            triangles["alive"][: triangles.used] & (triangles["organ"][: triangles.used] == sheet.organ)
+            triangles["alive"][: triangles.used]
+            & (triangles["organ"][: triangles.used] == sheet.organ)
         )
         used, local = np.unique(triangles["vertices"][rows], return_inverse=True)
         particles = vertices["index"][used, 0]
@@ -191,7 +174,6 @@ class SheetCutter:
         )
         self.dissection.apply(change, state)
         sheet.free.extend(int(p) for p in dead_particles[::-1])
-        self._rebuild(sheet)
         return change
 
     def _fragments(self, sheet: _Sheet, faces: np.ndarray, particles: np.ndarray):
@@ -211,38 +193,27 @@ class SheetCutter:
         counts = [len(np.unique(faces[pieces == k])) for k in np.flatnonzero(small)]
         return small[pieces], counts
 
-    def _rebuild(self, sheet: _Sheet):
-        """The sheet's edges, bending pairs and relaxed LRAs on its live triangles
-        (module docstring)."""
+    def _constraints(self, sheet: _Sheet) -> tuple[np.ndarray, ...]:
+        """The sheet's edges and bending pairs (pairs, rest lengths [m], stiffness)
+        and relaxed LRAs (particles, anchors, rest distances [m]) on its live
+        triangles (module docstring)."""
         topology = self.dissection.topology
         vertices, triangles = topology.vertices, topology.triangles
         rows = np.flatnonzero(
-            triangles["alive"][: triangles.used] & (triangles["organ"][: triangles.used] == sheet.organ)
+            triangles["alive"][: triangles.used]
+            & (triangles["organ"][: triangles.used] == sheet.organ)
         )
         faces = vertices["index"][triangles["vertices"][rows], 0]  # particles
         edges, bending = unique_edges(faces), bending_pairs(faces)
-        sheet.pairs = np.concatenate([edges, bending])
-        sheet.rest = np.linalg.norm(
-            topology.rest[sheet.pairs[:, 0]] - topology.rest[sheet.pairs[:, 1]], axis=1
-        )
-        sheet.stiffness = np.concatenate(
-            [np.full(len(edges), sheet.edge_stiffness), np.full(len(bending), sheet.bending_stiffness)]
+        pairs = np.concatenate([edges, bending])
+        rest = np.linalg.norm(topology.rest[pairs[:, 0]] - topology.rest[pairs[:, 1]], axis=1)
+        stiffness = np.repeat(
+            [sheet.edge_stiffness, sheet.bending_stiffness], [len(edges), len(bending)]
         )
         live, local = np.unique(faces, return_inverse=True)
         anchors = np.flatnonzero(np.isin(live, sheet.anchors))
-        if len(anchors):
-            mesh = TriangleMesh(topology.rest[live], local.reshape(-1, 3))
-            lra = long_range_attachments(mesh, anchors, sheet.anchors_per_vertex)
-            sheet.lra = (live[lra.particle], live[lra.anchor], lra.rest)
-        else:
-            sheet.lra = (np.zeros(0, np.int64),) * 2 + (np.zeros(0),)
-
-    def _write_constraints(self):
-        """Every organ's distance constraints and LRAs, the sheets' as cut, to the
-        model."""
-        sheets = self.sheets
-        pairs = np.concatenate([self.other[0], *[s.pairs for s in sheets]])
-        rest = np.concatenate([self.other[1], *[s.rest for s in sheets]])
-        stiffness = np.concatenate([self.other[2], *[s.stiffness for s in sheets]])
-        lra = [np.concatenate([self.other_lra[i], *[s.lra[i] for s in sheets]]) for i in range(3)]
-        self.dissection.model.write_constraints(pairs, rest, stiffness, *lra)
+        if not len(anchors):
+            return pairs, rest, stiffness, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+        mesh = TriangleMesh(topology.rest[live], local.reshape(-1, 3))
+        lra = long_range_attachments(mesh, anchors, sheet.anchors_per_vertex)
+        return pairs, rest, stiffness, live[lra.particle], live[lra.anchor], lra.rest

@@ -98,14 +98,18 @@ class Sweep:
         rotations by slerp, so that no point within the tool's reach turns more than
         half :attr:`thickness` between two (at most :data:`MAX_POSES`); with a box,
         whose sweep is the union of its poses, nor moves."""
-        turn = Rotation.from_matrix(self.rotations)
-        angle = (turn[0].inv() * turn[1]).magnitude()
-        travel = angle * (self.geometry.reach() + self.geometry.length)
+        turning = not np.array_equal(self.rotations[0], self.rotations[1])
+        if turning:  # (a translation, the usual frame's motion, needs no slerp)
+            turn = Rotation.from_matrix(self.rotations)
+            angle = (turn[0].inv() * turn[1]).magnitude()
+        travel = angle * (self.geometry.reach() + self.geometry.length) if turning else 0.0
         if self.geometry.boxes():
             travel += float(np.linalg.norm(self.tips[1] - self.tips[0]))
         count = int(np.clip(np.ceil(travel / (0.5 * self.thickness)) + 1, 2, MAX_POSES))
         s = np.linspace(0.0, 1.0, count)
         tips = self.tips[0] + np.multiply.outer(s, self.tips[1] - self.tips[0])
+        if not turning:
+            return tips, np.repeat(self.rotations[:1], count, axis=0)
         return tips, Slerp([0.0, 1.0], turn)(s).as_matrix()
 
     @cached_property

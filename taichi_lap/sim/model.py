@@ -18,6 +18,7 @@ import taichi as ti
 from taichi_lap.core.csr import both_ends, incidence
 from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows
 from taichi_lap.core.mesh import incident_table
+from taichi_lap.kernels.scatter import RowWrites
 from taichi_lap.preprocess.model_data import ModelData
 
 CHUNK = 128
@@ -325,9 +326,25 @@ class Model(FieldOwner):
         bounds = np.searchsorted(colors[order], np.arange(colors.max() + 2)) if len(pairs) else [0]
         self.color_ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         self.distance_count = len(pairs)
+        self._constraint_host = {  # as given (replace_constraints splices them)
+            "pairs": pairs,
+            "rest": rest,
+            "stiffness": np.asarray(stiffness, dtype=np.float64),
+            "lra_particle": np.asarray(lra_particle, dtype=np.int64),
+            "lra_anchor": np.asarray(lra_anchor, dtype=np.int64),
+            "lra_rest": np.asarray(lra_rest, dtype=np.float64),
+        }
         lra_start, rows = incidence(np.asarray(lra_particle, dtype=np.int64), n)
         self.lra_count = len(rows)
         lra_anchor, lra_rest = np.asarray(lra_anchor)[rows], np.asarray(lra_rest)[rows]
+        self._starts = {"distance_start": start, "lra_start": lra_start}
+        self._entries = {  # the Jacobi tables' rows as written
+            "distance_other": other,
+            "distance_rest": rest[edge],
+            "distance_stiffness": stiff[edge],
+            "lra_anchor": lra_anchor,
+            "lra_rest": lra_rest,
+        }
         tables = {
             "distance_start": (start, None, 0),
             "distance_other": (other, "distance_ends", 0),
@@ -343,17 +360,88 @@ class Model(FieldOwner):
             tables["colored_stiffness"] = (stiff[order], "distances", 0)
         return tables
 
-    def write_constraints(self, pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest):
-        """Replace the distance constraints and long-range attachments (a cut sheet's,
-        :mod:`taichi_lap.dissection.sheet_cut`): whole fields are written, after
-        growing the rows (:meth:`grow`) when there are more than are spare."""
-        tables = self._constraint_tables(pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest)
-        need = {"distances": self.distance_count, "distance_ends": 2 * self.distance_count}
-        need["attachments"] = self.lra_count
+    def replace_constraints(
+        self, first: int, end: int, pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest
+    ):
+        """Make ``pairs`` (with their ``rest`` lengths [m] and ``stiffness``) the
+        distance constraints, and ``lra_particle``/``lra_anchor``/``lra_rest`` the
+        long-range attachments, of the particles ``first..end`` (a cut sheet's,
+        :mod:`taichi_lap.dissection.sheet_cut`; constraints stay within an organ).
+        The Jacobi tables are spliced on the host and written from the first row that
+        changed on, in one launch; rows that run out grow (:meth:`grow`, then the
+        tables are written whole), and the Gauss-Seidel solver's colours are found
+        again over all constraints."""
+        host = self._constraint_host
+        mine = (host["pairs"][:, 0] >= first) & (host["pairs"][:, 0] < end)
+        attached = (host["lra_particle"] >= first) & (host["lra_particle"] < end)
+        keep = {
+            name: values[~(attached if name.startswith("lra") else mine)]
+            for name, values in host.items()
+        }
+        new = {
+            "pairs": np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+            "rest": np.asarray(rest, dtype=np.float64),
+            "stiffness": np.asarray(stiffness, dtype=np.float64),
+            "lra_particle": np.asarray(lra_particle, dtype=np.int64),
+            "lra_anchor": np.asarray(lra_anchor, dtype=np.int64),
+            "lra_rest": np.asarray(lra_rest, dtype=np.float64),
+        }
+        merged = {name: np.concatenate([keep[name], new[name]]) for name in host}
+        need = {
+            "distances": len(merged["pairs"]),
+            "distance_ends": 2 * len(merged["pairs"]),
+            "attachments": len(merged["lra_particle"]),
+        }
         short = {k: n for k, n in need.items() if n > self.capacity[k]}
-        if short:
-            self.grow(**{k: max(n, int(1.5 * self.capacity[k])) for k, n in short.items()})
-        self._write_whole(tables)
+        if short or self.constraint_solver == "gauss_seidel":
+            if short:
+                self.grow(**{k: max(n, int(1.5 * self.capacity[k])) for k, n in short.items()})
+            self._write_whole(self._constraint_tables(*merged.values()))
+            return
+        self._splice_constraints(first, end, new)
+        self._constraint_host = merged
+
+    def _splice_constraints(self, first: int, end: int, new: dict[str, np.ndarray]):
+        """Write the Jacobi tables with particles ``first..end``'s lists replaced by
+        those of ``new`` (:meth:`replace_constraints`)."""
+        count = end - first
+        pairs = new["pairs"] - first
+        start, edge, other = both_ends(pairs, count)
+        lra_start, rows = incidence(new["lra_particle"] - first, count)
+        stiff = iteration_stiffness(new["stiffness"], self.iterations)
+        writes = RowWrites()
+        for name, ends, columns in (
+            (
+                "distance_start",
+                start,
+                {
+                    "distance_other": other + first,
+                    "distance_rest": new["rest"][edge],
+                    "distance_stiffness": stiff[edge],
+                },
+            ),
+            (
+                "lra_start",
+                lra_start,
+                {"lra_anchor": new["lra_anchor"][rows], "lra_rest": new["lra_rest"][rows]},
+            ),
+        ):
+            old = self._starts[name]
+            e0, e1 = int(old[first]), int(old[end])
+            entries = {
+                field: np.concatenate([values, self._entries[field][e1 : old[-1]]])
+                for field, values in columns.items()
+            }
+            starts = np.concatenate([e0 + ends, old[end + 1 :] + (e0 + int(ends[-1]) - e1)])
+            self._starts[name] = np.concatenate([old[:first], starts])
+            for field, values in entries.items():
+                self._entries[field] = np.concatenate([self._entries[field][:e0], values])
+            writes.add(np.arange(first, len(old)), {getattr(self, name): starts})
+            rows_written = np.arange(e0, e0 + len(next(iter(entries.values()))))
+            writes.add(rows_written, {getattr(self, field): v for field, v in entries.items()})
+        writes.flush()
+        self.distance_count = int(self._starts["distance_start"][-1]) // 2
+        self.lra_count = int(self._starts["lra_start"][-1])
 
     def _write_whole(self, tables: dict[str, tuple[np.ndarray, str | None, int]]):
         """Write each field of ``tables`` (:meth:`_as_built` entries) whole, its spare
