@@ -277,12 +277,9 @@ class Session:
             if not buttons.get(tool["name"], 0) & button:
                 continue
             start = time.perf_counter()
-            if self._cutter is None:
-                materials = [organ.material for organ in self.scene.organs]
-                self._cutter = SheetCutter(self._dissected(), materials)
             sweep = Sweep.between(geometry, *before, *pose)
-            x, v = (field.to_numpy().astype(np.float64) for field in (self.state.x, self.state.v))
-            changes = self._cutter.cut(sweep, x, v, self.state)
+            x, v = self._motion()
+            changes = self._sheet_cutter().cut(sweep, x, v, self.state)
             for change in changes:
                 self._follow(change)
             spent = (time.perf_counter() - start) * 1e3
@@ -295,6 +292,35 @@ class Session:
                 for change in changes
                 for count in change.fragments
             ]
+
+    def _tear(self):
+        """Tearing (:meth:`SheetCutter.tear`) of the sheets with a ``tear_strain``,
+        after the physics stretched them; event ``tear`` with the organ and the
+        triangles made."""
+        if not any(organ.material.get("tear_strain", 0.0) > 0.0 for organ in self.scene.organs):
+            return
+        start = time.perf_counter()
+        torn = self._sheet_cutter().tear(*self._motion(), self.state)
+        for organ, change in torn:
+            self._follow(change)
+            self.events.append(
+                {"kind": "tear", "organ": organ, "triangles": len(change.new_triangles)}
+            )
+            self.events += [{"kind": "fragment", "particles": n} for n in change.fragments]
+        if torn:
+            spent = (time.perf_counter() - start) * 1e3
+            self.timings["topology"] = self.timings.get("topology", 0.0) + spent
+
+    def _motion(self) -> tuple[np.ndarray, np.ndarray]:
+        """The particles' positions and velocities (N, 3) [m, m/s] on the host."""
+        return tuple(field.to_numpy().astype(np.float64) for field in (self.state.x, self.state.v))
+
+    def _sheet_cutter(self) -> SheetCutter:
+        """The session's sheet cutter, made at its first use."""
+        if self._cutter is None:
+            materials = [organ.material for organ in self.scene.organs]
+            self._cutter = SheetCutter(self._dissected(), materials)
+        return self._cutter
 
     def _dissect(self):
         """Blunt dissection (seed 002 §3.3: "physical particles are removed
@@ -470,6 +496,7 @@ class Session:
         names = [tool["name"] for tool in self.scene.tools]
         self.events += [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
         self._energise(buttons or {})
+        self._tear()
         self._dissect()
         self._cauterize()
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON
-from taichi_lap.core.mesh import element_pieces
+from taichi_lap.core.mesh import element_pieces, unique_edges
 from taichi_lap.devices import ScriptedDevice
 from taichi_lap.preprocess.organs import CUT_RESERVE
 from taichi_lap.scene import from_tables
@@ -257,3 +257,78 @@ def test_a_cut_on_vulkan_matches_cpu():
     assert_backend_matches_cpu(
         "tests.test_sheet_cut:quick_cut", 1e-3, per_key={"triangles": 0, "pieces": 0}
     )
+
+
+def pull(tear_strain: float) -> tuple[Session, list[dict]]:
+    """A grasper closes on the flat sheet (no gravity) 4.5 cm from its anchored edge
+    and pulls that patch 8 cm further away in 1.5 s; the session after 100 frames and
+    its events."""
+    sheet = dict(SHEET, material=dict(SHEET["material"], tear_strain=tear_strain))
+    tool = {
+        "name": "grasper",
+        "kind": "grasper",
+        "radius": 0.0025,
+        "length": 0.2,
+        "tip": [0.04, 0.005, 0.0],
+        "direction": [0.0, 1.0, 0.0],
+    }
+    scene = from_tables([sheet], tools=[tool], gravity=[0.0, 0.0, 0.0])
+    session = Session(scene, use_cache=False, progress=False)
+    script = [
+        {"time": 0.0, "tool": "grasper", "tip": [0.04, 0.005, 0.0]},
+        {"time": 0.1, "tool": "grasper", "tip": [0.04, 0.005, 0.0], "grasp": True},
+        {"time": 1.6, "tool": "grasper", "tip": [0.12, 0.005, 0.0]},
+    ]
+    device = ScriptedDevice.from_tables("pull", script, scene.tools)
+    events = []
+    for _ in range(100):
+        time = session.state.time
+        session.step(device.poses(time), device.buttons(time))
+        events += session.events
+    return session, events
+
+
+def test_a_pulled_sheet_tears_round_the_grip_and_the_rest_lets_go():
+    """Müller et al. 2007's tearing: split by split, the patch in the jaws tears free;
+    it holds no anchor and no long-range attachment after, and the rest of the sheet,
+    no longer pulled across the tear, relaxes below the tear strain; mass is kept."""
+    tear_strain = 0.3
+    session, events = pull(tear_strain)
+    try:
+        tears = [e for e in events if e["kind"] == "tear"]
+        assert len(tears) >= 5 and all(e["organ"] == "fascia" for e in tears)
+        session.check_topology()
+        triangles = live_sheet(session)
+        pieces = element_pieces(triangles)
+        held = np.flatnonzero(session.state.grasp_tool.to_numpy() >= 0)
+        assert len(held) > 0
+        piece_of = np.full(session.data.particle_count, -1)
+        piece_of[triangles.ravel()] = np.repeat(pieces, 3)
+        grip = np.unique(piece_of[held])
+        assert len(grip) == 1 and grip[0] >= 0
+        in_grip = pieces == grip[0]
+        assert in_grip.sum() < 0.1 * len(triangles)  # the patch alone tore off
+        start = session.model.lra_start.to_numpy()
+        owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
+        assert not np.isin(owner, triangles[in_grip]).any()
+        x, rest = session.state.x.to_numpy(), session._dissection.topology.rest
+        edges = unique_edges(triangles[~in_grip])
+        strain = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1) / np.linalg.norm(
+            rest[edges[:, 0]] - rest[edges[:, 1]], axis=1
+        )
+        assert strain.max() - 1.0 < tear_strain
+        live = np.unique(triangles)
+        mass = session.model.mass.to_numpy()
+        built = sheet_particles(session)
+        assert mass[live].sum() == pytest.approx(session.data.mass[built].sum(), rel=1e-5)
+    finally:
+        session.close()
+
+
+def test_a_sheet_without_a_tear_strain_does_not_tear():
+    session, events = pull(0.0)
+    try:
+        assert not [e for e in events if e["kind"] == "tear"]
+        assert session._dissection is None
+    finally:
+        session.close()

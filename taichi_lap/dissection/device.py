@@ -108,10 +108,11 @@ class DeviceTopology:
         writes.flush()
         model.topology_version += 1
 
-    def add_particles(self, particles, rest, mass, x, v, state):
-        """Give the particle rows ``particles`` (a sheet's reserve, taken by a cut,
-        :mod:`taichi_lap.dissection.sheet_cut`) their rest position, mass, inverse
-        mass, position and velocity ((P, 3) or (P,) each) in the model and ``state``."""
+    def set_particles(self, particles, rest, mass, x, v, state):
+        """Give the particle rows ``particles`` (a sheet's reserve rows a cut or tear
+        takes, a torn vertex's: :mod:`taichi_lap.dissection.sheet_cut`) their rest
+        position, mass, inverse mass, position and velocity ((P, 3) or (P,) each) in
+        the model and ``state``."""
         model = self.model
         inverse = 1.0 / np.asarray(mass, dtype=np.float64)
         self.inverse_mass[particles] = inverse

@@ -16,8 +16,8 @@ that the sheet's topology:
 * its relaxed long-range attachments (Eq. 3) are found again on the cut sheet: each
   vertex keeps its geodesically nearest anchors that its piece still holds, so a
   piece cut free hangs from nothing and falls;
-* a small piece the cut leaves holding no anchor (a sliver of the kerf,
-  :data:`FRAGMENT_TRIANGLES`) goes with the cut, and is reported;
+* a small piece the cut leaves holding no anchor, which no grasper holds (a sliver
+  of the kerf, :data:`FRAGMENT_TRIANGLES`), goes with the cut, and is reported;
 * the surface rows, the drawn mesh and the tissue collision follow the triangles
   (:class:`~taichi_lap.dissection.device.DeviceTopology`).
 """
@@ -34,9 +34,25 @@ from taichi_lap.core.mesh import element_pieces, unique_edges
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
+from taichi_lap.kernels.collision.particle_contact import FREE
+from taichi_lap.kernels.scatter import gather
 from taichi_lap.preprocess.sheets import bending_pairs, long_range_attachments
 
 log = logging.getLogger("taichi_lap")
+
+SHORTEST_REST = 0.25
+"""Strain is measured against at least this fraction of the sheet's median edge (the
+short edges a cut makes near a vertex would tear at the slightest pull)."""
+
+
+def median_edge(data, organ: int) -> float:
+    """The median edge length [m] at rest of ``organ``'s surface as built."""
+    record = data.organs[organ]
+    faces = np.asarray(data.surface_triangles).reshape(-1, 3)[slice(*record.triangles)]
+    edges = unique_edges(np.asarray(data.surface_index).reshape(-1, 4)[faces, 0])
+    rest = np.asarray(data.rest_position)
+    return float(np.median(np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)))
+
 
 FRAGMENT_TRIANGLES = 8
 """A piece of a cut sheet of at most this many triangles holding no anchor is a
@@ -54,6 +70,9 @@ class _Sheet:
     bending_stiffness: float
     anchors_per_vertex: int
     anchors: np.ndarray
+    tear_strain: float
+    edge: float  # the median edge length at rest as built [m]
+    spent: bool = False  # whether the reserve ran out (said once)
 
 
 class SheetCutter:
@@ -79,15 +98,19 @@ class SheetCutter:
                 bending_stiffness=float(material["bending_stiffness"]),
                 anchors_per_vertex=int(material["lra_anchors"]),
                 anchors=built[np.asarray(data.pinned)[built]],
+                tear_strain=float(material.get("tear_strain", 0.0)),
+                edge=median_edge(data, k),
             )
             self.sheets.append(sheet)
 
-    def cut(self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state) -> list[TopologyChange]:
-        """Cut every sheet ``sweep`` reaches, with its particles at ``x`` moving at
-        ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``; returns
-        them (none where nothing was cut)."""
+    def cut(
+        self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state, sheets=None
+    ) -> list[TopologyChange]:
+        """Cut every sheet ``sweep`` reaches (of ``sheets``, default all), with its
+        particles at ``x`` moving at ``v`` (N, 3) [m, m/s]; write the changes to the
+        model and ``state``; returns them (none where nothing was cut)."""
         changes = []
-        for sheet in self.sheets:
+        for sheet in self.sheets if sheets is None else sheets:
             change = self._cut_sheet(sheet, sweep, x, v, state)
             if change is not None:
                 changes.append(change)
@@ -98,10 +121,7 @@ class SheetCutter:
     def _cut_sheet(self, sheet: _Sheet, sweep, x, v, state) -> TopologyChange | None:
         topology = self.dissection.topology
         vertices, triangles = topology.vertices, topology.triangles
-        rows = np.flatnonzero(
-            triangles["alive"][: triangles.used]
-            & (triangles["organ"][: triangles.used] == sheet.organ)
-        )
+        rows = self._rows(sheet)
         used, local = np.unique(triangles["vertices"][rows], return_inverse=True)
         particles = vertices["index"][used, 0]
         cut = cut_surface(x[particles], local.reshape(-1, 3), sweep)
@@ -112,20 +132,14 @@ class SheetCutter:
         kept[cut.removed] = False
         faces = np.concatenate([local.reshape(-1, 3)[kept], cut.added])
         row_of = np.concatenate([rows[kept], np.full(len(cut.added), -1)])  # -1: made
-        fragment, fragments = self._fragments(sheet, faces, particles)
+        held = gather(state.grasp_tool, particles) != FREE
+        fragment, fragments = self._fragments(sheet, faces, particles, held)
         dead_triangles = np.concatenate([rows[cut.removed], row_of[fragment & (row_of >= 0)]])
         added = faces[~fragment & (row_of < 0)]
         in_use = np.zeros(count + len(cut.vertex_parents), dtype=bool)
         in_use[faces[~fragment].ravel()] = True
         made = np.flatnonzero(in_use[count:])
-        if len(made) > len(sheet.free):
-            log.warning(
-                "cut of %s: its reserve of particle rows is spent (%d needed, %d left); "
-                "this cut is not made",
-                self.dissection.model.data.organs[sheet.organ].name,
-                len(made),
-                len(sheet.free),
-            )
+        if not self._reserve_left(sheet, len(made)):
             return None
         new_particles = np.array([sheet.free.pop() for _ in made], dtype=np.int64)
         weights, parents = cut.vertex_weights[made], particles[cut.vertex_parents[made]]
@@ -163,7 +177,7 @@ class SheetCutter:
         triangles["alive"][new_triangles] = True
         np.add.at(vertices["uses"], slot[added].ravel(), 1)
 
-        self.dissection.add_particles(new_particles, rest, mass, blend(x), blend(v), state)
+        self.dissection.set_particles(new_particles, rest, mass, blend(x), blend(v), state)
         change = TopologyChange(
             removed_particles=dead_particles,
             dead_triangles=dead_triangles,
@@ -176,17 +190,113 @@ class SheetCutter:
         sheet.free.extend(int(p) for p in dead_particles[::-1])
         return change
 
-    def _fragments(self, sheet: _Sheet, faces: np.ndarray, particles: np.ndarray):
+    def tear(self, x: np.ndarray, v: np.ndarray, state) -> list[tuple[str, TopologyChange]]:
+        """Tearing after Müller et al. 2007 ("Position based dynamics", the tearing of
+        its cloth): in each sheet with a ``tear_strain``, the edge stretched most
+        beyond it (|x_i - x_j| / L - 1, L at least :data:`SHORTEST_REST` of the
+        sheet's median edge) splits one of its ends: a plane through that vertex,
+        perpendicular to the edge, parts its triangles by the side their centroid lies
+        on, and those on the edge's side get a copy of the vertex (a reserve row; the
+        two share its mass). One split per sheet and frame: a tear runs on where the
+        strain concentrates next. The physics follows as after a cut. Returns the
+        organ names and changes."""
+        topology = self.dissection.topology
+        out = []
+        for sheet in self.sheets:
+            if sheet.tear_strain <= 0.0:
+                continue
+            rows = self._rows(sheet)
+            faces = topology.vertices["index"][topology.triangles["vertices"][rows], 0]
+            edges = unique_edges(faces)
+            rest = np.linalg.norm(topology.rest[edges[:, 0]] - topology.rest[edges[:, 1]], axis=1)
+            length = np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1)
+            strain = length / np.maximum(rest, SHORTEST_REST * sheet.edge) - 1.0
+            for e in np.argsort(-strain):
+                if strain[e] <= sheet.tear_strain:
+                    break
+                change = self._split(sheet, rows, faces, edges[e], x, v, state)
+                if change is not None:
+                    out.append((self.dissection.model.data.organs[sheet.organ].name, change))
+                    first, end = self.dissection.model.data.organs[sheet.organ].particles
+                    constraints = self._constraints(sheet)
+                    self.dissection.model.replace_constraints(first, end, *constraints)
+                    break
+        return out
+
+    def _split(self, sheet: _Sheet, rows, faces, edge, x, v, state) -> TopologyChange | None:
+        """Split an end of ``edge`` (particles) by the plane through it perpendicular
+        to the edge (:meth:`tear`); None where neither end can be split (pinned, or
+        all its triangles on one side) or the reserve is spent."""
+        topology = self.dissection.topology
+        vertices, triangles = topology.vertices, topology.triangles
+        for p, q in (edge, edge[::-1]):
+            if p in sheet.anchors:
+                continue
+            around = (faces == p).any(axis=1)
+            direction = x[q] - x[p]
+            side = (x[faces[around]].mean(axis=1) - x[p]) @ direction > 0.0
+            if side.all() or not side.any():
+                continue
+            if not self._reserve_left(sheet, 1):
+                return None
+            new = sheet.free.pop()
+            mass = 0.5 * self.mass[p]
+            self.mass[[p, new]] = mass
+            topology.rest[new] = topology.rest[p]
+            topology.particle_alive[new] = True
+            slot_of_p = vertices["index"][:, 0] == p
+            old_slot = int(np.flatnonzero(slot_of_p & vertices["alive"])[0])
+            slot = vertices.take(1)
+            for name in vertices.arrays:
+                vertices[name][slot] = vertices[name][old_slot]
+            vertices["index"][slot] = new
+            moved = rows[around][side]
+            corners = triangles["vertices"][moved]
+            corners[corners == old_slot] = slot[0]
+            triangles["vertices"][moved] = corners
+            vertices["uses"][old_slot] -= len(moved)
+            vertices["uses"][slot] = len(moved)
+            both = np.array([p, new])
+            self.dissection.set_particles(
+                both, topology.rest[both], self.mass[both], x[[p, p]], v[[p, p]], state
+            )
+            change = TopologyChange(new_triangles=moved, new_vertices=slot)
+            self.dissection.apply(change, state)
+            return change
+        return None
+
+    def _reserve_left(self, sheet: _Sheet, count: int) -> bool:
+        """Whether ``count`` reserve rows are left; says once when they run out."""
+        if count <= len(sheet.free):
+            return True
+        if not sheet.spent:
+            sheet.spent = True
+            log.warning(
+                "%s: its reserve of %d particle rows for cuts is spent; cuts and tears "
+                "that need more rows are not made",
+                self.dissection.model.data.organs[sheet.organ].name,
+                self.dissection.model.data.organs[sheet.organ].reserve,
+            )
+        return False
+
+    def _rows(self, sheet: _Sheet) -> np.ndarray:
+        """The rows of the sheet's live triangles."""
+        triangles = self.dissection.topology.triangles
+        used = slice(0, triangles.used)
+        return np.flatnonzero(triangles["alive"][used] & (triangles["organ"][used] == sheet.organ))
+
+    def _fragments(self, sheet: _Sheet, faces: np.ndarray, particles: np.ndarray, held):
         """Which of the cut sheet's ``faces`` (vertices numbered as the cut numbers
-        them, the first ``len(particles)`` those of ``particles``) belong to a
-        fragment: a piece of at most :data:`FRAGMENT_TRIANGLES` triangles that holds
-        no anchor (a sliver left in the kerf, removed with the cut); and the
+        them, the first ``len(particles)`` those of ``particles``, ``held`` those a
+        grasper holds) belong to a fragment: a piece of at most
+        :data:`FRAGMENT_TRIANGLES` triangles that holds no anchor and that no
+        grasper holds (a sliver left in the kerf, removed with the cut); and the
         particle count of each fragment."""
         pieces = element_pieces(faces)
         sizes = np.bincount(pieces)
         known = faces < len(particles)
         anchor = np.zeros(faces.shape, dtype=bool)
-        anchor[known] = np.isin(particles[faces[known]], sheet.anchors)
+        anchor[known] = np.isin(particles[faces[known]], sheet.anchors) | held[faces[known]]
         anchored = np.zeros(len(sizes), dtype=bool)
         anchored[pieces[anchor.any(axis=1)]] = True
         small = (sizes <= FRAGMENT_TRIANGLES) & ~anchored
@@ -199,10 +309,7 @@ class SheetCutter:
         triangles (module docstring)."""
         topology = self.dissection.topology
         vertices, triangles = topology.vertices, topology.triangles
-        rows = np.flatnonzero(
-            triangles["alive"][: triangles.used]
-            & (triangles["organ"][: triangles.used] == sheet.organ)
-        )
+        rows = self._rows(sheet)
         faces = vertices["index"][triangles["vertices"][rows], 0]  # particles
         edges, bending = unique_edges(faces), bending_pairs(faces)
         pairs = np.concatenate([edges, bending])

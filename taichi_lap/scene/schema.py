@@ -259,6 +259,14 @@ MATERIAL_PARAMS = {
         ),
         "lra_relaxation": Param("float", 0.25, "β of Eq. 3 (seed 000 §7: 0.1-0.4)", lo=0.0, hi=1.0),
         "lra_anchors": Param("int", 4, "nearest attached vertices each vertex keeps", lo=1, hi=64),
+        "tear_strain": Param(
+            "float",
+            0.0,
+            "the sheet tears across an edge stretched beyond this fraction of its rest length"
+            " (Müller et al. 2007); 0: it never tears",
+            lo=0.0,
+            hi=10.0,
+        ),
         "haptic_mass_ratio": _HAPTIC_MASS_RATIO,
     },
     "truss": {
