@@ -154,7 +154,7 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
 
 def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
-    status = headless_run(tmp_path / "f", "rectum", 1, *TWO_DEVICES)
+    status = headless_run(tmp_path / "f", "liver", 1, *TWO_DEVICES)
     assert status == 2
     err = capsys.readouterr().err
     assert (
