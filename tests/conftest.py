@@ -37,6 +37,7 @@ LONGEST_FILES_FIRST = (
     "test_session.py",
     "test_shape_matching.py",
     "test_grasp.py",
+    "test_sheet_cut.py",
     "test_render.py",
 )
 """Test files that took the longest (over a minute each on a 2-core machine), longest
