@@ -49,6 +49,33 @@ def spare_rows(count: int, dissectable: bool, spare: float = 0.5) -> int:
     return count + (int(spare * count) + 64 if dissectable else 0)
 
 
+JACOBI_ROWS = {
+    "distance_start": None,
+    "distance_other": "distance_ends",
+    "distance_rest": "distance_ends",
+    "distance_stiffness": "distance_ends",
+    "lra_start": None,
+    "lra_anchor": "attachments",
+    "lra_rest": "attachments",
+}
+"""The Jacobi tables of the distance constraints and long-range attachments: field ->
+the kind of its spare rows (None: one row per particle and one more)."""
+
+
+def constraint_arrays(pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest) -> dict:
+    """Distance constraints and long-range attachments as arrays of one shape and type
+    each: ``pairs`` (D, 2), ``rest`` [m] and ``stiffness`` (D,), ``lra_particle``,
+    ``lra_anchor`` and ``lra_rest`` [m] (A,)."""
+    return {
+        "pairs": np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+        "rest": np.asarray(rest, dtype=np.float64),
+        "stiffness": np.asarray(stiffness, dtype=np.float64),
+        "lra_particle": np.asarray(lra_particle, dtype=np.int64),
+        "lra_anchor": np.asarray(lra_anchor, dtype=np.int64),
+        "lra_rest": np.asarray(lra_rest, dtype=np.float64),
+    }
+
+
 def iteration_stiffness(stiffness: np.ndarray, iterations: int) -> np.ndarray:
     """Per-iteration stiffness k' = 1 - (1 - k)^(1/n) so that n iterations give the
     effect of stiffness k whatever n is (Müller et al. 2007, §3.3)."""
@@ -312,13 +339,16 @@ class Model(FieldOwner):
     ) -> dict[str, tuple[np.ndarray, str | None, int]]:
         """The distance constraints (struts, sheet edges; ``stiffness`` per
         constraint, made per iteration) as per-particle lists for the Jacobi gather
-        and, for the Gauss-Seidel solver, sorted by colour, and the long-range attachments per
-        constrained particle (seed 000 §3.2), as :meth:`_as_built` entries. Sets the
-        counts and :attr:`color_ranges`."""
+        and, for the Gauss-Seidel solver, sorted by colour, and the long-range
+        attachments per constrained particle (seed 000 §3.2), as :meth:`_as_built`
+        entries. Sets the counts and :attr:`color_ranges`."""
         n = self.particle_count
-        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        rest = np.asarray(rest, dtype=np.float64)
-        stiff = iteration_stiffness(stiffness, self.iterations)
+        # as given: replace_constraints splices them
+        host = self._constraint_host = constraint_arrays(
+            pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest
+        )
+        pairs, rest = host["pairs"], host["rest"]
+        stiff = iteration_stiffness(host["stiffness"], self.iterations)
         start, edge, other = both_ends(pairs, n)
         gauss_seidel = self.constraint_solver == "gauss_seidel"
         colors = greedy_colors(pairs, n) if gauss_seidel else np.zeros(len(pairs), dtype=np.int64)
@@ -326,34 +356,18 @@ class Model(FieldOwner):
         bounds = np.searchsorted(colors[order], np.arange(colors.max() + 2)) if len(pairs) else [0]
         self.color_ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         self.distance_count = len(pairs)
-        self._constraint_host = {  # as given (replace_constraints splices them)
-            "pairs": pairs,
-            "rest": rest,
-            "stiffness": np.asarray(stiffness, dtype=np.float64),
-            "lra_particle": np.asarray(lra_particle, dtype=np.int64),
-            "lra_anchor": np.asarray(lra_anchor, dtype=np.int64),
-            "lra_rest": np.asarray(lra_rest, dtype=np.float64),
-        }
-        lra_start, rows = incidence(np.asarray(lra_particle, dtype=np.int64), n)
+        lra_start, rows = incidence(host["lra_particle"], n)
         self.lra_count = len(rows)
-        lra_anchor, lra_rest = np.asarray(lra_anchor)[rows], np.asarray(lra_rest)[rows]
-        self._starts = {"distance_start": start, "lra_start": lra_start}
-        self._entries = {  # the Jacobi tables' rows as written
+        self._jacobi = {  # the Jacobi tables as written (replace_constraints splices them)
+            "distance_start": start,
             "distance_other": other,
             "distance_rest": rest[edge],
             "distance_stiffness": stiff[edge],
-            "lra_anchor": lra_anchor,
-            "lra_rest": lra_rest,
+            "lra_start": lra_start,
+            "lra_anchor": host["lra_anchor"][rows],
+            "lra_rest": host["lra_rest"][rows],
         }
-        tables = {
-            "distance_start": (start, None, 0),
-            "distance_other": (other, "distance_ends", 0),
-            "distance_rest": (rest[edge], "distance_ends", 0),
-            "distance_stiffness": (stiff[edge], "distance_ends", 0),
-            "lra_start": (lra_start, None, 0),
-            "lra_anchor": (lra_anchor, "attachments", 0),
-            "lra_rest": (lra_rest, "attachments", 0),
-        }
+        tables = {name: (values, JACOBI_ROWS[name], 0) for name, values in self._jacobi.items()}
         if gauss_seidel:  # the same constraints sorted by colour (Jacobi does not read them)
             tables["colored_pair"] = (pairs[order], "distances", 0)
             tables["colored_rest"] = (rest[order], "distances", 0)
@@ -378,14 +392,7 @@ class Model(FieldOwner):
             name: values[~(attached if name.startswith("lra") else mine)]
             for name, values in host.items()
         }
-        new = {
-            "pairs": np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
-            "rest": np.asarray(rest, dtype=np.float64),
-            "stiffness": np.asarray(stiffness, dtype=np.float64),
-            "lra_particle": np.asarray(lra_particle, dtype=np.int64),
-            "lra_anchor": np.asarray(lra_anchor, dtype=np.int64),
-            "lra_rest": np.asarray(lra_rest, dtype=np.float64),
-        }
+        new = constraint_arrays(pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest)
         merged = {name: np.concatenate([keep[name], new[name]]) for name in host}
         need = {
             "distances": len(merged["pairs"]),
@@ -426,22 +433,22 @@ class Model(FieldOwner):
                 {"lra_anchor": new["lra_anchor"][rows], "lra_rest": new["lra_rest"][rows]},
             ),
         ):
-            old = self._starts[name]
+            old = self._jacobi[name]
             e0, e1 = int(old[first]), int(old[end])
             entries = {
-                field: np.concatenate([values, self._entries[field][e1 : old[-1]]])
+                field: np.concatenate([values, self._jacobi[field][e1 : old[-1]]])
                 for field, values in columns.items()
             }
             starts = np.concatenate([e0 + ends, old[end + 1 :] + (e0 + int(ends[-1]) - e1)])
-            self._starts[name] = np.concatenate([old[:first], starts])
+            self._jacobi[name] = np.concatenate([old[:first], starts])
             for field, values in entries.items():
-                self._entries[field] = np.concatenate([self._entries[field][:e0], values])
+                self._jacobi[field] = np.concatenate([self._jacobi[field][:e0], values])
             writes.add(np.arange(first, len(old)), {getattr(self, name): starts})
             rows_written = np.arange(e0, e0 + len(next(iter(entries.values()))))
             writes.add(rows_written, {getattr(self, field): v for field, v in entries.items()})
         writes.flush()
-        self.distance_count = int(self._starts["distance_start"][-1]) // 2
-        self.lra_count = int(self._starts["lra_start"][-1])
+        self.distance_count = int(self._jacobi["distance_start"][-1]) // 2
+        self.lra_count = int(self._jacobi["lra_start"][-1])
 
     def _write_whole(self, tables: dict[str, tuple[np.ndarray, str | None, int]]):
         """Write each field of ``tables`` (:meth:`_as_built` entries) whole, its spare
