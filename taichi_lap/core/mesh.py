@@ -48,6 +48,11 @@ def unique_edges(
     return out[0] if len(out) == 1 else tuple(out)
 
 
+def pair_lengths(points: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """(E,) the distance between the two points of each pair (E, 2) (edge lengths)."""
+    return np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+
+
 def edge_neighbours(triangles: np.ndarray) -> np.ndarray:
     """(F, 3): the triangle across edge k = (v_k, v_k+1) of each triangle; -1 on a
     boundary or a non-manifold edge (one shared by more than two triangles)."""

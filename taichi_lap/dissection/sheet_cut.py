@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_lap.core.geometry import TriangleMesh
-from taichi_lap.core.mesh import element_pieces, unique_edges
+from taichi_lap.core.mesh import element_pieces, pair_lengths, unique_edges
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
@@ -50,8 +50,7 @@ def median_edge(data, organ: int) -> float:
     record = data.organs[organ]
     faces = np.asarray(data.surface_triangles).reshape(-1, 3)[slice(*record.triangles)]
     edges = unique_edges(np.asarray(data.surface_index).reshape(-1, 4)[faces, 0])
-    rest = np.asarray(data.rest_position)
-    return float(np.median(np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)))
+    return float(np.median(pair_lengths(np.asarray(data.rest_position), edges)))
 
 
 FRAGMENT_TRIANGLES = 8
@@ -103,19 +102,16 @@ class SheetCutter:
             )
             self.sheets.append(sheet)
 
-    def cut(
-        self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state, sheets=None
-    ) -> list[TopologyChange]:
-        """Cut every sheet ``sweep`` reaches (of ``sheets``, default all), with its
-        particles at ``x`` moving at ``v`` (N, 3) [m, m/s]; write the changes to the
-        model and ``state``; returns them (none where nothing was cut)."""
+    def cut(self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state) -> list[TopologyChange]:
+        """Cut every sheet ``sweep`` reaches, with its particles at ``x`` moving at
+        ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``; returns
+        them (none where nothing was cut)."""
         changes = []
-        for sheet in self.sheets if sheets is None else sheets:
+        for sheet in self.sheets:
             change = self._cut_sheet(sheet, sweep, x, v, state)
             if change is not None:
                 changes.append(change)
-                first, end = self.dissection.model.data.organs[sheet.organ].particles
-                self.dissection.model.replace_constraints(first, end, *self._constraints(sheet))
+                self._write_constraints(sheet)
         return changes
 
     def _cut_sheet(self, sheet: _Sheet, sweep, x, v, state) -> TopologyChange | None:
@@ -208,18 +204,15 @@ class SheetCutter:
             rows = self._rows(sheet)
             faces = topology.vertices["index"][topology.triangles["vertices"][rows], 0]
             edges = unique_edges(faces)
-            rest = np.linalg.norm(topology.rest[edges[:, 0]] - topology.rest[edges[:, 1]], axis=1)
-            length = np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1)
-            strain = length / np.maximum(rest, SHORTEST_REST * sheet.edge) - 1.0
+            rest = np.maximum(pair_lengths(topology.rest, edges), SHORTEST_REST * sheet.edge)
+            strain = pair_lengths(x, edges) / rest - 1.0
             for e in np.argsort(-strain):
                 if strain[e] <= sheet.tear_strain:
                     break
                 change = self._split(sheet, rows, faces, edges[e], x, v, state)
                 if change is not None:
                     out.append((self.dissection.model.data.organs[sheet.organ].name, change))
-                    first, end = self.dissection.model.data.organs[sheet.organ].particles
-                    constraints = self._constraints(sheet)
-                    self.dissection.model.replace_constraints(first, end, *constraints)
+                    self._write_constraints(sheet)
                     break
         return out
 
@@ -303,6 +296,12 @@ class SheetCutter:
         counts = [len(np.unique(faces[pieces == k])) for k in np.flatnonzero(small)]
         return small[pieces], counts
 
+    def _write_constraints(self, sheet: _Sheet):
+        """Make the sheet's constraints in the model those of its live triangles
+        (:meth:`_constraints`)."""
+        first, end = self.dissection.model.data.organs[sheet.organ].particles
+        self.dissection.model.replace_constraints(first, end, *self._constraints(sheet))
+
     def _constraints(self, sheet: _Sheet) -> tuple[np.ndarray, ...]:
         """The sheet's edges and bending pairs (pairs, rest lengths [m], stiffness)
         and relaxed LRAs (particles, anchors, rest distances [m]) on its live
@@ -313,7 +312,7 @@ class SheetCutter:
         faces = vertices["index"][triangles["vertices"][rows], 0]  # particles
         edges, bending = unique_edges(faces), bending_pairs(faces)
         pairs = np.concatenate([edges, bending])
-        rest = np.linalg.norm(topology.rest[pairs[:, 0]] - topology.rest[pairs[:, 1]], axis=1)
+        rest = pair_lengths(topology.rest, pairs)
         stiffness = np.repeat(
             [sheet.edge_stiffness, sheet.bending_stiffness], [len(edges), len(bending)]
         )

@@ -19,7 +19,7 @@ import numpy as np
 
 from taichi_lap.core.errors import InputError
 from taichi_lap.core.geometry import Geometry, Solid, SpringSheet, TriangleMesh
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import pair_lengths, unique_edges
 from taichi_lap.preprocess import clusters as clustering
 from taichi_lap.preprocess.meshfile import load_surface_mesh
 from taichi_lap.preprocess.sheets import (
@@ -100,8 +100,7 @@ def _uniform(count: int, total: float) -> np.ndarray:
 
 
 def _mean_edge(mesh: TriangleMesh) -> float:
-    e = unique_edges(mesh.triangles)
-    return float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean())
+    return float(pair_lengths(mesh.vertices, unique_edges(mesh.triangles)).mean())
 
 
 def _surface_parts(mesh: TriangleMesh, mass: float) -> OrganParts:
@@ -120,7 +119,7 @@ def _surface_parts(mesh: TriangleMesh, mass: float) -> OrganParts:
 
 
 def _edge_constraints(parts: OrganParts, pairs: np.ndarray, stiffness: float | np.ndarray):
-    rest = np.linalg.norm(parts.positions[pairs[:, 0]] - parts.positions[pairs[:, 1]], axis=1)
+    rest = pair_lengths(parts.positions, pairs)
     parts.distance_pairs = np.concatenate([parts.distance_pairs, pairs])
     parts.distance_rest = np.concatenate([parts.distance_rest, rest])
     parts.distance_stiffness = np.concatenate(

@@ -10,7 +10,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from taichi_lap.core.geometry import SpringSheet, TriangleMesh
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import pair_lengths, unique_edges
 
 
 def bending_pairs(triangles: np.ndarray) -> np.ndarray:
@@ -43,7 +43,7 @@ def long_range_attachments(mesh: TriangleMesh, anchors: np.ndarray, per_vertex: 
     anchors = np.unique(np.asarray(anchors, dtype=np.int64))
     n = len(mesh.vertices)
     edges = unique_edges(mesh.triangles)
-    length = np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]], axis=1)
+    length = pair_lengths(mesh.vertices, edges)
     graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
     distance = dijkstra(graph, directed=False, indices=anchors)  # (A, n)
     free = np.setdiff1d(np.arange(n), anchors)
@@ -91,7 +91,7 @@ def sheet_springs(
         ]
     )
     points = sheet.rows.reshape(-1, 3)
-    rest = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    rest = pair_lengths(points, pairs)
     return Springs(pairs=pairs, rest=rest, stiffness=stiffness)
 
 
