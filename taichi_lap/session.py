@@ -235,12 +235,13 @@ class Session:
             self._follow(change)
         spent = (time.perf_counter() - start) * 1e3
         self.timings["topology"] = self.timings.get("topology", 0.0) + spent
-        self.events += [{"kind": "fragment", "particles": count} for count in change.fragments]
         return change
 
     def _follow(self, change):
         """After a topology ``change`` was written to the model: the heat, the tissue
-        collision and the drawn surface follow it."""
+        collision and the drawn surface follow it; a fragment it cut off is reported in
+        :attr:`events` (``fragment``, with its particle count)."""
+        self.events += [{"kind": "fragment", "particles": count} for count in change.fragments]
         if self._cautery is not None:
             self._cautery.remove(change.removed_particles)
         collision = self.solver.collision
@@ -287,11 +288,6 @@ class Session:
             if changes:
                 made = sum(len(change.new_triangles) for change in changes)
                 self.events.append({"kind": "cut", "tool": tool["name"], "triangles": made})
-            self.events += [
-                {"kind": "fragment", "particles": count}
-                for change in changes
-                for count in change.fragments
-            ]
 
     def _tear(self):
         """Tearing (:meth:`SheetCutter.tear`) of the sheets with a ``tear_strain``,
@@ -306,7 +302,6 @@ class Session:
             self.events.append(
                 {"kind": "tear", "organ": organ, "triangles": len(change.new_triangles)}
             )
-            self.events += [{"kind": "fragment", "particles": n} for n in change.fragments]
         if torn:
             spent = (time.perf_counter() - start) * 1e3
             self.timings["topology"] = self.timings.get("topology", 0.0) + spent
