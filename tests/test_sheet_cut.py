@@ -15,28 +15,11 @@ from taichi_lap.preprocess.organs import CUT_RESERVE
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
 from tests.archrun import assert_backend_matches_cpu
+from tests.test_lra import fascia
 
-SHEET = {
-    "name": "fascia",
-    "model": "fascia_lra",
-    "geometry": {
-        "generator": "sheet",
-        "width": 0.1,
-        "depth": 0.06,
-        "resolution_x": 16,
-        "resolution_z": 10,
-        "sag": 0.0,
-    },
-    "material": {
-        "lra_relaxation": 0.25,
-        "lra_anchors": 4,
-        "edge_stiffness": 1.0,
-        "bending_stiffness": 0.05,
-        "damping": 4.0,
-    },
-    # anchored along its edge at x = -0.05: settled, it hangs below that edge
-    "attachments": [{"kind": "lra_anchor", "box_min": [-1, -1, -1], "box_max": [-0.049, 1, 1]}],
-}
+# the LRA tests' sheet (10 x 6 cm, 16 x 10 cells, anchored along its edge at x = -0.05:
+# settled, it hangs below that edge) with its edges and bending stiff, and damping
+SHEET = fascia(0.25, 4, edge_stiffness=1.0, bending_stiffness=0.05, damping=4.0)
 CUT_HEIGHT = -0.05
 """The blade crosses the hanging sheet halfway down."""
 
