@@ -109,6 +109,7 @@ def run_window(
         session.check_topology()
     viewer = Viewer(session, Renderer.for_scene(scene, session.model, size=size), show_window=True)
     window, camera = viewer.window, viewer.renderer.camera
+    session.camera = camera  # a piece lifted out of this view is excised
     with _connected(device, session), maybe_recording(record, session, device) as recorder:
         last = time.perf_counter()
         while window.running and (frames is None or session.state.frame < frames):

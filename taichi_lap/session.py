@@ -27,10 +27,12 @@ from taichi_lap.core.topology import check_topology as topology_problems
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
 from taichi_lap.dissection.cautery import Cautery
 from taichi_lap.dissection.device import DeviceTopology
-from taichi_lap.dissection.removal import MutableTopology
+from taichi_lap.dissection.removal import FRAGMENT_PARTICLES, MutableTopology
 from taichi_lap.dissection.sheet_cut import SheetCutter
 from taichi_lap.dissection.surface_cut import Sweep
+from taichi_lap.dissection.volume_cut import VolumeCutter, scissor_blade
 from taichi_lap.kernels.skinning import skin_surface, skin_surface_rows
+from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.preprocess.cache import (
     build_model,
     cache_dir,
@@ -150,6 +152,9 @@ class Session:
         self._checked_version = None  # what check_topology last validated
         self._cautery = None  # a Cautery once a hook was energised
         self._cutter = None  # a SheetCutter once a tool cut
+        self._volume_cutter = None  # a VolumeCutter once scissors closed
+        self._loose: list[tuple[int, np.ndarray]] = []  # pieces cut free: (organ, particles)
+        self.camera = EndoscopeCamera.from_scene(scene.camera)  # a window sets its own
         self._cut_poses: dict[int, tuple] = {}  # each cutting tool's tip and frame
         self._energised: set[str] = set()  # the hooks energised in the last step
         parts = _take_parked(self.key)
@@ -274,8 +279,11 @@ class Session:
             pose = (control.tips[k].copy(), control.frames[k].copy())
             before = self._cut_poses.get(k, pose)
             self._cut_poses[k] = pose
-            button = GRASP_BUTTON if tool["kind"] == "scissors" else CAUTERY_BUTTON
+            scissors = tool["kind"] == "scissors"
+            button = GRASP_BUTTON if scissors else CAUTERY_BUTTON
             if not buttons.get(tool["name"], 0) & button:
+                if scissors and self._volume_cutter is not None:
+                    self._volume_cutter.release(k)
                 continue
             start = time.perf_counter()
             sweep = Sweep.between(geometry, *before, *pose)
@@ -283,11 +291,65 @@ class Session:
             changes = self._sheet_cutter().cut(sweep, x, v, self.state)
             for change in changes:
                 self._follow(change)
-            spent = (time.perf_counter() - start) * 1e3
-            self.timings["topology"] = self.timings.get("topology", 0.0) + spent
             if changes:
                 made = sum(len(change.new_triangles) for change in changes)
                 self.events.append({"kind": "cut", "tool": tool["name"], "triangles": made})
+            if scissors:
+                self._cut_volumes(k, tool, pose, pose[0] - before[0], x, v)
+            spent = (time.perf_counter() - start) * 1e3
+            self.timings["topology"] = self.timings.get("topology", 0.0) + spent
+
+    def _cut_volumes(self, k: int, tool: dict, pose, motion, x: np.ndarray, v: np.ndarray):
+        """Volumetric cutting (seed 000 §5.3, :mod:`taichi_lap.dissection.volume_cut`):
+        scissors ``k`` with closed jaws at ``pose``, moved by ``motion`` [m] since the
+        last step, cut the tet organs their blade's path has passed through; event ``cut`` with the tool, the organ and the tets
+        split (``x``, ``v``: the particles before the step; a sheet cut just now
+        changed only the sheets' rows). The pieces cut loose are looked for again
+        (:meth:`_excise`); one of at most FRAGMENT_PARTICLES (a chip the blade cut off
+        between its cuts) goes at once, event ``fragment``."""
+        if self._volume_cutter is None:
+            cutter = VolumeCutter(self._dissected())
+            if not cutter.organs:
+                return
+            self._volume_cutter = cutter
+        blade = scissor_blade(tool, *pose, motion)
+        cuts = self._volume_cutter.stroke(k, blade, x, v, self.state)
+        for organ, change in cuts:
+            self._follow(change)
+            self.events.append(
+                {"kind": "cut", "tool": tool["name"], "organ": organ, "tets": len(change.dead_tets)}
+            )
+        if cuts:
+            self._loose = self._volume_cutter.loose_pieces()
+            chips = [piece for _, piece in self._loose if len(piece) <= FRAGMENT_PARTICLES]
+            for piece in chips:
+                self.remove_particles(piece)
+                self.events.append({"kind": "fragment", "particles": len(piece)})
+            if chips:
+                self._loose = self._volume_cutter.loose_pieces()
+
+    def _excise(self):
+        """Excision (seed 000 §7): a piece a cut left loose that has been lifted out of
+        the endoscope's view (no particle of it in :attr:`camera`'s view) is taken
+        out of the body; event ``excised`` with its organ, particles and rest volume
+        [m^3]."""
+        if not self._loose:
+            return
+        x = self.state.x.to_numpy().astype(np.float64)
+        gone = [(k, piece) for k, piece in self._loose if not self.camera.sees(x[piece]).any()]
+        for k, piece in gone:
+            before = self._dissection.topology.removed_volume
+            self.remove_particles(piece)
+            self.events.append(
+                {
+                    "kind": "excised",
+                    "organ": self.data.organs[k].name,
+                    "particles": len(piece),
+                    "volume": self._dissection.topology.removed_volume - before,
+                }
+            )
+        if gone:
+            self._loose = self._volume_cutter.loose_pieces()
 
     def _tear(self):
         """Tearing (:meth:`SheetCutter.tear`) of the sheets with a ``tear_strain``,
@@ -431,7 +493,8 @@ class Session:
 
     def _restore_topology(self):
         """Put the model back as built if tissue was removed or cut."""
-        self._cutter = None
+        self._cutter = self._volume_cutter = None
+        self._loose = []
         if self._dissection is not None:
             self.model.reset_topology()
             if self.solver.collision is not None:
@@ -492,6 +555,7 @@ class Session:
         self.events += [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
         self._energise(buttons or {})
         self._tear()
+        self._excise()
         self._dissect()
         self._cauterize()
 

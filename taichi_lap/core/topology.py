@@ -20,8 +20,9 @@ built model has every one alive); :func:`check_topology` lists every
   vertex of a live triangle's organ is used by one;
 * cluster membership: every live particle of an organ with clusters is in a live
   cluster, and no live cluster is empty;
-* volume: the rest volume of the removed tets equals what the dissection reports
-  it removed.
+* volume: the rest volume of the tets as built less that of the live tets (a cut's
+  sub-tets fill the tets they replace) equals what the dissection reports it
+  removed.
 """
 
 from __future__ import annotations
@@ -92,7 +93,9 @@ class Topology:
     made sits at its kept particle plus a rest offset its cluster rotates, not at
     the weighted particles alone),
     ``rest_positions`` (N, 3) [m] where they were built (tet volumes);
-    ``removed_volume`` [m^3] is the tet volume the dissection reports it removed.
+    ``removed_volume`` [m^3] is the tet volume the dissection reports it removed;
+    the first ``built_tets`` tets are those the model was built with (default: all),
+    the others a cut's.
     ``triangle_organ`` and ``vertex_organ`` give each element's organ where a
     dissection added elements outside the organs' index ranges (default: the
     ranges)."""
@@ -115,6 +118,7 @@ class Topology:
     vertex_organ: np.ndarray | None = None
     surface_position: np.ndarray | None = None
     removed_volume: float = 0.0
+    built_tets: int | None = None
 
     def __post_init__(self):
         self.tets = np.asarray(self.tets, dtype=np.int64).reshape(-1, 4)
@@ -148,7 +152,13 @@ class Topology:
     @classmethod
     def of_model(cls, data, positions: np.ndarray | None = None, **alive) -> Topology:
         """The topology of a built model ``data`` (a ``ModelData``) with its particles
-        at ``positions`` (default: at rest); ``alive``: flags and ``removed_volume``."""
+        at ``positions`` (default: at rest); ``alive``: flags and ``removed_volume``
+        (by default every particle lives but the reserve rows no cut took yet)."""
+        if "particle_alive" not in alive:
+            live = np.ones(len(data.rest_position), dtype=bool)
+            for organ in data.organs:
+                live[organ.particles[1] - organ.reserve : organ.particles[1]] = False
+            alive["particle_alive"] = live
         return cls(
             rest_positions=data.rest_position,
             positions=data.rest_position if positions is None else positions,
@@ -317,15 +327,17 @@ def _surface_problems(
 
 
 def _volume_balance(t: Topology, rest_volume: np.ndarray, problems: list[TopologyProblem]):
-    """The rest volume of the removed tets against ``removed_volume``."""
-    removed = float(rest_volume[~t.tet_alive].sum())
-    total = float(np.abs(rest_volume).sum())
+    """The rest volume of the tets as built less that of the live tets against
+    ``removed_volume``."""
+    built = len(t.tets) if t.built_tets is None else t.built_tets
+    removed = float(rest_volume[:built].sum() - rest_volume[t.tet_alive].sum())
+    total = float(np.abs(rest_volume[:built]).sum())
     if abs(removed - t.removed_volume) > VOLUME_TOLERANCE * max(total, 1e-30):
         problems.append(
             TopologyProblem(
                 "volume",
                 "tets",
-                f"the removed tets' rest volume is {removed:.6g} m^3, the dissection "
+                f"the tets as built less the live ones hold {removed:.6g} m^3, the dissection "
                 f"reports {t.removed_volume:.6g} m^3",
             )
         )

@@ -70,6 +70,10 @@ class DeviceTopology:
         self.mass[:c] = model.cluster_mass.to_numpy()[:c]
         self.center[:c] = model.cluster_rest_center.to_numpy()[:c]
         self.origin = self.center.copy()  # the centre each cluster's offsets are from
+        chunks = member_chunks(start)
+        self.cluster_chunks = np.zeros((model.cluster_capacity, 2), dtype=np.int64)
+        self.cluster_chunks[:c] = np.stack([chunks["first"][:-1], chunks["first"][1:]], 1)
+        self.chunk_rows = np.stack([chunks["begin"], chunks["end"]], 1)  # member rows
         self.triangles = model.surface_triangles.to_numpy().astype(np.int64)
         self.triangle_live = np.zeros(len(self.triangles), dtype=bool)
         self.triangle_live[: len(data.surface_triangles)] = True
@@ -83,6 +87,8 @@ class DeviceTopology:
         new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
         self._fit(change, new, state)
         writes = RowWrites()  # the rows of the update, written in one launch
+        if len(change.joined):
+            self._add_members(writes, change.joined[:, 0], change.joined[:, 1])
         writes.add(removed, {model.inv_mass: np.zeros(len(removed))})
         self.inverse_mass[removed] = 0.0
         held = removed[gather(state.grasp_tool, removed) != FREE]
@@ -102,20 +108,24 @@ class DeviceTopology:
         )
         for c in new:
             self._append_cluster(writes, c, state)
-        if new:
+        if new or len(change.joined):
             model.finalize_counts()
+        if change.memberships_rebuilt:
+            self._write_memberships(writes)
         self._write_surface(writes, change)
         writes.flush()
         model.topology_version += 1
 
     def set_particles(self, particles, rest, mass, x, v, state):
-        """Give the particle rows ``particles`` (a sheet's reserve rows a cut or tear
-        takes, a torn vertex's: :mod:`taichi_lap.dissection.sheet_cut`) their rest
+        """Give the particle rows ``particles`` (reserve rows a cut or tear takes, a
+        torn vertex's: :mod:`taichi_lap.dissection.sheet_cut`) their rest
         position, mass, inverse mass, position and velocity ((P, 3) or (P,) each) in
         the model and ``state``."""
         model = self.model
         inverse = 1.0 / np.asarray(mass, dtype=np.float64)
         self.inverse_mass[particles] = inverse
+        self.topology.mass[particles] = mass
+        self.topology.pinned[particles] = False
         writes = RowWrites()
         columns = {model.rest_position: rest, model.mass: mass, model.inv_mass: inverse}
         writes.add(particles, {**columns, state.x: x, state.p: x, state.v: v})
@@ -144,10 +154,15 @@ class DeviceTopology:
         ``new`` clusters needs more rows than are spare (module docstring)."""
         model = self.model
         sizes = np.array([len(self.topology.cluster_members[c]) for c in new], dtype=np.int64)
+        joined, gained = np.unique(change.joined[:, 0], return_counts=True)
+        kept_chunks = np.diff(self.cluster_chunks[joined], axis=1).sum()
         need = {
             "clusters": max(new, default=-1) + 1,
-            "members": self.rows_used + int(sizes.sum()),
-            "chunks": model.chunk_total + int(np.maximum(-(-sizes // CHUNK), 1).sum()),
+            "members": self.rows_used + int(sizes.sum()) + len(change.joined),
+            "memberships": len(self.topology.membership_cluster),
+            "chunks": model.chunk_total
+            + int(np.maximum(-(-sizes // CHUNK), 1).sum())
+            + int(kept_chunks + (-(-gained // CHUNK)).sum()),
             "triangles": int(change.new_triangles.max(initial=-1)) + 1,
             "vertices": int(change.new_vertices.max(initial=-1)) + 1,
         }
@@ -165,6 +180,7 @@ class DeviceTopology:
         self.mass = padded_rows(self.mass, model.cluster_capacity, 0.0)
         self.center = padded_rows(self.center, model.cluster_capacity, 0.0)
         self.origin = padded_rows(self.origin, model.cluster_capacity, 0.0)
+        self.cluster_chunks = padded_rows(self.cluster_chunks, model.cluster_capacity, 0)
         self.triangles = padded_rows(self.triangles, model.surface_triangle_count, 0)
         self.triangle_live = padded_rows(self.triangle_live, model.surface_triangle_count, False)
         self.incident = padded_rows(self.incident, model.surface_vertex_count, -1)
@@ -210,6 +226,95 @@ class DeviceTopology:
             },
         )
 
+    def _add_members(self, writes: RowWrites, clusters: np.ndarray, particles: np.ndarray):
+        """Members ``particles`` join ``clusters`` (pairs; a cut's new particles): each
+        cluster's new members take rows at the end, its chunks are listed again at
+        the end with chunks of those rows (the old listing is emptied), and its mass
+        and rest centre follow (offsets from its ``origin``, as for every member)."""
+        model = self.model
+        n = len(self.topology.rest)
+        order = np.argsort(clusters, kind="stable")
+        clusters, particles = clusters[order], particles[order]
+        rows = np.arange(self.rows_used, self.rows_used + len(particles))
+        self.rows_used += len(particles)
+        keys = np.concatenate([self.row_key, clusters * n + particles])
+        by_key = np.argsort(keys, kind="stable")
+        self.row_key = keys[by_key]
+        self.row_of_key = np.concatenate([self.row_of_key, rows])[by_key]
+        mass = self.topology.mass[particles]
+        rest = self.topology.rest[particles]
+        self.row_mass[rows] = mass
+        changed, first, count = np.unique(clusters, return_index=True, return_counts=True)
+        total = self.mass[changed] + np.add.reduceat(mass, first)
+        moment = self.mass[changed, None] * self.center[changed] + np.add.reduceat(
+            mass[:, None] * rest, first
+        )
+        self.center[changed] = moment / np.maximum(total, 1e-30)[:, None]
+        self.mass[changed] = total
+        writes.add(
+            rows,
+            {
+                model.cluster_member: particles,
+                model.cluster_member_mass: mass,
+                model.cluster_rest_offset: rest - self.origin[clusters],
+            },
+        )
+        chunk_cluster, chunk_rows, ranges = [], [], []
+        at = model.chunk_total
+        for c, a, k in zip(changed.tolist(), first.tolist(), count.tolist()):
+            old = self.chunk_rows[slice(*self.cluster_chunks[c])]
+            added = member_chunks(np.array([rows[a], rows[a] + k]))
+            listed = np.concatenate([old, np.stack([added["begin"], added["end"]], 1)])
+            writes.add(
+                np.arange(*self.cluster_chunks[c]),
+                {model.chunk_end: old[:, 0]},  # the old listing, emptied
+            )
+            ranges.append((at, at + len(listed)))
+            chunk_cluster.append(np.full(len(listed), c))
+            chunk_rows.append(listed)
+            at += len(listed)
+        self.cluster_chunks[changed] = ranges
+        chunk_rows = np.concatenate(chunk_rows)
+        new_chunks = np.arange(model.chunk_total, at)
+        self.chunk_rows = np.concatenate([self.chunk_rows, chunk_rows])
+        model.chunk_total = at
+        writes.add(
+            new_chunks,
+            {
+                model.chunk_cluster: np.concatenate(chunk_cluster),
+                model.chunk_begin: chunk_rows[:, 0],
+                model.chunk_end: chunk_rows[:, 1],
+            },
+        )
+        ranges = np.array(ranges, dtype=np.int64)
+        writes.add(
+            changed,
+            {
+                model.cluster_mass: self.mass[changed],
+                model.cluster_rest_center: self.center[changed],
+                model.cluster_rest_shift: self.origin[changed] - self.center[changed],
+                model.cluster_chunk_begin: ranges[:, 0],
+                model.cluster_chunk_end: ranges[:, 1],
+            },
+        )
+
+    def _write_memberships(self, writes: RowWrites):
+        """Every particle's memberships again, as the topology lists them (a cut gave
+        new particles clusters): the clusters, and each offset from its cluster's
+        ``origin`` (:meth:`_add_members`)."""
+        model, topology = self.model, self.topology
+        start = topology.membership_start
+        owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
+        cluster = topology.membership_cluster
+        writes.add(np.arange(len(start)), {model.membership_start: start})
+        writes.add(
+            np.arange(len(cluster)),
+            {
+                model.membership_cluster: cluster,
+                model.membership_offset: topology.rest[owner] - self.origin[cluster],
+            },
+        )
+
     def _append_cluster(self, writes: RowWrites, c: int, state):
         """Rows, chunks, rest data and a warm-started frame for split-off cluster
         ``c``; its members gather their goals from it."""
@@ -223,7 +328,7 @@ class DeviceTopology:
         self.row_key = np.concatenate([self.row_key, c * n + members])
         self.row_of_key = np.concatenate([self.row_of_key, rows])
         self.rows_used += count
-        mass = model.data.mass[members]
+        mass = topology.mass[members]
         rest = topology.rest[members]
         self.row_mass[rows] = mass
         self.mass[c] = mass.sum()
@@ -258,6 +363,10 @@ class DeviceTopology:
         )
         model.cluster_total = c + 1
         model.chunk_total += len(chunk_rows)
+        self.cluster_chunks[c] = (chunk_rows[0], chunk_rows[-1] + 1)
+        self.chunk_rows = np.concatenate(
+            [self.chunk_rows, np.stack([chunks["begin"], chunks["end"]], 1)]
+        )
         membership = rows_of(topology.membership_start, members)
         owner = members[owners_of(topology.membership_start, members)]
         mine = topology.membership_cluster[membership] == c

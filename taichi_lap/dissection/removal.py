@@ -13,8 +13,10 @@ next to the removed particles:
 3. clusters: the live members of every cluster that lost one are split into the
    connected components of the live tet graph ("remaining tets", breadth-first in
    seed 002). A part that was connected when the model was built and is no longer
-   becomes a cluster of its own; the largest part of each stays in the cluster (so
-   the clusters that join an organ to another keep joining them);
+   becomes a cluster of its own; the largest piece of each stays in the cluster, or
+   in a cluster joining organs the piece nearest the other organ (so such clusters
+   keep joining the organs where they touch, and a piece cut off the joined end
+   leaves);
 4. the wound surface: marching tetrahedra (:mod:`taichi_lap.dissection.marching`)
    on the tets and surface triangles touching a removed particle replace what they
    made before. New vertices lie halfway along the cut edges at rest and follow
@@ -40,9 +42,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from taichi_lap.core.csr import both_ends, incidence, owners_of, rows_of
-from taichi_lap.core.mesh import tet_volumes, unique_edges
+from taichi_lap.core.mesh import TET_FACES, tet_volumes, unique_edges
 from taichi_lap.core.topology import Topology
 from taichi_lap.dissection.marching import clipped_triangles, wound_triangles
 
@@ -148,7 +151,8 @@ def _none() -> np.ndarray:
 
 @dataclass
 class TopologyChange:
-    """What one :meth:`MutableTopology.remove` changed (indices of its arrays)."""
+    """What one :meth:`MutableTopology.remove` or :meth:`~MutableTopology.split_tets`
+    changed (indices of its arrays)."""
 
     removed_particles: np.ndarray = field(default_factory=_none)
     dead_tets: np.ndarray = field(default_factory=_none)
@@ -159,11 +163,15 @@ class TopologyChange:
     new_vertices: np.ndarray = field(default_factory=_none)
     clusters: np.ndarray = field(default_factory=_none)  # members changed, new ones included
     rebound_vertices: np.ndarray = field(default_factory=_none)  # wound, skinned anew
+    joined: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, 2), np.int64)
+    )  # (cluster, new member)
+    memberships_rebuilt: bool = False  # particle -> clusters rows made again
     fragments: list[int] = field(default_factory=list)  # particles of each fragment
 
     @property
     def empty(self) -> bool:
-        return not len(self.removed_particles)
+        return not (len(self.removed_particles) or len(self.dead_tets))
 
 
 class _Slots:
@@ -201,8 +209,9 @@ class MutableTopology:
         self.data = data
         n = data.particle_count
         self.rest = np.array(data.rest_position, dtype=np.float64)  # a cut sets rows
+        self.mass = np.array(data.mass, dtype=np.float64)  # and their mass
         self.organ_of = np.asarray(data.organ, dtype=np.int64)
-        self.pinned = np.asarray(data.pinned, dtype=bool)
+        self.pinned = np.array(data.pinned, dtype=bool)  # a reserve row a cut takes is free
         self.particle_alive = np.ones(n, dtype=bool)
         for organ in data.organs:  # a sheet's reserve rows live once a cut takes them
             self.particle_alive[organ.particles[1] - organ.reserve : organ.particles[1]] = False
@@ -210,13 +219,8 @@ class MutableTopology:
 
         self.tets = np.asarray(data.tets, dtype=np.int64).reshape(-1, 4)
         self.tet_alive = np.ones(len(self.tets), dtype=bool)
-        self.tet_start, rows = incidence(self.tets.ravel(), n)
-        self.particle_tet = rows // 4
-        self.live_tets_of = np.bincount(self.tets.ravel(), minlength=n)
-        edges, inverse = unique_edges(self.tets, return_inverse=True)
-        self.tet_edge = inverse.reshape(-1, 6)
-        self.edge_live = np.bincount(inverse, minlength=len(edges))
-        self.adjacency_start, self.adjacency_edge, self.adjacency_other = both_ends(edges, n)
+        self.tet_removed = np.zeros(len(self.tets), dtype=bool)  # by a removal, not a cut
+        self._index_tets()
         self._mask = np.zeros(n, dtype=bool)  # scratch, left all False
         self._reached = np.zeros(n, dtype=bool)  # scratch, left all False
         self._corner = np.zeros(n, dtype=bool)  # scratch, left all False
@@ -226,6 +230,37 @@ class MutableTopology:
         self._init_clusters(data)
 
     # -- set-up ---------------------------------------------------------------------
+
+    def _index_tets(self):
+        """The tets' incidence (particle -> tets, edges, adjacency) and live counts:
+        as built, and again after a cut adds tets."""
+        n = len(self.rest)
+        self.tet_start, rows = incidence(self.tets.ravel(), n)
+        self.particle_tet = rows // 4
+        live = self.tets[self.tet_alive]
+        self.live_tets_of = np.bincount(live.ravel(), minlength=n)
+        edges, inverse = unique_edges(self.tets, return_inverse=True)
+        self.tet_edge = inverse.reshape(-1, 6)
+        self.edge_live = np.bincount(self.tet_edge[self.tet_alive].ravel(), minlength=len(edges))
+        self.adjacency_start, self.adjacency_edge, self.adjacency_other = both_ends(edges, n)
+
+    def _index_memberships(self):
+        """Particle -> its clusters (compressed rows, by particle then cluster, as the
+        model's memberships are): as built, and again after a cut adds members."""
+        sizes = [len(m) for m in self.cluster_members]
+        owner = np.repeat(np.arange(len(sizes)), sizes)
+        member = np.concatenate(self.cluster_members or [np.zeros(0, np.int64)])
+        self.membership_start, rows = incidence(member, len(self.rest))
+        self.membership_cluster = owner[rows]
+
+    def _index_originals(self, original: np.ndarray):
+        """The surface triangles a removal can clip (``original``: slots; as built the
+        directly bound organs' triangles, then also those a cut made) by particle."""
+        self.original = original
+        f, v = self.triangles, self.vertices
+        self.original_particles = v["index"][f["vertices"][original], 0]
+        self.original_start, rows = incidence(self.original_particles.ravel(), len(self.rest))
+        self.particle_original = rows // 3
 
     def _init_surface(self, data):
         # copies: reused slots are written in place, and the model data stays as built
@@ -261,11 +296,7 @@ class MutableTopology:
             },
             f,
         )
-        direct = self.dissectable[triangle_organ]
-        self.original = np.flatnonzero(direct)  # triangles that can be clipped
-        self.original_particles = index[triangles[self.original], 0]
-        self.original_start, rows = incidence(self.original_particles.ravel(), len(self.rest))
-        self.particle_original = rows // 3
+        self._index_originals(np.flatnonzero(self.dissectable[triangle_organ]))
         self.original_pieces = {int(t): [int(t)] for t in self.original}
         self.tet_wound: dict[int, list[int]] = {}
         self.wound_vertex: dict[tuple[int, int], int] = {}
@@ -290,9 +321,7 @@ class MutableTopology:
         self._built = (start, member)
         self.cluster_members = [member[a:b] for a, b in zip(start[:-1], start[1:])]
         self.cluster_alive = np.ones(len(self.cluster_members), dtype=bool)
-        self.membership_start, rows = incidence(member, len(self.rest))
-        owner = np.repeat(np.arange(len(self.cluster_members)), np.diff(start))
-        self.membership_cluster = owner[rows]
+        self._index_memberships()
         self._built_parts: dict[int, np.ndarray] = {}  # parts of a cluster as built
         self.cluster_parent: dict[int, int] = {}  # a split-off cluster's cluster of origin
 
@@ -306,6 +335,14 @@ class MutableTopology:
         """The members cluster ``c`` (one of the model's) was built with."""
         start, member = self._built
         return member[start[c] : start[c + 1]]
+
+    def beside_wound(self, tets: np.ndarray) -> np.ndarray:
+        """(T,) bool: whether each of ``tets`` has a corner in a tet a removal took
+        (its faces there are under a marching-tetrahedra wound, which a cut leaves
+        alone)."""
+        wounded = np.zeros(len(self.rest), dtype=bool)
+        wounded[self.tets[self.tet_removed].ravel()] = True
+        return wounded[self.tets[tets]].any(axis=1)
 
     def surface_particles(self) -> np.ndarray:
         """Sorted particles the live surface follows: those its vertices are bound to
@@ -345,6 +382,7 @@ class MutableTopology:
             vertex_organ=v["organ"][: v.used],
             surface_position=surface,
             removed_volume=self.removed_volume,
+            built_tets=len(self.data.tets),
         )
 
     # -- the update -----------------------------------------------------------------
@@ -390,6 +428,135 @@ class MutableTopology:
             **surface,
         )
 
+    def split_tets(self, cut, tets: np.ndarray, rows: np.ndarray) -> TopologyChange:
+        """Make a volumetric cut (:class:`~taichi_lap.dissection.tet_cut.TetCut` of the
+        live ``tets`` of a directly bound organ, its new vertex j numbered
+        ``len(self.rest) + j``) the topology, its new vertices taking the particle
+        ``rows`` (reserve rows of the
+        organ, :func:`~taichi_lap.preprocess.organs.add_cut_reserve`; their rest
+        positions set here by the cut's weights):
+
+        1. the split tets die and their sub-tets live (the rest volume stays);
+        2. each new particle joins the clusters of the input particle whose side of
+           the cut it is on, then clusters whose members the cut parted split as
+           after a removal (:meth:`_split_clusters`);
+        3. the surface triangles on the split tets' faces give way to the faces of
+           the sub-tets that no other live tet shares (the cut's two sides and the
+           pieces of the faces it crossed), their vertices bound directly.
+
+        The change lists the clusters that gained members (``joined``)."""
+        n = len(self.rest)
+        rows = np.asarray(rows, dtype=np.int64)
+        number = np.concatenate([np.arange(n), rows])  # cut numbering -> particle
+        self.rest[rows] = cut.new_values(self.rest)
+        self.particle_alive[rows] = True
+        dead_tets = np.asarray(tets, dtype=np.int64)[cut.removed]
+        added = number[cut.added]
+        first_new = len(self.tets)
+        self.tets = np.concatenate([self.tets, added])
+        self.tet_alive[dead_tets] = False
+        self.tet_alive = np.concatenate([self.tet_alive, np.ones(len(added), dtype=bool)])
+        self.tet_removed = np.concatenate([self.tet_removed, np.zeros(len(added), dtype=bool)])
+        self._index_tets()
+
+        side = np.asarray(cut.vertex_side, dtype=np.int64)
+        joined_cluster, joined_particle = [], []
+        for particle, corner in zip(rows.tolist(), side.tolist()):
+            for c in self.clusters_of(np.array([corner])).tolist():
+                if not self.cluster_alive[c]:
+                    continue
+                members = self.cluster_members[c]
+                if c not in self._built_parts:
+                    (labels,) = self._components([self.built_members(c)], live=False)
+                    self._built_parts[c] = labels[self.particle_alive[self.built_members(c)]]
+                part = self._built_parts[c][np.flatnonzero(members == corner)[0]]
+                self.cluster_members[c] = np.append(members, particle)
+                self._built_parts[c] = np.append(self._built_parts[c], part)
+                joined_cluster.append(c)
+                joined_particle.append(particle)
+        self._index_memberships()
+        clusters = self._split_clusters(np.zeros(0, dtype=np.int64), dead_tets)
+        surface = self._surface_of_cut(dead_tets, np.arange(first_new, len(self.tets)))
+        rebound = self._rebind(set(clusters.tolist()))
+        return TopologyChange(
+            dead_tets=dead_tets,
+            clusters=clusters,
+            rebound_vertices=rebound,
+            joined=np.stack(
+                [np.array(joined_cluster, np.int64), np.array(joined_particle, np.int64)], 1
+            ).reshape(-1, 2),
+            memberships_rebuilt=True,
+            **surface,
+        )
+
+    def _surface_of_cut(self, dead_tets: np.ndarray, new_tets: np.ndarray) -> dict:
+        """Step 3 of :meth:`split_tets`: the triangles on the faces of ``dead_tets``
+        go, the faces of ``new_tets`` no other live tet shares come, each corner the
+        vertex its particle is bound to (made where it has none)."""
+        f, v = self.triangles, self.vertices
+        n = len(self.rest)
+
+        def keys(faces):
+            ordered = np.sort(faces, axis=1)
+            return (ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2]
+
+        live = np.flatnonzero(f["alive"][: f.used])
+        own = (v["kept"][f["vertices"][live]] < 0).all(axis=1)  # not a wound's
+        live = live[own & self.dissectable[f["organ"][live]]]
+        on_parent = np.isin(
+            keys(v["index"][f["vertices"][live], 0]),
+            keys(self.tets[dead_tets][:, TET_FACES].reshape(-1, 3)),
+        )
+        dead = live[on_parent]
+        corners = np.unique(self.tets[new_tets])
+        near = np.unique(self.particle_tet[rows_of(self.tet_start, corners)])
+        near = near[self.tet_alive[near]]
+        faces = self.tets[near][:, TET_FACES].reshape(-1, 3)
+        face_keys = keys(faces)
+        distinct, count = np.unique(face_keys, return_counts=True)
+        single = count[np.searchsorted(distinct, face_keys)] == 1
+        from_new = np.repeat(np.isin(near, new_tets), 4)
+        faces = faces[single & from_new]
+
+        f["alive"][dead] = False
+        old_vertices = f["vertices"][dead].ravel()
+        np.subtract.at(v["uses"], old_vertices, 1)
+        f.release(dead)
+        particles = np.unique(faces)
+        lacking = particles[self.particle_vertex[particles] < 0]
+        made = v.take(len(lacking))
+        v["index"][made] = 0
+        v["index"][made, 0] = lacking
+        v["weight"][made] = (1.0, 0.0, 0.0, 0.0)
+        v["organ"][made] = self.organ_of[lacking]
+        v["alive"][made] = True
+        v["rest"][made] = self.rest[lacking]
+        v["cluster"][made], v["kept"][made], v["cut"][made] = -1, -1, -1
+        v["uses"][made] = 0
+        self.particle_vertex[lacking] = made
+        slots = f.take(len(faces))
+        f["vertices"][slots] = self.particle_vertex[faces]
+        f["organ"][slots] = self.organ_of[faces[:, 0]]
+        f["alive"][slots] = True
+        np.add.at(v["uses"], f["vertices"][slots].ravel(), 1)
+
+        gone = np.unique(old_vertices)
+        gone = gone[v["alive"][gone] & (v["uses"][gone] == 0)]
+        v["alive"][gone] = False
+        self.particle_vertex[v["index"][gone, 0]] = -1
+        v.release(gone)
+        for t in dead.tolist():
+            self.original_pieces.pop(t, None)
+        self.original_pieces.update({int(t): [int(t)] for t in slots})
+        kept = self.original[~np.isin(self.original, dead)]
+        self._index_originals(np.concatenate([kept, slots]))
+        return dict(
+            dead_triangles=np.setdiff1d(dead, slots),
+            new_triangles=slots,
+            dead_vertices=np.setdiff1d(gone, made),
+            new_vertices=made,
+        )
+
     def _kill(self, particles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Particles die with their tets, then the orphans those leave."""
         removed, dead = [], []
@@ -399,6 +566,7 @@ class MutableTopology:
             tets = np.unique(self.particle_tet[rows_of(self.tet_start, particles)])
             tets = tets[self.tet_alive[tets]]
             self.tet_alive[tets] = False
+            self.tet_removed[tets] = True
             dead.append(tets)
             np.subtract.at(self.live_tets_of, self.tets[tets].ravel(), 1)
             np.subtract.at(self.edge_live, self.tet_edge[tets].ravel(), 1)
@@ -549,8 +717,9 @@ class MutableTopology:
             members, built = self.cluster_members[c], self._built_parts[c]
             keep = np.zeros(len(members), dtype=bool)
             for part in np.unique(built):
-                pieces, counts = np.unique(labels[built == part], return_counts=True)
-                keep[(built == part) & (labels == pieces[counts.argmax()])] = True
+                keep[
+                    (built == part) & (labels == self._kept_piece(members, built, labels, part))
+                ] = True
             if keep.all():
                 continue
             self.cluster_members[c] = members[keep]
@@ -559,6 +728,18 @@ class MutableTopology:
                 new.append(self._add_cluster(c, members[~keep & (labels == piece)]))
             changed.append(c)
         return np.unique(np.array(changed + new, dtype=np.int64))
+
+    def _kept_piece(self, members, built, labels, part) -> int:
+        """The label of the piece of built ``part`` that stays in its cluster when the
+        part came apart: in a cluster joining organs (several built parts, seed 002
+        §3.2) the piece nearest at rest to the other parts (where the organs touch),
+        else the largest."""
+        mine = built == part
+        pieces, counts = np.unique(labels[mine], return_counts=True)
+        if len(pieces) == 1 or mine.all():
+            return int(pieces[counts.argmax()])
+        gap, _ = cKDTree(self.rest[members[~mine]]).query(self.rest[members[mine]])
+        return int(labels[mine][np.argmin(gap)])
 
     def _add_cluster(self, parent: int, members: np.ndarray) -> int:
         """A new cluster of ``members`` (all leaving ``parent``); its index."""
@@ -577,7 +758,7 @@ class MutableTopology:
         their old triangles go, the new ones take free slots."""
         dead_label = ~self.particle_alive
         tets = np.unique(self.particle_tet[rows_of(self.tet_start, removed)])
-        tets = tets[self.dissectable[self.organ_of[self.tets[tets, 0]]]]
+        tets = tets[self.tet_removed[tets] & self.dissectable[self.organ_of[self.tets[tets, 0]]]]
         originals = np.unique(self.particle_original[rows_of(self.original_start, removed)])
         old = [s for t in tets.tolist() for s in self.tet_wound.pop(t, [])]
         old += [
@@ -778,7 +959,7 @@ class MutableTopology:
         members = [self.cluster_members[c] for c in clusters.tolist()]
         which = np.repeat(np.arange(len(members)), [len(m) for m in members])
         members = np.concatenate(members)
-        mass = self.data.mass[members]
+        mass = self.mass[members]
         total = np.bincount(which, weights=mass, minlength=len(clusters))
         moment = [
             np.bincount(which, weights=mass * self.rest[members, a], minlength=len(clusters))

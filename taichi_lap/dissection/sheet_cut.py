@@ -36,6 +36,7 @@ from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
 from taichi_lap.kernels.collision.particle_contact import FREE
 from taichi_lap.kernels.scatter import gather
+from taichi_lap.preprocess.organs import CUTTABLE_SHEETS
 from taichi_lap.preprocess.sheets import bending_pairs, long_range_attachments
 
 log = logging.getLogger("taichi_lap")
@@ -82,10 +83,10 @@ class SheetCutter:
     def __init__(self, dissection: DeviceTopology, materials: list[dict]):
         self.dissection = dissection
         data = dissection.model.data
-        self.mass = np.array(data.mass, dtype=np.float64)
+        self.mass = dissection.topology.mass  # set by DeviceTopology.set_particles
         self.sheets = []
         for k, organ in enumerate(data.organs):
-            if not organ.reserve:
+            if not organ.reserve or organ.model not in CUTTABLE_SHEETS:
                 continue
             first, end = organ.particles
             built = np.arange(first, end - organ.reserve)
@@ -146,7 +147,6 @@ class SheetCutter:
         rest, mass = blend(topology.rest), blend(self.mass)
         topology.rest[new_particles] = rest
         topology.particle_alive[new_particles] = True
-        self.mass[new_particles] = mass
         new_vertices = vertices.take(len(made))
         vertices["index"][new_vertices] = new_particles[:, None]
         vertices["weight"][new_vertices] = [1.0, 0.0, 0.0, 0.0]

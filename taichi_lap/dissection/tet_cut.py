@@ -161,16 +161,25 @@ class TetCut(MeshCut):
 
 
 def cut_tets(
-    points: np.ndarray, tets: np.ndarray, path: BladePath, rest: np.ndarray | None = None
+    points: np.ndarray,
+    tets: np.ndarray,
+    path: BladePath,
+    rest: np.ndarray | None = None,
+    keep_whole: np.ndarray | None = None,
 ) -> TetCut:
     """Seed 000 §5.3: split the tets (T, 4) at ``points`` (V, 3) [m] that ``path``
     separates (module docstring); sub-tets are oriented positively at ``rest`` (the
-    rest positions; default ``points``)."""
+    rest positions; default ``points``). Tets marked in ``keep_whole`` (T,) bool are
+    not split (a cut's own sub-tets, a wound's tets), nor, so that the mesh stays
+    conforming, their neighbours on the edges they share where that leaves a cut
+    partial."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
     rest = points if rest is None else np.asarray(rest, dtype=np.float64).reshape(-1, 3)
     edge_code, face_code, edges, t_edge, tet_edges = intersection_codes(points, tets, path)
     crossed = np.isfinite(t_edge)
+    if keep_whole is not None:
+        crossed[tet_edges[np.asarray(keep_whole, dtype=bool)]] = False
     reached = edge_code != 0
     while True:  # a tet the cut does not separate keeps its edges whole, for all
         code = _edge_codes(crossed, tet_edges)

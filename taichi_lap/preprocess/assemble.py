@@ -12,9 +12,9 @@ from taichi_lap.core.errors import InputError
 from taichi_lap.preprocess import clusters as clustering
 from taichi_lap.preprocess.model_data import PARTICLE_MATERIAL, ModelData, OrganRecord
 from taichi_lap.preprocess.organs import (
-    CUTTABLE_SHEETS,
     OrganParts,
     add_cut_reserve,
+    cut_reserve,
     add_long_range_attachments,
     build_organ,
     select_region,
@@ -52,8 +52,9 @@ def assemble(scene: Scene, *, progress: bool = True) -> ModelData:
 
         organ_parts = build_organ(organ, scene.source, scene.settings["detail"], report)
         _apply_region_attachments(scene, organ, organ_parts)
-        if organ.model in CUTTABLE_SHEETS:
-            add_cut_reserve(organ_parts)
+        reserve = cut_reserve(organ, organ_parts, scene.tools)
+        if reserve:
+            add_cut_reserve(organ_parts, reserve)
         parts.append(organ_parts)
         bar.n = len(parts)
         bar.refresh()
@@ -172,8 +173,8 @@ def _join(scene: Scene, parts, offsets, organ, att, index) -> clustering.Cluster
     other = next(k for k, o in enumerate(scene.organs) if o.name == att.organ)
     radius = att.radius or float(np.median(parts[index].clusters.radius))
     positions = np.concatenate([p.positions for p in parts])
-    own = np.arange(offsets[index], offsets[index + 1])
-    theirs = np.arange(offsets[other], offsets[other + 1])
+    own = np.arange(offsets[index], offsets[index + 1] - parts[index].reserve)
+    theirs = np.arange(offsets[other], offsets[other + 1] - parts[other].reserve)
     joined = clustering.joining_clusters(positions, own, theirs, radius)
     if joined.count == 0:
         key = f"{organ.key}.attachments[{organ.attachments.index(att)}]"

@@ -91,8 +91,13 @@ def code_digest(roots: tuple[str, ...] = BUILD_ROOTS) -> str:
 
 def scene_digest(scene: Scene) -> str:
     """Content key of a scene's model: the validated organs (defaults filled in), the
-    detail, the mesh files and the code that builds it."""
-    content = {"detail": scene.settings["detail"], "organs": [asdict(o) for o in scene.organs]}
+    detail, the kinds of instruments (scissors give tet organs reserve rows), the mesh
+    files and the code that builds it."""
+    content = {
+        "detail": scene.settings["detail"],
+        "organs": [asdict(o) for o in scene.organs],
+        "tool_kinds": sorted({tool["kind"] for tool in scene.tools}),
+    }
     h = hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode())
     for organ in scene.organs:
         if organ.geometry.mesh is not None:

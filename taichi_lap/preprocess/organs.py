@@ -182,12 +182,30 @@ CUT_RESERVE = 1.0
 """Particle rows a cuttable sheet keeps for the vertices cuts make, as a fraction of
 its vertices (a cut across the rectum's fascia makes about two per edge it crosses;
 the vertices a cut removes give their rows back)."""
+VOLUME_CUT_RESERVE = 0.5
+"""Particle rows a tet organ whose surface is its particles keeps for the vertices
+volumetric cuts make (seed 000 §5.3, :mod:`taichi_lap.dissection.volume_cut`), as a
+fraction of its particles, in a scene whose instruments include scissors (two per
+tet edge a cut crosses: a cut through the polyp's stalk takes about 10 %)."""
 
 
-def add_cut_reserve(parts: OrganParts):
-    """Append the rows of :data:`CUT_RESERVE`: pinned (inverse mass 0), in no
-    constraint or surface, parked at the first vertex, until a cut takes them."""
-    count = int(np.ceil(CUT_RESERVE * len(parts.positions)))
+def cut_reserve(organ: OrganSpec, parts: OrganParts, tools: list[dict]) -> float:
+    """The fraction of reserve rows ``organ`` keeps for cuts: a sheet
+    (:data:`CUT_RESERVE`), or a directly bound tet organ where scissors can cut it
+    (:data:`VOLUME_CUT_RESERVE`); 0 for others."""
+    if organ.model in CUTTABLE_SHEETS:
+        return CUT_RESERVE
+    direct = len(parts.tets) and bool(np.all(parts.surface_weight[:, 0] == 1.0))
+    if direct and any(tool["kind"] == "scissors" for tool in tools):
+        return VOLUME_CUT_RESERVE
+    return 0.0
+
+
+def add_cut_reserve(parts: OrganParts, fraction: float):
+    """Append ``fraction`` of the organ's particle count as reserve rows: pinned
+    (inverse mass 0), in no constraint, cluster, tet or surface, parked at the first
+    vertex, until a cut takes them."""
+    count = int(np.ceil(fraction * len(parts.positions)))
     parts.positions = np.concatenate([parts.positions, np.repeat(parts.positions[:1], count, 0)])
     parts.mass = np.concatenate([parts.mass, np.full(count, parts.mass[0])])
     parts.radius = np.concatenate([parts.radius, np.full(count, parts.radius[0])])

@@ -45,6 +45,20 @@ class EndoscopeCamera:
         right = _unit(np.cross(forward, self.up))
         return forward, right, np.cross(right, forward)
 
+    def sees(self, points: np.ndarray, aspect: float = 16.0 / 9.0) -> np.ndarray:
+        """(n,) bool: which ``points`` (n, 3) [m] lie in the view (between the clipping
+        distances, within the vertical ``fov`` and ``aspect`` times as wide)."""
+        forward, right, up = self.axes()
+        d = np.asarray(points, float).reshape(-1, 3) - self.eye
+        depth = d @ forward
+        half = np.tan(np.radians(self.fov) / 2.0) * np.maximum(depth, 1e-12)
+        return (
+            (depth >= self.near)
+            & (depth <= self.far)
+            & (np.abs(d @ up) <= half)
+            & (np.abs(d @ right) <= aspect * half)
+        )
+
     def move(self, *, advance: float = 0.0, strafe: float = 0.0, lift: float = 0.0):
         """Slide eye and target together [m] along the view axes."""
         forward, right, up = self.axes()

@@ -31,6 +31,7 @@ ROW_KINDS = (
     "vertices",
     "triangles",
     "members",
+    "memberships",
     "clusters",
     "chunks",
     "distances",
@@ -41,6 +42,11 @@ ROW_KINDS = (
 TABLES = ("surface_incident",)
 """Fields whose rows are as wide as the mesh needs (a vertex's triangles): 2-D tables,
 read in a loop, not vectors unrolled into every kernel that reads them."""
+
+
+CHUNK_SPARE = 2.0
+"""Spare chunk rows, as a fraction of those built (a chunk row is three integers; a
+volumetric cut lists the chunks of each cluster it adds members to again)."""
 
 
 def spare_rows(count: int, dissectable: bool, spare: float = 0.5) -> int:
@@ -288,8 +294,10 @@ class Model(FieldOwner):
             self.capacity = {
                 **{k: spare_rows(n, self.dissectable, SURFACE_SPARE) for k, n in surface.items()},
                 "members": spare_rows(len(data.cluster_member), self.dissectable),
+                "memberships": spare_rows(len(data.cluster_member), self.dissectable),
                 "clusters": spare_rows(self.cluster_total, self.dissectable),
-                "chunks": spare_rows(self.chunk_total, self.dissectable),
+                # a cut lists a cluster's chunks again to give it members
+                "chunks": spare_rows(self.chunk_total, self.dissectable, CHUNK_SPARE),
                 **{k: max(spare_rows(n, self.cuttable), 1) for k, n in constraints.items()},
             }
         organ = np.zeros(len(data.surface_triangles), dtype=np.int64)
@@ -317,8 +325,8 @@ class Model(FieldOwner):
             "cluster_mass": (tables["mass"], "clusters", 0),
             "cluster_rest_shift": (np.zeros((data.cluster_count, 3)), "clusters", 0),
             "membership_start": (tables["membership_start"], None, 0),
-            "membership_cluster": (tables["membership_cluster"], None, 0),
-            "membership_offset": (tables["membership_offset"], None, 0),
+            "membership_cluster": (tables["membership_cluster"], "memberships", 0),
+            "membership_offset": (tables["membership_offset"], "memberships", 0),
             "cluster_chunk_begin": (chunks["first"][:-1], "clusters", 0),
             "cluster_chunk_end": (chunks["first"][1:], "clusters", 0),
             "chunk_cluster": (chunks["cluster"], "chunks", 0),

@@ -1,0 +1,166 @@
+"""Volumetric cutting in a session (seed 000 §5.3 with its physics following:
+:mod:`taichi_lap.dissection.volume_cut`): a cut through the polyp's stalk splits its
+tets into two closed pieces of the volume as built, its clusters part so the head no
+longer hangs from the stalk, the scissors cut it in a session, and the head lifted
+out of the endoscope's view is excised."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from taichi_lap import scene
+from taichi_lap.core.instruments import GRASP_BUTTON
+from taichi_lap.core.mesh import element_pieces, tet_volumes
+from taichi_lap.core.topology import assert_valid
+from taichi_lap.devices import Pose
+from taichi_lap.dissection.removal import MutableTopology
+from taichi_lap.dissection.tet_cut import cut_tets
+from taichi_lap.preprocess.assemble import assemble
+from taichi_lap.render.camera import EndoscopeCamera
+from taichi_lap.session import Session
+from tests.blocks import block
+from tests.test_tet_cut import assert_closed_pieces, slice_path
+
+STALK_CUT = 0.0245
+"""Height [m] at rest of the cut through the polyp's stalk (its foot at 0.02, its
+head from 0.026)."""
+
+
+def polyp(data) -> tuple[int, np.ndarray]:
+    """The polyp's organ index and its particles as built (its reserve left out)."""
+    k = next(i for i, o in enumerate(data.organs) if o.name == "polyp")
+    first, end = data.organs[k].particles
+    return k, np.arange(first, end - data.organs[k].reserve)
+
+
+def live_pieces(topology: MutableTopology, organ: int) -> list[np.ndarray]:
+    """The particles of each connected piece of ``organ``'s live tets."""
+    tets = topology.tets[topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == organ)]
+    label = element_pieces(tets)
+    return [np.unique(tets[label == k]) for k in np.unique(label)]
+
+
+def test_a_cut_through_the_stalk_parts_the_polyps_tets_and_clusters():
+    """Split at rest: the topology validator passes (closed outward surfaces, the rest
+    volume as built); the polyp is two pieces, the head above the cut; no cluster
+    holds both, and the clusters joining the polyp to the rectum keep the stalk's
+    foot (the piece where the organs touch), so the head hangs from nothing."""
+    data = assemble(scene.load("rectum"))
+    k, built = polyp(data)
+    topology = MutableTopology(data)
+    tets = np.flatnonzero(topology.organ_of[topology.tets[:, 0]] == k)
+    path = slice_path(np.array([0.0, STALK_CUT, 0.0]), [0.0, 1.0, 0.0], size=0.02, frames=8)
+    cut = cut_tets(topology.rest, topology.tets[tets], path)
+    end = data.organs[k].particles[1]
+    rows = np.arange(end - 1, end - 1 - len(cut.vertex_parents), -1)
+    volume = tet_volumes(topology.rest, topology.tets[tets]).sum()
+
+    change = topology.split_tets(cut, tets, rows)
+
+    assert len(change.dead_tets) > 0 and len(change.joined) > 0
+    assert_valid(topology.topology())
+    live = topology.tets[topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == k)]
+    assert tet_volumes(topology.rest, live).sum() == pytest.approx(volume, rel=1e-9)
+    pieces = live_pieces(topology, k)
+    assert len(pieces) == 2
+    head, foot = sorted(pieces, key=lambda p: -topology.rest[p, 1].max())
+    # the cut's vertices lie on their edges, EDGE_MARGIN (5 %) of a 1.8 mm edge at most
+    # from where the plane crosses them
+    assert topology.rest[head, 1].min() >= STALK_CUT - 1e-4
+    assert topology.rest[foot, 1].max() <= STALK_CUT + 1e-4
+    for c in np.flatnonzero(topology.cluster_alive):
+        members = topology.cluster_members[c]
+        assert not (np.isin(members, head).any() and np.isin(members, foot).any())
+    joining = [
+        c
+        for c in np.flatnonzero(topology.cluster_alive)
+        if len(np.unique(topology.organ_of[topology.cluster_members[c]])) > 1
+    ]
+    assert joining and all(not np.isin(topology.cluster_members[c], head).any() for c in joining)
+    assert np.isin(rows, np.concatenate(topology.cluster_members)).all()  # new ones shape-match
+
+
+def test_tets_kept_whole_leave_the_cut_partial_around_them():
+    """``keep_whole``: a tet kept whole is not split, nor its neighbours on the edges
+    it shares where that would leave the mesh non-conforming: a plane cut through
+    the block waits as a whole (each tet it stops at stops its neighbours), the block
+    stays one conforming piece; a tet kept whole away from the cut changes nothing."""
+    b = block(3)
+    points, tets = b["rest_positions"], b["tets"]
+    path = slice_path(np.array([0.013, 0.015, 0.014]), [1.0, 0.2, 0.1], size=0.04, frames=12)
+    whole = cut_tets(points, tets, path)
+    on_cut = np.zeros(len(tets), dtype=bool)
+    on_cut[whole.removed[0]] = True
+    cut = cut_tets(points, tets, path, keep_whole=on_cut)
+    assert len(cut.removed) == 0 and len(cut.deferred) > 0
+    assert_closed_pieces(*cut.apply(points, tets), 1, tet_volumes(points, tets).sum())
+    away = np.zeros(len(tets), dtype=bool)
+    away[np.setdiff1d(np.arange(len(tets)), whole.removed)[0]] = True
+    assert cut_tets(points, tets, path, keep_whole=away).removed.tolist() == whole.removed.tolist()
+
+
+def test_the_camera_sees_what_lies_in_its_view():
+    camera = EndoscopeCamera(
+        eye=np.zeros(3),
+        target=np.array([0.0, 0.0, -1.0]),
+        up=np.array([0.0, 1.0, 0.0]),
+        fov=60.0,
+        near=0.01,
+        far=10.0,
+    )
+    points = np.array([[0.0, 0.0, -1.0], [0.0, 0.6, -1.0], [1.0, 0.0, -1.0], [0, 0, 1.0]])
+    assert camera.sees(points, aspect=16 / 9).tolist() == [True, False, True, False]
+    assert camera.sees(points, aspect=1.0).tolist() == [True, False, False, False]
+
+
+def stalk_height(session: Session) -> float:
+    """Where the stalk's particles at STALK_CUT at rest are now (the rectum sags)."""
+    x = session.state.x.to_numpy()
+    rest = session.data.rest_position
+    _, built = polyp(session.data)
+    near = built[np.abs(rest[built, 1] - STALK_CUT) < 0.001]
+    return float(x[near, 1].mean())
+
+
+def test_scissors_cut_the_stalk_the_head_parts_and_is_excised_out_of_view():
+    """Scissors swept through the stalk with closed jaws: event ``cut`` of the polyp,
+    a valid topology, the head loose: it falls (uncut, the head stays within 0.1 mm
+    over these frames; no cluster holds it to the stalk now). With the view turned
+    away from it, it is excised: event ``excised`` with its rest volume, its
+    particles gone."""
+    session = Session(scene.load("rectum"), progress=False)
+    k, built = polyp(session.data)
+    height = stalk_height(session)
+    direction = np.array([0.0, 0.0, 1.0])
+    events = []
+    for sx in np.linspace(-0.016, 0.016, 34):
+        session.step(
+            {"scissors": Pose(np.array([sx, height, 0.005]), direction)}, {"scissors": GRASP_BUTTON}
+        )
+        events += session.events
+    session.step({"scissors": Pose(np.array([0.03, 0.04, 0.005]), direction)}, {})
+    cuts = [e for e in events if e["kind"] == "cut" and e.get("organ") == "polyp"]
+    assert cuts and sum(e["tets"] for e in cuts) > 0
+    session.check_topology()
+    loose = [piece for organ, piece in session._loose if organ == k]
+    assert len(loose) >= 1
+    head = max(loose, key=len)
+    assert np.isin(built[session.data.rest_position[built, 1] > STALK_CUT + 0.004], head).all()
+
+    start = session.state.x.to_numpy()[head].mean(axis=0)
+    for _ in range(5):
+        session.step()
+    drop = start[1] - session.state.x.to_numpy()[head].mean(axis=0)[1]
+    assert drop > 0.5 * 0.5 * 9.81 * (5 * session.dt) ** 2  # half a free fall (34 mm)
+    for _ in range(15):  # the stalk's foot, crushed by the jaws, takes its shape again
+        session.step()
+
+    session.camera.target = session.camera.eye + (session.camera.eye - session.camera.target)
+    session.step()
+    excised = [e for e in session.events if e["kind"] == "excised"]
+    assert [e["organ"] for e in excised] == ["polyp"] * len(excised) and excised
+    assert max(e["particles"] for e in excised) == len(head)
+    assert not session._dissection.topology.particle_alive[head].any()
+    assert sum(e["volume"] for e in excised) > 0.8 * (4 / 3) * np.pi * 0.008**3
+    session.check_topology()
