@@ -79,9 +79,6 @@ TICK_TOOL = struct.Struct("<B3f3fI3f")  # tool index, tip [m], direction, button
 MAX_PAYLOAD = 1 << 24  # [bytes]; a longer length field is damage
 FSYNC_INTERVAL = 1.0  # [s]
 BUFFER_LIMIT = 1 << 16  # [bytes] of buffered ticks written without a flush call
-RESERVED_EVENT_KINDS = ("cut",)
-"""Event kinds of the file format that dissection will emit; nothing emits them yet, and
-readers accept them already, so files written later still read here."""
 EVENT_KINDS = (
     "session_start",
     "device",
@@ -94,7 +91,9 @@ EVENT_KINDS = (
     "cautery_off",
     "cautery",
     "vessel_damage",
-    *RESERVED_EVENT_KINDS,
+    "cut",
+    "tear",
+    "excised",
 )
 CHECKSUM_FIELDS = ("x", "v", "goal", "eta", "collided")
 
