@@ -460,20 +460,24 @@ class MutableTopology:
         self._index_tets()
 
         side = np.asarray(cut.vertex_side, dtype=np.int64)
-        joined_cluster, joined_particle = [], []
-        for particle, corner in zip(rows.tolist(), side.tolist()):
-            for c in self.clusters_of(np.array([corner])).tolist():
-                if not self.cluster_alive[c]:
-                    continue
-                members = self.cluster_members[c]
-                if c not in self._built_parts:
-                    (labels,) = self._components([self.built_members(c)], live=False)
-                    self._built_parts[c] = labels[self.particle_alive[self.built_members(c)]]
-                part = self._built_parts[c][np.flatnonzero(members == corner)[0]]
-                self.cluster_members[c] = np.append(members, particle)
-                self._built_parts[c] = np.append(self._built_parts[c], part)
-                joined_cluster.append(c)
-                joined_particle.append(particle)
+        which = rows_of(self.membership_start, side)
+        owner = owners_of(self.membership_start, side)  # the new particle of each row
+        joined_cluster = self.membership_cluster[which]
+        live = self.cluster_alive[joined_cluster]
+        owner, joined_cluster = owner[live], joined_cluster[live]
+        order = np.argsort(joined_cluster, kind="stable")
+        owner, joined_cluster = owner[order], joined_cluster[order]
+        clusters, first = np.unique(joined_cluster, return_index=True)
+        for c, group in zip(clusters.tolist(), np.split(owner, first[1:])):
+            members = self.cluster_members[c]
+            if c not in self._built_parts:
+                (labels,) = self._components([self.built_members(c)], live=False)
+                self._built_parts[c] = labels[self.particle_alive[self.built_members(c)]]
+            by_particle = np.argsort(members)
+            at = by_particle[np.searchsorted(members, side[group], sorter=by_particle)]
+            self.cluster_members[c] = np.concatenate([members, rows[group]])
+            self._built_parts[c] = np.concatenate([self._built_parts[c], self._built_parts[c][at]])
+        joined_particle = rows[owner]
         self._index_memberships()
         clusters = self._split_clusters(np.zeros(0, dtype=np.int64), dead_tets)
         surface = self._surface_of_cut(dead_tets, np.arange(first_new, len(self.tets)))
@@ -482,9 +486,7 @@ class MutableTopology:
             dead_tets=dead_tets,
             clusters=clusters,
             rebound_vertices=rebound,
-            joined=np.stack(
-                [np.array(joined_cluster, np.int64), np.array(joined_particle, np.int64)], 1
-            ).reshape(-1, 2),
+            joined=np.stack([joined_cluster, joined_particle], 1).astype(np.int64),
             memberships_rebuilt=True,
             **surface,
         )
