@@ -38,12 +38,25 @@ Cases
   validator found a problem). Parameters: the sheet's pieces at the end and how far
   the piece cut free fell.
 
+* ``polyp-excision`` (issue Dissection II, seed 000 §5.3 in a session): the same run
+  goes on: the grasper holds the polyp's head, the scissors cut through its stalk, the
+  grasper lifts the head out of the view, where it is excised. Metrics
+  ``ms_per_update`` (the topology stage of each frame whose scissors split tets: the
+  cut on the host and every row written) and ``validator_failures``; parameters: tets
+  split, and the particles and rest volume excised.
+* ``random-cuts-polyp-host``: random plane cuts (a blade drawn across a random plane
+  through a random point of the polyp, in 4 frames, reaching beyond it: a cut that
+  ends inside waits, :func:`cut_tets`) split the rectum scene's polyp again and again
+  (:meth:`MutableTopology.split_tets`, host only; the polyp built with 20 times its
+  particles in reserve rows) until the rows run out: ``validator_failures`` and
+  ``ms_per_update``.
+
 Seed 002 reports 98.3 ms per topology update on one CPU thread; the targets of this
 project are a median of at most 10 ms, p95 20 ms, no validator failure and frames
 while cutting at most 1.5 times frames without.
 
 Usage: python perf/bench_topology.py [--quick] [--arch cpu] [--json OUT]
-       [--cases cautery,removals,fascia,session]
+       [--cases cautery,removals,fascia,polyp,session]
 """
 
 from __future__ import annotations
@@ -236,7 +249,8 @@ def rectum_cut_cases() -> list[dict]:
     session.step()  # compile
     organ = session.data.organs[fascia]
     built = organ.particles[1] - organ.reserve  # the sheet's rows below are as built
-    updates, cut_frames, frame_ms, failures = [], [], {True: [], False: []}, 0
+    updates, cut_frames, frame_ms = [], [], {True: [], False: []}
+    volume_updates, excised, split, failures = [], [], 0, {"cut": 0, "volume": 0}
     for cut in (True, False):
         session.reset()
         start = session.state.x.to_numpy()
@@ -248,13 +262,19 @@ def rectum_cut_cases() -> list[dict]:
             begin = time_ms()
             session.step(device.poses(time), buttons)
             frame_ms[cut].append(time_ms() - begin)
-            if cut and any(event["kind"] == "cut" for event in session.events):
-                cut_frames.append(frame)
-                updates.append(session.timings["topology"])
+            kinds = {e["kind"] if "organ" not in e else "volume" for e in session.events}
+            excised += [e for e in session.events if e["kind"] == "excised"] if cut else []
+            if cut and kinds & {"cut", "volume"}:
+                if "cut" in kinds:
+                    cut_frames.append(frame)
+                    updates.append(session.timings["topology"])
+                else:
+                    volume_updates.append(session.timings["topology"])
+                    split += sum(e["tets"] for e in session.events if e["kind"] == "cut")
                 try:
                     session.check_topology()
                 except SimulationFault:
-                    failures += 1
+                    failures["cut" if "cut" in kinds else "volume"] += 1
         if cut:
             topology = session._dissection.topology
             f, v = topology.triangles, topology.vertices
@@ -277,17 +297,84 @@ def rectum_cut_cases() -> list[dict]:
     }
     cutting = [frame_ms[True][k] for k in cut_frames]
     plain = [frame_ms[False][k] for k in cut_frames]
+    polyp = {
+        "tets_split": split,
+        "updates": len(volume_updates),
+        "excised_particles": [e["particles"] for e in excised],
+        "excised_volume_m3": [float(f"{e['volume']:.4g}") for e in excised],
+    }
     session.close()
     return [
         result("rectum-fascia-cut", params, "ms_per_update", updates[1:]),
-        result("rectum-fascia-cut", params, "validator_failures", [failures]),
+        result("rectum-fascia-cut", params, "validator_failures", [failures["cut"]]),
+        result("polyp-excision", polyp, "ms_per_update", volume_updates),
+        result("polyp-excision", polyp, "validator_failures", [failures["volume"]]),
         result("rectum-fascia-cut", dict(params, cutting=True), "ms_per_frame", cutting),
         result("rectum-fascia-cut", dict(params, cutting=False), "ms_per_frame", plain),
     ]
 
 
+def random_polyp_cut_cases(cuts: int, seed: int = 0) -> list[dict]:
+    """``random-cuts-polyp-host`` (module docstring)."""
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.core.topology import check_topology
+    from taichi_lap.dissection.removal import MutableTopology
+    from taichi_lap.dissection.tet_cut import BladePath, cut_tets
+    from taichi_lap.preprocess import organs
+    from taichi_lap.preprocess.assemble import assemble
+
+    kept, organs.VOLUME_CUT_RESERVE = organs.VOLUME_CUT_RESERVE, 20.0
+    try:  # built here, not cached: the reserve is this benchmark's
+        data = assemble(scene_mod.load("rectum"))
+    finally:
+        organs.VOLUME_CUT_RESERVE = kept
+    k = next(i for i, o in enumerate(data.organs) if o.name == "polyp")
+    record = data.organs[k]
+    free = list(range(record.particles[1] - record.reserve, record.particles[1]))
+    topology = MutableTopology(data)
+    rest = topology.rest
+    built = np.arange(record.particles[0], record.particles[1] - record.reserve)
+    low, high = rest[built].min(axis=0), rest[built].max(axis=0)
+    size = float(np.linalg.norm(high - low))
+    rng = np.random.default_rng(seed)
+    times, failures, made = [], 0, 0
+    for _ in range(cuts):
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        u = np.cross(normal, rng.normal(size=3))
+        u /= np.linalg.norm(u)
+        w = np.cross(normal, u)
+        centre = rng.uniform(low, high)
+        steps = np.linspace(-size, size, 5)
+        path = BladePath.of([[centre - size * u + t * w, centre + size * u + t * w] for t in steps])
+        begin = time.perf_counter()
+        tets = np.flatnonzero(topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == k))
+        cut = cut_tets(rest, topology.tets[tets], path)
+        if cut.empty:
+            continue
+        if len(cut.vertex_parents) > len(free):
+            break
+        rows = np.array([free.pop() for _ in range(len(cut.vertex_parents))])
+        topology.split_tets(cut, tets, rows)
+        times.append((time.perf_counter() - begin) * 1e3)
+        made += 1
+        failures += bool(check_topology(topology.topology()))
+    live = topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == k)
+    params = {
+        "cuts": made,
+        "seed": seed,
+        "reserve_rows": record.reserve,
+        "rows_left": len(free),
+        "tets_after": int(live.sum()),
+    }
+    return [
+        result("random-cuts-polyp-host", params, "validator_failures", [failures]),
+        result("random-cuts-polyp-host", params, "ms_per_update", times),
+    ]
+
+
 def main():
-    args = arguments("topology", ("cautery", "removals", "fascia", "session"))
+    args = arguments("topology", ("cautery", "removals", "fascia", "polyp", "session"))
     from taichi_lap import runtime
 
     runtime.init(args.arch)
@@ -300,6 +387,8 @@ def main():
         results += random_removal_cases(detail, events)
     if "fascia" in args.cases:
         results += fascia_cut_cases(args.quick, events)
+    if "polyp" in args.cases:
+        results += random_polyp_cut_cases(events)
     if "session" in args.cases:
         results += rectum_cut_cases()
     report("topology", args.arch, results, args.json)
