@@ -15,7 +15,7 @@ import pytest
 from taichi_lap import scene as scene_mod
 from taichi_lap.cli import main
 from taichi_lap.core.errors import InputError
-from taichi_lap.devices import Pose, ScriptedDevice
+from taichi_lap.devices import Pose
 from taichi_lap.recording import (
     CRC,
     HEADER,
@@ -328,26 +328,12 @@ def test_a_grasping_session_replays_to_the_same_state(tmp_path, capsys):
 
 
 def test_a_cutting_session_replays_to_the_same_checksum(tmp_path):
-    """Scissors cut a hanging sheet through (the sheet-cut tests' quick cut): the cuts
+    """Scissors cut a sheet through (the sheet-cut tests' quick cut): the cuts
     are events of the record, and replaying its poses and buttons in a new session
     makes the same cuts and ends in the state of the recorded checksum."""
-    from tests.test_sheet_cut import SHEET
+    from tests.test_sheet_cut import quick_cut_scene
 
-    tool = {
-        "name": "scissors",
-        "kind": "scissors",
-        "radius": 0.0025,
-        "length": 0.2,
-        "tip": [-0.035, -0.001, -0.045],
-        "direction": [0.0, 1.0, 0.0],
-    }
-    cutting = scene_mod.from_tables([SHEET], tools=[tool], gravity=[0.0, -9.81, 0.0])
-    script = [
-        {"time": 0.0, "tool": "scissors", "tip": [-0.035, -0.001, -0.045], "grasp": True},
-        {"time": 0.034, "tool": "scissors", "tip": [-0.035, -0.001, 0.045]},
-        {"time": 0.05, "tool": "scissors", "tip": [-0.035, 0.03, 0.045], "grasp": False},
-    ]
-    device = ScriptedDevice.from_tables("cut", script, cutting.tools)
+    cutting, device = quick_cut_scene()
     path = tmp_path / "cut.tlap"
     session = Session(cutting, use_cache=False, progress=False)
     with SessionRecorder(path, session, device) as recorder:

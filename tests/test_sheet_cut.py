@@ -12,7 +12,7 @@ from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON
 from taichi_lap.core.mesh import element_pieces, unique_edges
 from taichi_lap.devices import ScriptedDevice
 from taichi_lap.preprocess.organs import CUT_RESERVE
-from taichi_lap.scene import from_tables
+from taichi_lap.scene import Scene, from_tables
 from taichi_lap.session import Session
 from tests.archrun import assert_backend_matches_cpu
 from tests.test_lra import fascia
@@ -191,11 +191,10 @@ def test_an_energised_hook_cuts_the_sheet_and_a_cold_one_does_not():
         session.close()
 
 
-def quick_cut(frames: int = 30) -> dict[str, np.ndarray]:
-    """Scissors pointing down through the flat sheet, from its first frame (no
-    settling), cut it along x = -0.035, 1.5 cm from its anchored edge, in two frames
-    (2.7 m/s: the sheet sags 5 mm a frame there), and the sheet falls on for the rest:
-    the live triangles, the pieces' sizes and where the built particles are."""
+def quick_cut_scene() -> tuple[Scene, ScriptedDevice]:
+    """The flat sheet (no settling) and scissors pointing down through it that cut it
+    along x = -0.035, 1.5 cm from its anchored edge, in two frames (2.7 m/s: the sheet
+    sags 5 mm a frame there), then leave."""
     tool = {
         "name": "scissors",
         "kind": "scissors",
@@ -205,13 +204,19 @@ def quick_cut(frames: int = 30) -> dict[str, np.ndarray]:
         "direction": [0.0, 1.0, 0.0],
     }
     scene = from_tables([SHEET], tools=[tool], gravity=[0.0, -9.81, 0.0])
-    session = Session(scene, use_cache=False, progress=False)
     script = [
         {"time": 0.0, "tool": "scissors", "tip": [-0.035, -0.001, -0.045], "grasp": True},
         {"time": 0.034, "tool": "scissors", "tip": [-0.035, -0.001, 0.045]},
         {"time": 0.05, "tool": "scissors", "tip": [-0.035, 0.03, 0.045], "grasp": False},
     ]
-    device = ScriptedDevice.from_tables("cut", script, scene.tools)
+    return scene, ScriptedDevice.from_tables("cut", script, scene.tools)
+
+
+def quick_cut(frames: int = 30) -> dict[str, np.ndarray]:
+    """:func:`quick_cut_scene` run on (the sheet falls on after the cut): the live
+    triangles, the pieces' sizes and where the built particles are."""
+    scene, device = quick_cut_scene()
+    session = Session(scene, use_cache=False, progress=False)
     for _ in range(frames):
         time = session.state.time
         session.step(device.poses(time), device.buttons(time))
