@@ -550,7 +550,8 @@ class MutableTopology:
         for t in dead.tolist():
             self.original_pieces.pop(t, None)
         self.original_pieces.update({int(t): [int(t)] for t in slots})
-        kept = self.original[~np.isin(self.original, dead)]
+        # a slot taken may have been an original a removal took whole: listed once
+        kept = self.original[~np.isin(self.original, np.concatenate([dead, slots]))]
         self._index_originals(np.concatenate([kept, slots]))
         return dict(
             dead_triangles=np.setdiff1d(dead, slots),
