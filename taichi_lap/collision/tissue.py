@@ -390,7 +390,9 @@ class TissueCollision:
     def revive(self):
         """Collide the surface as built again (the model was put back as built)."""
         for name, values in self._built.items():
-            getattr(self, name).from_numpy(values)
+            getattr(self, name).from_numpy(
+                values.astype(np.int32 if values.dtype.kind in "iub" else np.float32)
+            )
         self._tri_vertex = self._built["tri_vertex"].astype(np.int64)
         self._written[:] = False
         scatter(
