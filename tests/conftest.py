@@ -35,6 +35,7 @@ LONGEST_FILES_FIRST = (
     "test_haptic_bridge.py",
     "test_circumsphere.py",
     "test_session.py",
+    "test_volume_cut.py",
     "test_shape_matching.py",
     "test_grasp.py",
     "test_sheet_cut.py",
