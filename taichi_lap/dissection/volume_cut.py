@@ -88,12 +88,11 @@ class VolumeCutter:
     def __init__(self, dissection: DeviceTopology):
         self.dissection = dissection
         data = dissection.model.data
-        self.organs = [
-            _Organ(k, list(range(end - 1, end - organ.reserve - 1, -1)))
-            for k, organ in enumerate(data.organs)
-            for end in (organ.particles[1],)
-            if organ.reserve and organ.tets[1] > organ.tets[0]
-        ]
+        self.organs = []
+        for k, organ in enumerate(data.organs):
+            if organ.reserve and organ.tets[1] > organ.tets[0]:
+                end = organ.particles[1]
+                self.organs.append(_Organ(k, list(range(end - 1, end - organ.reserve - 1, -1))))
         self.strokes: dict[int, _Stroke] = {}
 
     def stroke(
