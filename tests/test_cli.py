@@ -54,7 +54,6 @@ def test_check_json_follows_the_contract(capsys):
     assert stats["totals"]["particles"] == sum(o["particles"] for o in stats["organs"])
 
 
-@pytest.mark.slow
 def test_full_liver_matches_table_1():
     """Seed 002 Table 1: 170 854 particles and 3 892 clusters in all; the liver
     146 090 particles in 2 994 clusters of radius 0.84 cm (builds ~170k particles)."""
