@@ -348,7 +348,7 @@ def random_polyp_cut_cases(cuts: int, seed: int = 0) -> list[dict]:
         steps = np.linspace(-size, size, 5)
         path = BladePath.of([[centre - size * u + t * w, centre + size * u + t * w] for t in steps])
         begin = time.perf_counter()
-        tets = np.flatnonzero(topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == k))
+        tets = topology.live_tets(k)
         cut = cut_tets(rest, topology.tets[tets], path)
         if cut.empty:
             continue
@@ -359,13 +359,12 @@ def random_polyp_cut_cases(cuts: int, seed: int = 0) -> list[dict]:
         times.append((time.perf_counter() - begin) * 1e3)
         made += 1
         failures += bool(check_topology(topology.topology()))
-    live = topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == k)
     params = {
         "cuts": made,
         "seed": seed,
         "reserve_rows": record.reserve,
         "rows_left": len(free),
-        "tets_after": int(live.sum()),
+        "tets_after": len(topology.live_tets(k)),
     }
     return [
         result("random-cuts-polyp-host", params, "validator_failures", [failures]),

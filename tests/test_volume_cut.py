@@ -37,7 +37,7 @@ def polyp(data) -> tuple[int, np.ndarray]:
 
 def live_pieces(topology: MutableTopology, organ: int) -> list[np.ndarray]:
     """The particles of each connected piece of ``organ``'s live tets."""
-    tets = topology.tets[topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == organ)]
+    tets = topology.tets[topology.live_tets(organ)]
     label = element_pieces(tets)
     return [np.unique(tets[label == k]) for k in np.unique(label)]
 
@@ -50,7 +50,7 @@ def test_a_cut_through_the_stalk_parts_the_polyps_tets_and_clusters():
     data = assemble(scene.load("rectum"))
     k, built = polyp(data)
     topology = MutableTopology(data)
-    tets = np.flatnonzero(topology.organ_of[topology.tets[:, 0]] == k)
+    tets = topology.live_tets(k)
     path = slice_path(np.array([0.0, STALK_CUT, 0.0]), [0.0, 1.0, 0.0], size=0.02, frames=8)
     cut = cut_tets(topology.rest, topology.tets[tets], path)
     end = data.organs[k].particles[1]
@@ -61,7 +61,7 @@ def test_a_cut_through_the_stalk_parts_the_polyps_tets_and_clusters():
 
     assert len(change.dead_tets) > 0 and len(change.joined) > 0
     assert_valid(topology.topology())
-    live = topology.tets[topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == k)]
+    live = topology.tets[topology.live_tets(k)]
     assert tet_volumes(topology.rest, live).sum() == pytest.approx(volume, rel=1e-9)
     pieces = live_pieces(topology, k)
     assert len(pieces) == 2

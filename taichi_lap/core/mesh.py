@@ -86,17 +86,21 @@ def incident_table(triangles: np.ndarray, vertices: int) -> np.ndarray:
     return table
 
 
+def face_keys(faces: np.ndarray, count: int) -> np.ndarray:
+    """One int64 per triangle ``faces`` (F, 3) of vertices below ``count``, the same for
+    the same three vertices in any order."""
+    n = np.int64(count)
+    if n >= 1 << 21:
+        raise ValueError(f"{n} vertices exceed the 2^21 of int64 face keys")
+    ordered = np.sort(np.asarray(faces, dtype=np.int64), axis=1)
+    return (ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2]
+
+
 def boundary_faces(tets: np.ndarray) -> np.ndarray:
     """Faces ``(F, 3)`` used by one tet, counter-clockwise seen from outside."""
     faces = tets[:, TET_FACES].reshape(-1, 3)
-    n = np.int64(tets.max() + 1)
-    if n >= 1 << 21:
-        raise ValueError(f"{n} particles exceed the 2^21 face keys of boundary_faces")
-    ordered = np.sort(faces, axis=1)
     _, first, count = np.unique(
-        (ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2],
-        return_index=True,
-        return_counts=True,
+        face_keys(faces, tets.max() + 1), return_index=True, return_counts=True
     )
     return faces[np.sort(first[count == 1])]
 

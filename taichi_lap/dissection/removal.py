@@ -45,7 +45,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from taichi_lap.core.csr import both_ends, incidence, owners_of, rows_of
-from taichi_lap.core.mesh import TET_FACES, tet_volumes, unique_edges
+from taichi_lap.core.mesh import TET_FACES, face_keys, tet_volumes, unique_edges
 from taichi_lap.core.topology import Topology
 from taichi_lap.dissection.marching import clipped_triangles, wound_triangles
 
@@ -336,6 +336,10 @@ class MutableTopology:
         start, member = self._built
         return member[start[c] : start[c + 1]]
 
+    def live_tets(self, organ: int) -> np.ndarray:
+        """The rows of ``organ``'s live tets (a cut appends tets after every organ's)."""
+        return np.flatnonzero(self.tet_alive & (self.organ_of[self.tets[:, 0]] == organ))
+
     def beside_wound(self, tets: np.ndarray) -> np.ndarray:
         """(T,) bool: whether each of ``tets`` has a corner in a tet a removal took
         (its faces there are under a marching-tetrahedra wound, which a cut leaves
@@ -468,11 +472,9 @@ class MutableTopology:
         order = np.argsort(joined_cluster, kind="stable")
         owner, joined_cluster = owner[order], joined_cluster[order]
         clusters, first = np.unique(joined_cluster, return_index=True)
+        self._know_built_parts(clusters.tolist())
         for c, group in zip(clusters.tolist(), np.split(owner, first[1:])):
             members = self.cluster_members[c]
-            if c not in self._built_parts:
-                (labels,) = self._components([self.built_members(c)], live=False)
-                self._built_parts[c] = labels[self.particle_alive[self.built_members(c)]]
             by_particle = np.argsort(members)
             at = by_particle[np.searchsorted(members, side[group], sorter=by_particle)]
             self.cluster_members[c] = np.concatenate([members, rows[group]])
@@ -496,11 +498,9 @@ class MutableTopology:
         go, the faces of ``new_tets`` no other live tet shares come, each corner the
         vertex its particle is bound to (made where it has none)."""
         f, v = self.triangles, self.vertices
-        n = len(self.rest)
 
         def keys(faces):
-            ordered = np.sort(faces, axis=1)
-            return (ordered[:, 0] * n + ordered[:, 1]) * n + ordered[:, 2]
+            return face_keys(faces, len(self.rest))
 
         live = np.flatnonzero(f["alive"][: f.used])
         own = (v["kept"][f["vertices"][live]] < 0).all(axis=1)  # not a wound's
@@ -514,9 +514,9 @@ class MutableTopology:
         near = np.unique(self.particle_tet[rows_of(self.tet_start, corners)])
         near = near[self.tet_alive[near]]
         faces = self.tets[near][:, TET_FACES].reshape(-1, 3)
-        face_keys = keys(faces)
-        distinct, count = np.unique(face_keys, return_counts=True)
-        single = count[np.searchsorted(distinct, face_keys)] == 1
+        near_keys = keys(faces)
+        distinct, count = np.unique(near_keys, return_counts=True)
+        single = count[np.searchsorted(distinct, near_keys)] == 1
         from_new = np.repeat(np.isin(near, new_tets), 4)
         faces = faces[single & from_new]
 
@@ -710,10 +710,7 @@ class MutableTopology:
             ):
                 pending.append(c)
         is_corner[corners] = False
-        unknown = [c for c in pending if c not in self._built_parts]
-        built = self._components([self.built_members(c) for c in unknown], live=False)
-        for c, labels in zip(unknown, built):
-            self._built_parts[c] = labels[self.particle_alive[self.built_members(c)]]
+        self._know_built_parts(pending)
         now = self._components([self.cluster_members[c] for c in pending])
         new = []
         for c, labels in zip(pending, now):
@@ -731,6 +728,15 @@ class MutableTopology:
                 new.append(self._add_cluster(c, members[~keep & (labels == piece)]))
             changed.append(c)
         return np.unique(np.array(changed + new, dtype=np.int64))
+
+    def _know_built_parts(self, clusters: list[int]):
+        """Label the live members of each of ``clusters`` by the part of the cluster as
+        built they are in (connected over the tet edges as built), where not yet
+        known: one component search for all of them."""
+        unknown = [c for c in clusters if c not in self._built_parts]
+        built = self._components([self.built_members(c) for c in unknown], live=False)
+        for c, labels in zip(unknown, built):
+            self._built_parts[c] = labels[self.particle_alive[self.built_members(c)]]
 
     def _kept_piece(self, members, built, labels, part) -> int:
         """The label of the piece of built ``part`` that stays in its cluster when the

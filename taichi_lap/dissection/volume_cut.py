@@ -25,11 +25,9 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from taichi_lap.core.instruments import CUT_REACH, JAW_LENGTH, JAW_RADIUS
-from taichi_lap.core.mesh import unique_edges
+from taichi_lap.core.mesh import element_pieces
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.tet_cut import BladePath, cut_tets
@@ -128,9 +126,7 @@ class VolumeCutter:
         """Cut ``organ``'s live tets near ``path`` (module docstring); None where no
         tet was split or the reserve is spent."""
         topology = self.dissection.topology
-        tets = np.flatnonzero(
-            topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == organ.organ)
-        )
+        tets = topology.live_tets(organ.organ)
         corners = x[topology.tets[tets]]
         low, high = (
             path.segments.reshape(-1, 3).min(axis=0),
@@ -174,22 +170,12 @@ class VolumeCutter:
         topology = self.dissection.topology
         out = []
         for organ in self.organs:
-            tets = topology.tets[
-                topology.tet_alive & (topology.organ_of[topology.tets[:, 0]] == organ.organ)
-            ]
-            if not len(tets):
+            tets = topology.tets[topology.live_tets(organ.organ)]
+            label = element_pieces(tets)
+            if label.max(initial=0) < 1:
                 continue
-            particles, local = np.unique(tets, return_inverse=True)
-            edges = unique_edges(local.reshape(-1, 4))
-            graph = coo_matrix(
-                (np.ones(len(edges)), (edges[:, 0], edges[:, 1])),
-                shape=(len(particles), len(particles)),
-            )
-            count, labels = connected_components(graph, directed=False)
-            if count < 2:
-                continue
-            for label in range(count):
-                piece = particles[labels == label]
+            for k in range(label.max() + 1):
+                piece = np.unique(tets[label == k])
                 if topology.pinned[piece].any():
                     continue
                 clusters = topology.clusters_of(piece)
