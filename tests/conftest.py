@@ -8,6 +8,7 @@ the arrays with the CPU run.
 """
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -16,11 +17,24 @@ from taichi_lap import runtime
 TEST_ARCH = os.environ.get("TAICHI_LAP_TEST_ARCH", "cpu")
 
 
+def model_cache(tmp_path_factory) -> Path:
+    """The run's model cache folder: beside the workers' own temporary folders under
+    pytest-xdist (their common parent is the run's), else in this process's."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent
+    folder = base / "model-cache"
+    folder.mkdir(exist_ok=True)
+    return folder
+
+
 @pytest.fixture(scope="session", autouse=True)
 def taichi_backend(tmp_path_factory):
     """Initialise Taichi once, on :data:`TEST_ARCH` (the CPU with a fixed thread
-    count); built models are cached in a temporary folder, not the user's cache."""
-    os.environ["TAICHI_LAP_CACHE"] = str(tmp_path_factory.mktemp("model-cache"))
+    count); built models and settled starts are cached in a temporary folder, not the
+    user's cache, one folder that the run's workers share (each built the same scenes
+    and settled them again; cache files are written atomically)."""
+    os.environ["TAICHI_LAP_CACHE"] = str(model_cache(tmp_path_factory))
     runtime.init(TEST_ARCH, threads=2 if TEST_ARCH == "cpu" else None)
     yield
 

@@ -69,13 +69,18 @@ def test_full_liver_matches_table_1():
     assert abs(liver["avg_cluster_radius"] - 0.0084) < 0.0003
 
 
-def test_run_headless_writes_frames(tmp_path, capsys):
+def test_run_without_display_falls_back_to_headless_and_writes_frames(
+    tmp_path, capsys, monkeypatch
+):
+    """No display and no ``--headless``: the run says it runs headless and writes its
+    frames (``--headless`` itself: :func:`test_headless_run_and_still_need_no_vulkan`)."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     out = tmp_path / "frames"
     status = main(
         [
             "run",
             "rectum",
-            "--headless",
             "--frames",
             "3",
             "--size",
@@ -85,7 +90,9 @@ def test_run_headless_writes_frames(tmp_path, capsys):
             *SMALL,
         ]
     )
-    assert status == 0, capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert status == 0, err
+    assert "running headless" in err
     frames = sorted(out.glob("frame_*.png"))
     assert len(frames) == 3
     umask = os.umask(0)
@@ -161,16 +168,6 @@ def test_headless_run_and_still_need_no_vulkan(tmp_path):
         assert proc.returncode == 0, proc.stderr[-2000:]
     assert len(list((tmp_path / "f").glob("frame_*.png"))) == 2
     assert imageio.imread(tmp_path / "still.png").shape == (48, 64, 3)
-
-
-def test_run_without_display_falls_back_to_headless(tmp_path, capsys, monkeypatch):
-    monkeypatch.delenv("DISPLAY", raising=False)
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    status = main(
-        ["run", "rectum", "--frames", "1", "--size", "64x48", "--out", str(tmp_path / "f"), *SMALL]
-    )
-    assert status == 0
-    assert "running headless" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="needs xvfb-run (apt: xvfb xauth)")
