@@ -165,3 +165,11 @@ def degenerate_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarra
         | (triangles[:, 2] == triangles[:, 0])
     )
     return repeated | (area < DEGENERATE_AREA * diagonal_sq)
+
+
+def rows_in(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """(len(rows),) bool: each (i, j) row of ``rows`` is a row of ``table``."""
+    if not len(table) or not len(rows):
+        return np.zeros(len(rows), dtype=bool)
+    n = int(max(rows.max(), table.max())) + 1
+    return np.isin(rows[:, 0] * n + rows[:, 1], table[:, 0] * n + table[:, 1])

@@ -1,5 +1,6 @@
-"""Cutting sheets in a session (seed 000 §5.1-5.2, Alg. 3): an instrument's cutting
-shapes swept between two frames cut the fascia, and its physics follows the cut.
+"""Cutting sheets and trusses in a session (seed 000 §5.1-5.2, Alg. 3): an
+instrument's cutting shapes swept between two frames cut the fascia and the surface
+of a vessel or gland (a truss structure, §3.3), and their physics follows the cut.
 
 :func:`~taichi_lap.dissection.surface_cut.cut_surface` decides on the host, at the
 sheet's current positions, which faces go and which come; :class:`SheetCutter` makes
@@ -12,7 +13,9 @@ that the sheet's topology:
   gives its particle row back;
 * the sheet's distance constraints are its edges and bending pairs again (seed 000
   §3.2: the constraints across the cut are gone, those along it are new), their rest
-  lengths from the rest positions;
+  lengths from the rest positions; a truss's are its edges again and the struts
+  (Alg. 2) the cut left: a strut goes with either end, when the sweep passes through
+  it, and when its ends are left in different pieces of the surface;
 * its relaxed long-range attachments (Eq. 3) are found again on the cut sheet: each
   vertex keeps its geodesically nearest anchors that its piece still holds, so a
   piece cut free hangs from nothing and falls;
@@ -30,13 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_lap.core.geometry import TriangleMesh
-from taichi_lap.core.mesh import element_pieces, pair_lengths, unique_edges
+from taichi_lap.core.mesh import element_pieces, pair_lengths, rows_in, unique_edges
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
 from taichi_lap.kernels.collision.particle_contact import FREE
 from taichi_lap.kernels.scatter import gather
-from taichi_lap.preprocess.organs import CUTTABLE_SHEETS
+from taichi_lap.preprocess.organs import CUT_SURFACES
 from taichi_lap.preprocess.sheets import bending_pairs, long_range_attachments
 
 log = logging.getLogger("taichi_lap")
@@ -54,6 +57,50 @@ def median_edge(data, organ: int) -> float:
     return float(np.median(pair_lengths(np.asarray(data.rest_position), edges)))
 
 
+def built_struts(data, organ: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The struts ``organ`` was built with (seed 000 Alg. 2): its distance constraints
+    that are not edges of its surface, as (pairs (S, 2), rest [m], stiffness)."""
+    first, end = data.organs[organ].particles
+    pairs = np.asarray(data.distance_pair).reshape(-1, 2)
+    mine = np.flatnonzero((pairs[:, 0] >= first) & (pairs[:, 0] < end))
+    record = data.organs[organ]
+    faces = np.asarray(data.surface_triangles).reshape(-1, 3)[slice(*record.triangles)]
+    edges = unique_edges(np.asarray(data.surface_index).reshape(-1, 4)[faces, 0])
+    ordered = np.sort(pairs[mine], axis=1)
+    strut = mine[~rows_in(ordered, edges)]
+    return (
+        np.sort(pairs[strut], axis=1),
+        np.asarray(data.distance_rest)[strut],
+        np.asarray(data.distance_stiffness)[strut],
+    )
+
+
+def struts_in_one_piece(struts, piece: np.ndarray):
+    """The ``struts`` (pairs, rest, stiffness) of a truss whose two ends are alive in
+    one piece of its cut surface (``piece``: each particle's, -1 where gone)."""
+    ends = piece[struts[0]]
+    keep = (ends[:, 0] >= 0) & (ends[:, 0] == ends[:, 1])
+    return tuple(values[keep] for values in struts)
+
+
+def struts_crossed(pairs: np.ndarray, sweep: Sweep, x: np.ndarray) -> np.ndarray:
+    """Which struts (particle ``pairs`` at ``x`` [m]) ``sweep`` passes through: a point
+    along the strut is inside it (the points no farther apart than the sweep's
+    thinnest shape)."""
+    low, high = sweep.bounds()
+    a, b = x[pairs[:, 0]], x[pairs[:, 1]]
+    near = np.all(np.minimum(a, b) <= high, axis=1) & np.all(np.maximum(a, b) >= low, axis=1)
+    crossed = np.zeros(len(pairs), dtype=bool)
+    if near.any():
+        a, b = a[near], b[near]
+        samples = int(np.ceil(np.linalg.norm(b - a, axis=1).max() / sweep.thickness)) + 1
+        s = np.linspace(0.0, 1.0, samples)
+        points = a[:, None] + s[None, :, None] * (b - a)[:, None]
+        inside = sweep.distance(points.reshape(-1, 3)) < 0.0
+        crossed[near] = inside.reshape(-1, samples).any(axis=1)
+    return crossed
+
+
 FRAGMENT_TRIANGLES = 8
 """A piece of a cut sheet of at most this many triangles holding no anchor is a
 fragment, removed with the cut (the slivers the kerf leaves between its edges)."""
@@ -62,7 +109,9 @@ fragment, removed with the cut (the slivers the kerf leaves between its edges)."
 @dataclass
 class _Sheet:
     """One cuttable organ: its index, the particle rows its reserve still holds
-    (taken from the end), the material of its constraints and its anchors."""
+    (taken from the end), the material of its constraints and its anchors (the
+    pinned vertices; the LRA anchors of a sheet); a truss's struts left (particle
+    pairs, rest lengths [m], stiffness; none for a sheet)."""
 
     organ: int
     free: list[int]
@@ -72,7 +121,12 @@ class _Sheet:
     anchors: np.ndarray
     tear_strain: float
     edge: float  # the median edge length at rest as built [m]
+    struts: tuple[np.ndarray, np.ndarray, np.ndarray]
     spent: bool = False  # whether the reserve ran out (said once)
+
+    @property
+    def is_sheet(self) -> bool:
+        return self.anchors_per_vertex > 0
 
 
 class SheetCutter:
@@ -86,7 +140,7 @@ class SheetCutter:
         self.mass = dissection.topology.mass  # set by DeviceTopology.set_particles
         self.sheets = []
         for k, organ in enumerate(data.organs):
-            if not organ.reserve or organ.model not in CUTTABLE_SHEETS:
+            if not organ.reserve or organ.model not in CUT_SURFACES:
                 continue
             first, end = organ.particles
             built = np.arange(first, end - organ.reserve)
@@ -95,11 +149,12 @@ class SheetCutter:
                 organ=k,
                 free=list(range(end - 1, end - organ.reserve - 1, -1)),
                 edge_stiffness=float(material["edge_stiffness"]),
-                bending_stiffness=float(material["bending_stiffness"]),
-                anchors_per_vertex=int(material["lra_anchors"]),
+                bending_stiffness=float(material.get("bending_stiffness", 0.0)),
+                anchors_per_vertex=int(material.get("lra_anchors", 0)),
                 anchors=built[np.asarray(data.pinned)[built]],
                 tear_strain=float(material.get("tear_strain", 0.0)),
                 edge=median_edge(data, k),
+                struts=built_struts(data, k),
             )
             self.sheets.append(sheet)
 
@@ -109,9 +164,12 @@ class SheetCutter:
         them (none where nothing was cut)."""
         changes = []
         for sheet in self.sheets:
+            crossed = struts_crossed(sheet.struts[0], sweep, x)
+            sheet.struts = tuple(values[~crossed] for values in sheet.struts)
             change = self._cut_sheet(sheet, sweep, x, v, state)
             if change is not None:
                 changes.append(change)
+            if change is not None or crossed.any():
                 self._write_constraints(sheet)
         return changes
 
@@ -174,6 +232,13 @@ class SheetCutter:
         np.add.at(vertices["uses"], slot[added].ravel(), 1)
 
         self.dissection.set_particles(new_particles, rest, mass, blend(x), blend(v), state)
+        if len(sheet.struts[0]):
+            pieces = element_pieces(faces[~fragment])
+            piece_of = np.full(len(in_use), -1)
+            piece_of[faces[~fragment].ravel()] = np.repeat(pieces, 3)
+            piece = np.full(len(topology.rest), -1)
+            piece[particles] = piece_of[:count]
+            sheet.struts = struts_in_one_piece(sheet.struts, piece)
         change = TopologyChange(
             removed_particles=dead_particles,
             dead_triangles=dead_triangles,
@@ -310,15 +375,20 @@ class SheetCutter:
         vertices, triangles = topology.vertices, topology.triangles
         rows = self._rows(sheet)
         faces = vertices["index"][triangles["vertices"][rows], 0]  # particles
-        edges, bending = unique_edges(faces), bending_pairs(faces)
+        edges = unique_edges(faces)
+        bending = bending_pairs(faces) if sheet.is_sheet else np.zeros((0, 2), np.int64)
         pairs = np.concatenate([edges, bending])
         rest = pair_lengths(topology.rest, pairs)
         stiffness = np.repeat(
             [sheet.edge_stiffness, sheet.bending_stiffness], [len(edges), len(bending)]
         )
+        strut_pairs, strut_rest, strut_stiffness = sheet.struts
+        pairs = np.concatenate([pairs, strut_pairs])
+        rest = np.concatenate([rest, strut_rest])
+        stiffness = np.concatenate([stiffness, strut_stiffness])
         live, local = np.unique(faces, return_inverse=True)
         anchors = np.flatnonzero(np.isin(live, sheet.anchors))
-        if not len(anchors):
+        if not len(anchors) or not sheet.is_sheet:
             return pairs, rest, stiffness, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         mesh = TriangleMesh(topology.rest[live], local.reshape(-1, 3))
         lra = long_range_attachments(mesh, anchors, sheet.anchors_per_vertex)

@@ -43,7 +43,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from taichi_lap.core.instruments import ToolGeometry, tool_distance
-from taichi_lap.core.mesh import degenerate_triangles, inconsistent_edges, unique_edges
+from taichi_lap.core.mesh import degenerate_triangles, inconsistent_edges, rows_in, unique_edges
 
 V_THRESHOLD = 0.15
 """A sub-face smaller than this fraction of its parent's area is deleted (seed 000 §5.2
@@ -260,7 +260,7 @@ def cut_surface(
     beside = triangles[np.setdiff1d(ring, removed)]
     after = np.concatenate([_edges_of(beside, len(points)), _edges_of(added, len(points))])
     cut_edges = unique_edges(tri[touched]) if len(removed) else np.empty((0, 2), np.int64)
-    cut_edges = cut_edges[~_rows_in(cut_edges, after)]
+    cut_edges = cut_edges[~rows_in(cut_edges, after)]
     return SurfaceCut(
         len(points),
         removed,
@@ -626,11 +626,3 @@ def _edges_of(triangles: np.ndarray, vertex_count: int) -> np.ndarray:
         return np.empty((0, 2), np.int64)
     edges = unique_edges(triangles)
     return edges[(edges < vertex_count).all(axis=1)]
-
-
-def _rows_in(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
-    """(len(rows),) bool: each (i, j) row of ``rows`` is a row of ``table``."""
-    if not len(table) or not len(rows):
-        return np.zeros(len(rows), dtype=bool)
-    n = int(max(rows.max(), table.max())) + 1
-    return np.isin(rows[:, 0] * n + rows[:, 1], table[:, 0] * n + table[:, 1])

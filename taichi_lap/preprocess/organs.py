@@ -19,6 +19,7 @@ import numpy as np
 
 from taichi_lap.core.errors import InputError
 from taichi_lap.core.geometry import Geometry, Solid, SpringSheet, TriangleMesh
+from taichi_lap.core.instruments import cutting_geometry
 from taichi_lap.core.mesh import pair_lengths, unique_edges
 from taichi_lap.preprocess import clusters as clustering
 from taichi_lap.preprocess.meshfile import load_surface_mesh
@@ -178,8 +179,12 @@ def build_shape_matching(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
 CUTTABLE_SHEETS = ("fascia_lra",)
 """Tissue models whose sheets instruments cut (seed 000 Alg. 3,
 :mod:`taichi_lap.dissection.sheet_cut`): their vertices are their particles."""
+CUT_SURFACES = CUTTABLE_SHEETS + ("truss",)
+"""Tissue models whose surface instruments cut (seed 000 Alg. 3): the sheets, and
+the truss structures of vessels and glands (§3.3), whose surface vertices are their
+particles too; a truss is cut where a scene holds an instrument that cuts."""
 CUT_RESERVE = 1.0
-"""Particle rows a cuttable sheet keeps for the vertices cuts make, as a fraction of
+"""Particle rows a cuttable surface keeps for the vertices cuts make, as a fraction of
 its vertices (a cut across the rectum's fascia makes about two per edge it crosses;
 the vertices a cut removes give their rows back)."""
 VOLUME_CUT_RESERVE = 0.5
@@ -190,10 +195,12 @@ tet edge a cut crosses: a cut through the polyp's stalk takes about 10 %)."""
 
 
 def cut_reserve(organ: OrganSpec, parts: OrganParts, tools: list[dict]) -> float:
-    """The fraction of reserve rows ``organ`` keeps for cuts: a sheet
-    (:data:`CUT_RESERVE`), or a directly bound tet organ where scissors can cut it
-    (:data:`VOLUME_CUT_RESERVE`); 0 for others."""
+    """The fraction of reserve rows ``organ`` keeps for cuts: a sheet, or a truss where
+    scissors or a hook can cut it (:data:`CUT_RESERVE`), or a directly bound tet organ
+    where scissors can cut it (:data:`VOLUME_CUT_RESERVE`); 0 for others."""
     if organ.model in CUTTABLE_SHEETS:
+        return CUT_RESERVE
+    if organ.model == "truss" and any(cutting_geometry(tool) is not None for tool in tools):
         return CUT_RESERVE
     direct = len(parts.tets) and bool(np.all(parts.surface_weight[:, 0] == 1.0))
     if direct and any(tool["kind"] == "scissors" for tool in tools):
