@@ -268,7 +268,7 @@ class Session:
         whose GRASP_BUTTON is held and hooks whose CAUTERY_BUTTON is held cut the
         sheets their cutting shapes (:func:`cutting_geometry`) swept from their pose
         at the last step to the one the devices gave now, before the physics moves
-        the tissue; event ``cut`` with the tool and the triangles made."""
+        the tissue; event ``cut`` with the tool, the organ and the triangles made."""
         if not self.model.cuttable:
             return
         control = self.control
@@ -288,12 +288,12 @@ class Session:
             start = time.perf_counter()
             sweep = Sweep.between(geometry, *before, *pose)
             x, v = self._motion()
-            changes = self._sheet_cutter().cut(sweep, x, v, self.state)
-            for change in changes:
+            for organ, change in self._sheet_cutter().cut(sweep, x, v, self.state):
                 self._follow(change)
-            if changes:
-                made = sum(len(change.new_triangles) for change in changes)
-                self.events.append({"kind": "cut", "tool": tool["name"], "triangles": made})
+                made = len(change.new_triangles)
+                self.events.append(
+                    {"kind": "cut", "tool": tool["name"], "organ": organ, "triangles": made}
+                )
             if scissors:
                 self._cut_volumes(k, tool, pose, pose[0] - before[0], x, v)
             spent = (time.perf_counter() - start) * 1e3

@@ -158,17 +158,23 @@ class SheetCutter:
             )
             self.sheets.append(sheet)
 
-    def cut(self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state) -> list[TopologyChange]:
-        """Cut every sheet ``sweep`` reaches, with its particles at ``x`` moving at
-        ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``; returns
-        them (none where nothing was cut)."""
+    def cut(
+        self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state
+    ) -> list[tuple[str, TopologyChange]]:
+        """Cut every sheet and truss ``sweep`` reaches, with its particles at ``x``
+        moving at ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``;
+        returns the organs' names and changes (none where nothing was cut)."""
         changes = []
+        low, high = sweep.bounds()
         for sheet in self.sheets:
+            span = x[slice(*self.dissection.model.data.organs[sheet.organ].particles)]
+            if np.any(span.min(axis=0) > high) or np.any(span.max(axis=0) < low):
+                continue  # out of the sweep's reach
             crossed = struts_crossed(sheet.struts[0], sweep, x)
             sheet.struts = tuple(values[~crossed] for values in sheet.struts)
             change = self._cut_sheet(sheet, sweep, x, v, state)
             if change is not None:
-                changes.append(change)
+                changes.append((self.dissection.model.data.organs[sheet.organ].name, change))
             if change is not None or crossed.any():
                 self._write_constraints(sheet)
         return changes
