@@ -61,11 +61,13 @@ def sweep_across(session: Session, button: int, frames: int = 50) -> list[dict]:
     return events
 
 
-def live_sheet(session: Session) -> np.ndarray:
-    """The sheet's live triangles as particle triples."""
+def live_sheet(session: Session, organ: int | None = None) -> np.ndarray:
+    """The sheet's live triangles as particle triples (``organ``'s only, when given)."""
     topology = session._dissection.topology
     f, v = topology.triangles, topology.vertices
     live = f["alive"][: f.used]
+    if organ is not None:
+        live &= f["organ"][: f.used] == organ
     return v["index"][f["vertices"][: f.used][live], 0]
 
 

@@ -21,6 +21,7 @@ from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.session import Session
 from tests.archrun import assert_backend_matches_cpu
 from tests.blocks import block
+from tests.test_sheet_cut import live_sheet
 from tests.test_tet_cut import assert_closed_pieces, slice_path
 
 STALK_CUT = 0.0245
@@ -124,12 +125,15 @@ def stalk_height(session: Session) -> float:
     return float(x[near, 1].mean())
 
 
-def test_scissors_cut_the_stalk_the_head_parts_and_is_excised_out_of_view():
+def test_scissors_cut_the_stalk_the_head_is_excised_and_they_cut_through_the_vessel():
     """Scissors swept through the stalk with closed jaws: event ``cut`` of the polyp,
     a valid topology, the head loose: it falls (uncut, the head stays within 0.1 mm
     over these frames; no cluster holds it to the stalk now). With the view turned
     away from it, it is excised: event ``excised`` with its rest volume, its
-    particles gone."""
+    particles gone. Then, as the scene's script goes on (one session for both: the
+    rectum's kernels compile once), the level jaws press the vessel beside the gland
+    to the floor and cut through it (a truss, :mod:`tests.test_truss_cut`): two
+    pieces, each holding a fixed end."""
     session = Session(scene.load("rectum"), progress=False)
     k, built = polyp(session.data)
     height = stalk_height(session)
@@ -165,6 +169,22 @@ def test_scissors_cut_the_stalk_the_head_parts_and_is_excised_out_of_view():
     assert not session._dissection.topology.particle_alive[head].any()
     assert sum(e["volume"] for e in excised) > 0.8 * (4 / 3) * np.pi * 0.008**3
     session.check_topology()
+
+    for z in np.linspace(0.045, -0.0245, 30):  # the script's way round under the rectum
+        session.step({"scissors": Pose(np.array([0.045, -0.024, z]), direction)}, {})
+    events = []
+    for y in np.linspace(-0.024, -0.044, 36):
+        pose = Pose(np.array([0.045, y, -0.0245]), direction)
+        session.step({"scissors": pose}, {"scissors": GRASP_BUTTON})
+        events += session.events
+    assert any(e["kind"] == "cut" and e["organ"] == "vessel" for e in events)
+    session.check_topology()
+    vessel = [organ.name for organ in session.data.organs].index("vessel")
+    triangles = live_sheet(session, vessel)
+    pieces = element_pieces(triangles)
+    assert pieces.max() == 1
+    for piece in range(2):
+        assert session.data.pinned[np.unique(triangles[pieces == piece])].any()
 
 
 def quick_volume_cut(frames: int = 20) -> dict[str, np.ndarray]:
