@@ -44,6 +44,11 @@ Cases
   ``ms_per_update`` (the topology stage of each frame whose scissors split tets: the
   cut on the host and every row written) and ``validator_failures``; parameters: tets
   split, and the particles and rest volume excised.
+* ``vessel-cut`` (issue Dissection II, a truss cut in a session): the same run goes
+  on: the scissors' level jaws press the vessel beside the gland to the floor and cut
+  through it (Alg. 3 on its surface, the struts the cut crosses or parts removed).
+  Metrics ``ms_per_update`` (the topology stage of each frame that cut the vessel)
+  and ``validator_failures``; parameter: the vessel's pieces at the end.
 * ``random-cuts-polyp-host``: random plane cuts (a blade drawn across a random plane
   through a random point of the polyp, in 4 frames, reaching beyond it: a cut that
   ends inside waits, :func:`cut_tets`) split the rectum scene's polyp again and again
@@ -98,8 +103,8 @@ def cautery_cases(detail: float) -> list[dict]:
         "particles": session.data.particle_count,
         "frames": frames,
         "removed": removed,
-        "updates": len(updates),
-        "first_update_ms": round(updates[0], 1),  # compiles the row writes
+        "updates": len(updates["fascia"]),
+        "first_update_ms": round(updates["fascia"][0], 1),  # compiles the row writes
         "triangles_alive": alive,
     }
     session.close()
@@ -244,13 +249,15 @@ def rectum_cut_cases() -> list[dict]:
 
     session = Session(scene_mod.load("rectum"), progress=False)
     device = scene_script(session.scene)
-    fascia = next(k for k, o in enumerate(session.data.organs) if o.name == "fascia")
+    names = [organ.name for organ in session.data.organs]
+    fascia, vessel = names.index("fascia"), names.index("vessel")
     frames = int(round(device.duration() / session.dt))
     session.step()  # compile
     organ = session.data.organs[fascia]
     built = organ.particles[1] - organ.reserve  # the sheet's rows below are as built
-    updates, cut_frames, frame_ms = [], [], {True: [], False: []}
-    volume_updates, excised, split, failures = [], [], 0, {"cut": 0, "volume": 0}
+    updates = {"fascia": [], "volume": [], "vessel": []}
+    cut_frames, frame_ms, excised, split = [], {True: [], False: []}, [], 0
+    failures = dict.fromkeys(updates, 0)
     for cut in (True, False):
         session.reset()
         start = session.state.x.to_numpy()
@@ -262,24 +269,22 @@ def rectum_cut_cases() -> list[dict]:
             begin = time_ms()
             session.step(device.poses(time), buttons)
             frame_ms[cut].append(time_ms() - begin)
-            kinds = {e["kind"] if "organ" not in e else "volume" for e in session.events}
+            cuts = [e for e in session.events if e["kind"] == "cut"]
             excised += [e for e in session.events if e["kind"] == "excised"] if cut else []
-            if cut and kinds & {"cut", "volume"}:
-                if "cut" in kinds:
+            if cut and cuts:
+                organs = {"volume" if "tets" in e else e["organ"] for e in cuts}
+                kind = next(k for k in ("volume", "vessel", "fascia") if k in organs)
+                updates[kind].append(session.timings["topology"])
+                if kind == "fascia":
                     cut_frames.append(frame)
-                    updates.append(session.timings["topology"])
-                else:
-                    volume_updates.append(session.timings["topology"])
-                    split += sum(e["tets"] for e in session.events if e["kind"] == "cut")
+                split += sum(e.get("tets", 0) for e in cuts)
                 try:
                     session.check_topology()
                 except SimulationFault:
-                    failures["cut" if "cut" in kinds else "volume"] += 1
+                    failures[kind] += 1
         if cut:
-            topology = session._dissection.topology
-            f, v = topology.triangles, topology.vertices
-            live = f["alive"][: f.used] & (f["organ"][: f.used] == fascia)
-            triangles = v["index"][f["vertices"][: f.used][live], 0]
+            vessel_pieces = np.bincount(element_pieces(session.live_triangles(vessel))).tolist()
+            triangles = session.live_triangles(fascia)
             pieces = element_pieces(triangles)
             x = session.state.x.to_numpy()
             sizes, drops = np.bincount(pieces).tolist(), []
@@ -290,8 +295,8 @@ def rectum_cut_cases() -> list[dict]:
     params = {
         "particles": session.data.particle_count,
         "frames": frames,
-        "updates": len(updates),
-        "first_update_ms": round(updates[0], 1),
+        "updates": len(updates["fascia"]),
+        "first_update_ms": round(updates["fascia"][0], 1),
         "fascia_pieces_triangles": sizes,
         "fascia_pieces_drop_m": drops,
     }
@@ -299,16 +304,19 @@ def rectum_cut_cases() -> list[dict]:
     plain = [frame_ms[False][k] for k in cut_frames]
     polyp = {
         "tets_split": split,
-        "updates": len(volume_updates),
+        "updates": len(updates["volume"]),
         "excised_particles": [e["particles"] for e in excised],
         "excised_volume_m3": [float(f"{e['volume']:.4g}") for e in excised],
     }
+    vessel_cut = {"updates": len(updates["vessel"]), "vessel_pieces_triangles": vessel_pieces}
     session.close()
     return [
-        result("rectum-fascia-cut", params, "ms_per_update", updates[1:]),
-        result("rectum-fascia-cut", params, "validator_failures", [failures["cut"]]),
-        result("polyp-excision", polyp, "ms_per_update", volume_updates),
+        result("rectum-fascia-cut", params, "ms_per_update", updates["fascia"][1:]),
+        result("rectum-fascia-cut", params, "validator_failures", [failures["fascia"]]),
+        result("polyp-excision", polyp, "ms_per_update", updates["volume"]),
         result("polyp-excision", polyp, "validator_failures", [failures["volume"]]),
+        result("vessel-cut", vessel_cut, "ms_per_update", updates["vessel"]),
+        result("vessel-cut", vessel_cut, "validator_failures", [failures["vessel"]]),
         result("rectum-fascia-cut", dict(params, cutting=True), "ms_per_frame", cutting),
         result("rectum-fascia-cut", dict(params, cutting=False), "ms_per_frame", plain),
     ]

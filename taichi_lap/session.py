@@ -472,6 +472,22 @@ class Session:
             self._dissection = DeviceTopology(self.model, MutableTopology(self.data))
         return self._dissection
 
+    def live_triangles(self, organ: int | None = None) -> np.ndarray:
+        """The surface triangles alive now, ``organ``'s only when given, as particle
+        triples (T, 3) (for organs whose surface vertices are their particles: sheets,
+        trusses, tet organs bound directly)."""
+        if self._dissection is None:
+            data = self.data
+            triangles = np.asarray(data.surface_triangles).reshape(-1, 3)
+            if organ is not None:
+                triangles = triangles[slice(*data.organs[organ].triangles)]
+            return np.asarray(data.surface_index).reshape(-1, 4)[triangles, 0]
+        f, v = self._dissection.topology.triangles, self._dissection.topology.vertices
+        live = f["alive"][: f.used]
+        if organ is not None:
+            live = live & (f["organ"][: f.used] == organ)
+        return v["index"][f["vertices"][: f.used][live], 0]
+
     def check_topology(self):
         """Run the topology validator (:mod:`taichi_lap.core.topology`) on the tissue
         as it is now (the skinned surface) when it was not checked since the last

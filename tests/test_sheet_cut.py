@@ -61,16 +61,6 @@ def sweep_across(session: Session, button: int, frames: int = 50) -> list[dict]:
     return events
 
 
-def live_sheet(session: Session, organ: int | None = None) -> np.ndarray:
-    """The sheet's live triangles as particle triples (``organ``'s only, when given)."""
-    topology = session._dissection.topology
-    f, v = topology.triangles, topology.vertices
-    live = f["alive"][: f.used]
-    if organ is not None:
-        live &= f["organ"][: f.used] == organ
-    return v["index"][f["vertices"][: f.used][live], 0]
-
-
 def sheet_particles(session: Session) -> np.ndarray:
     """The particles the sheet was built with (its reserve rows left out)."""
     organ = session.data.organs[0]
@@ -100,7 +90,7 @@ def test_scissors_cut_the_sheet_in_two_and_the_free_piece_falls(cut_sheet):
     cuts = [e for e in events if e["kind"] == "cut"]
     assert len(cuts) > 10 and all(e["tool"] == "scissors" for e in cuts)
     session.check_topology()  # raises on any problem
-    triangles = live_sheet(session)
+    triangles = session.live_triangles()
     pieces = element_pieces(triangles)
     sizes = np.bincount(pieces)
     big = np.argsort(sizes)[::-1][:2]
@@ -120,7 +110,7 @@ def test_scissors_cut_the_sheet_in_two_and_the_free_piece_falls(cut_sheet):
 def test_no_constraint_joins_the_pieces_and_the_free_piece_has_no_anchor(cut_sheet):
     session, _, _ = cut_sheet
     model = session.model
-    triangles = live_sheet(session)
+    triangles = session.live_triangles()
     piece_of = np.full(session.data.particle_count, -1)
     piece_of[triangles.ravel()] = np.repeat(element_pieces(triangles), 3)
     pairs = model_pairs(model)
@@ -157,7 +147,7 @@ def test_new_vertices_take_reserve_rows_where_their_parents_were(cut_sheet):
     session, _, _ = cut_sheet
     built = sheet_particles(session)
     assert session.data.organs[0].reserve == int(np.ceil(CUT_RESERVE * len(built)))
-    taken = np.setdiff1d(live_sheet(session), built)
+    taken = np.setdiff1d(session.live_triangles(), built)
     assert len(taken) > 20
     inverse_mass = session.model.inv_mass.to_numpy()
     assert (inverse_mass[taken] > 0.0).all()
@@ -188,7 +178,7 @@ def test_an_energised_hook_cuts_the_sheet_and_a_cold_one_does_not():
         cuts = [e for e in sweep_across(session, CAUTERY_BUTTON) if e["kind"] == "cut"]
         assert len(cuts) > 10
         session.check_topology()
-        assert np.bincount(element_pieces(live_sheet(session))).max() < 300
+        assert np.bincount(element_pieces(session.live_triangles())).max() < 300
     finally:
         session.close()
 
@@ -223,7 +213,7 @@ def quick_cut(frames: int = 30) -> dict[str, np.ndarray]:
         time = session.state.time
         session.step(device.poses(time), device.buttons(time))
     session.check_topology()
-    triangles = live_sheet(session)
+    triangles = session.live_triangles()
     out = {
         "triangles": np.array([len(triangles)]),
         "pieces": np.sort(np.bincount(element_pieces(triangles))),
@@ -288,7 +278,7 @@ def test_a_pulled_sheet_tears_round_the_grip_and_the_rest_lets_go():
         tears = [e for e in events if e["kind"] == "tear"]
         assert len(tears) >= 5 and all(e["organ"] == "fascia" for e in tears)
         session.check_topology()
-        triangles = live_sheet(session)
+        triangles = session.live_triangles()
         pieces = element_pieces(triangles)
         held = np.flatnonzero(session.state.grasp_tool.to_numpy() >= 0)
         assert len(held) > 0

@@ -13,7 +13,7 @@ from taichi_lap.devices import ScriptedDevice
 from taichi_lap.dissection.sheet_cut import built_struts
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
-from tests.test_sheet_cut import live_sheet, model_pairs
+from tests.test_sheet_cut import model_pairs
 
 HALF_LENGTH = 0.04  # [m] the vessel runs along x from -HALF_LENGTH to HALF_LENGTH
 RADIUS = 0.003  # [m]
@@ -89,7 +89,7 @@ def test_scissors_cut_the_vessel_in_two_and_the_halves_hang_from_their_ends(cut_
     session, before, events = cut_vessel
     assert sum(e["kind"] == "cut" for e in events) > 5
     session.check_topology()  # raises on any problem
-    triangles = live_sheet(session)
+    triangles = session.live_triangles()
     pieces = element_pieces(triangles)
     assert len(np.unique(pieces)) == 2
     x = session.state.x.to_numpy()
@@ -107,7 +107,7 @@ def test_scissors_cut_the_vessel_in_two_and_the_halves_hang_from_their_ends(cut_
 
 def test_no_strut_or_edge_joins_the_halves(cut_vessel):
     session, _, _ = cut_vessel
-    triangles = live_sheet(session)
+    triangles = session.live_triangles()
     piece_of = np.full(session.data.particle_count, -1)
     piece_of[triangles.ravel()] = np.repeat(element_pieces(triangles), 3)
     pairs = model_pairs(session.model)

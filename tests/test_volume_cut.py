@@ -21,7 +21,6 @@ from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.session import Session
 from tests.archrun import assert_backend_matches_cpu
 from tests.blocks import block
-from tests.test_sheet_cut import live_sheet
 from tests.test_tet_cut import assert_closed_pieces, slice_path
 
 STALK_CUT = 0.0245
@@ -180,7 +179,7 @@ def test_scissors_cut_the_stalk_the_head_is_excised_and_they_cut_through_the_ves
     assert any(e["kind"] == "cut" and e["organ"] == "vessel" for e in events)
     session.check_topology()
     vessel = [organ.name for organ in session.data.organs].index("vessel")
-    triangles = live_sheet(session, vessel)
+    triangles = session.live_triangles(vessel)
     pieces = element_pieces(triangles)
     assert pieces.max() == 1
     for piece in range(2):
