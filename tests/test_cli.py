@@ -186,7 +186,7 @@ def test_interactive_window_runs_on_a_virtual_display():
             "run",
             "rectum",
             "--frames",
-            "20",
+            "6",
             "--size",
             "640x480",
             *SMALL,
