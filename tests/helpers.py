@@ -40,3 +40,31 @@ def wait_for(predicate, timeout: float) -> bool:
             return False
         time.sleep(0.001)
     return True
+
+
+def instrument(kind: str, tip, direction, *, name: str | None = None) -> dict:
+    """A scene tool table: a ``kind`` instrument of the 5 mm class (radius 2.5 mm,
+    20 cm long) at ``tip`` with its shaft along ``direction``, named after its kind
+    unless ``name`` is given."""
+    return {
+        "name": name or kind,
+        "kind": kind,
+        "radius": 0.0025,
+        "length": 0.2,
+        "tip": list(tip),
+        "direction": list(direction),
+    }
+
+
+def run_script(session: Session, script: list[dict], frames: int) -> list[dict]:
+    """Step ``session`` ``frames`` frames with its tools on ``script`` (rows of a scene
+    script, each naming its ``tool``); the session's events."""
+    from taichi_lap.devices import ScriptedDevice
+
+    device = ScriptedDevice.from_tables("test", script, session.scene.tools)
+    events = []
+    for _ in range(frames):
+        time = session.state.time
+        session.step(device.poses(time), device.buttons(time))
+        events += session.events
+    return events

@@ -15,6 +15,7 @@ from taichi_lap.preprocess.organs import CUT_RESERVE
 from taichi_lap.scene import Scene, from_tables
 from taichi_lap.session import Session
 from tests.archrun import assert_backend_matches_cpu
+from tests.helpers import instrument, run_script
 from tests.test_lra import fascia
 
 # the LRA tests' sheet (10 x 6 cm, 16 x 10 cells, anchored along its edge at x = -0.05:
@@ -25,14 +26,7 @@ CUT_HEIGHT = -0.05
 
 
 def cutting_session(kind: str) -> Session:
-    tool = {
-        "name": kind,
-        "kind": kind,
-        "radius": 0.0025,
-        "length": 0.2,
-        "tip": [0.0, CUT_HEIGHT, -0.045],
-        "direction": [1.0, 0.0, 0.0],
-    }
+    tool = instrument(kind, [0.0, CUT_HEIGHT, -0.045], [1.0, 0.0, 0.0])
     scene = from_tables([SHEET], tools=[tool], gravity=[0.0, -9.81, 0.0], settle_time=1.0)
     return Session(scene, use_cache=False, progress=False)
 
@@ -52,13 +46,7 @@ def sweep_across(session: Session, button: int, frames: int = 50) -> list[dict]:
     ]
     if held:
         script[0][held], script[2][held] = True, False
-    device = ScriptedDevice.from_tables("cut", script, session.scene.tools)
-    events = []
-    for _ in range(frames):
-        time = session.state.time
-        session.step(device.poses(time), device.buttons(time))
-        events += session.events
-    return events
+    return run_script(session, script, frames)
 
 
 def sheet_particles(session: Session) -> np.ndarray:
@@ -187,14 +175,7 @@ def quick_cut_scene() -> tuple[Scene, ScriptedDevice]:
     """The flat sheet (no settling) and scissors pointing down through it that cut it
     along x = -0.035, 1.5 cm from its anchored edge, in two frames (2.7 m/s: the sheet
     sags 5 mm a frame there), then leave."""
-    tool = {
-        "name": "scissors",
-        "kind": "scissors",
-        "radius": 0.0025,
-        "length": 0.2,
-        "tip": [-0.035, -0.001, -0.045],
-        "direction": [0.0, 1.0, 0.0],
-    }
+    tool = instrument("scissors", [-0.035, -0.001, -0.045], [0.0, 1.0, 0.0])
     scene = from_tables([SHEET], tools=[tool], gravity=[0.0, -9.81, 0.0])
     script = [
         {"time": 0.0, "tool": "scissors", "tip": [-0.035, -0.001, -0.045], "grasp": True},
@@ -244,14 +225,7 @@ def pull(tear_strain: float) -> tuple[Session, list[dict]]:
     and pulls that patch 8 cm further away in 1.5 s; the session after 100 frames and
     its events."""
     sheet = dict(SHEET, material=dict(SHEET["material"], tear_strain=tear_strain))
-    tool = {
-        "name": "grasper",
-        "kind": "grasper",
-        "radius": 0.0025,
-        "length": 0.2,
-        "tip": [0.04, 0.005, 0.0],
-        "direction": [0.0, 1.0, 0.0],
-    }
+    tool = instrument("grasper", [0.04, 0.005, 0.0], [0.0, 1.0, 0.0])
     scene = from_tables([sheet], tools=[tool], gravity=[0.0, 0.0, 0.0])
     session = Session(scene, use_cache=False, progress=False)
     script = [

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from taichi_lap.core.mesh import element_pieces
-from taichi_lap.devices import ScriptedDevice
 from taichi_lap.dissection.sheet_cut import built_struts
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
 from tests.archrun import assert_backend_matches_cpu
+from tests.helpers import instrument, run_script
 from tests.test_sheet_cut import model_pairs
 
 HALF_LENGTH = 0.04  # [m] the vessel runs along x from -HALF_LENGTH to HALF_LENGTH
@@ -32,14 +32,8 @@ VESSEL = {
         {"kind": "fixed", "box_min": [0.035, -0.1, -0.1], "box_max": [0.1, 0.1, 0.1]},
     ],
 }
-SCISSORS = {
-    "name": "scissors",
-    "kind": "scissors",
-    "radius": 0.0025,
-    "length": 0.2,
-    "tip": [0.0, 0.05, 0.0],
-    "direction": [0.0, 1.0, 0.0],  # the shaft above, the jaws (1 cm) hang down from the tip
-}
+SCISSORS = instrument("scissors", [0.0, 0.05, 0.0], [0.0, 1.0, 0.0])
+"""The shaft above, the jaws (1 cm) hang down from the tip."""
 FRAMES = 90
 
 
@@ -66,15 +60,7 @@ def sweep(session: Session) -> list[dict]:
 
 def run(session: Session, script: list[dict], frames: int = FRAMES) -> list[dict]:
     """Step ``frames`` frames with the scissors on ``script``; the session's events."""
-    device = ScriptedDevice.from_tables(
-        "cut", [dict(step, tool="scissors") for step in script], session.scene.tools
-    )
-    events = []
-    for _ in range(frames):
-        time = session.state.time
-        session.step(device.poses(time), device.buttons(time))
-        events += session.events
-    return events
+    return run_script(session, [dict(step, tool="scissors") for step in script], frames)
 
 
 @pytest.fixture(scope="module")
