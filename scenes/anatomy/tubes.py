@@ -15,6 +15,11 @@ from taichi_lap.core.geometry import TriangleMesh, arc_length
 
 from . import sdf as _sdf
 
+_BLOCK = 1 << 12
+"""Points a :class:`TubeTree` evaluates at once: their (points x cones) temporaries
+stay in the CPU's caches (a million at once spent most of the full liver's build
+waiting on memory); each point's value does not depend on the others'."""
+
 
 def catmull_rom(points, samples_per_segment: int = 16, alpha: float = 0.5) -> np.ndarray:
     """Sample the Catmull-Rom spline through ``points`` ``(n, 3)`` (centripetal for
@@ -245,6 +250,12 @@ class TubeTree:
 
     def __call__(self, p) -> np.ndarray:
         p = np.asarray(p, float).reshape(-1, 3)
+        out = np.empty(len(p))
+        for start in range(0, len(p), _BLOCK):
+            out[start : start + _BLOCK] = self._distances(p[start : start + _BLOCK])
+        return out
+
+    def _distances(self, p) -> np.ndarray:
         out = np.empty(len(p))
         todo = np.arange(len(p))
         k = self.k
