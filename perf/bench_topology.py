@@ -103,8 +103,8 @@ def cautery_cases(detail: float) -> list[dict]:
         "particles": session.data.particle_count,
         "frames": frames,
         "removed": removed,
-        "updates": len(updates["fascia"]),
-        "first_update_ms": round(updates["fascia"][0], 1),  # compiles the row writes
+        "updates": len(updates),
+        "first_update_ms": round(updates[0], 1),  # compiles the row writes
         "triangles_alive": alive,
     }
     session.close()
