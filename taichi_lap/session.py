@@ -482,11 +482,9 @@ class Session:
             if organ is not None:
                 triangles = triangles[slice(*data.organs[organ].triangles)]
             return np.asarray(data.surface_index).reshape(-1, 4)[triangles, 0]
-        f, v = self._dissection.topology.triangles, self._dissection.topology.vertices
-        live = f["alive"][: f.used]
-        if organ is not None:
-            live = live & (f["organ"][: f.used] == organ)
-        return v["index"][f["vertices"][: f.used][live], 0]
+        topology = self._dissection.topology
+        rows = topology.live_triangles(organ)
+        return topology.vertices["index"][topology.triangles["vertices"][rows], 0]
 
     def check_topology(self):
         """Run the topology validator (:mod:`taichi_lap.core.topology`) on the tissue

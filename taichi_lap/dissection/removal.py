@@ -336,6 +336,14 @@ class MutableTopology:
         start, member = self._built
         return member[start[c] : start[c + 1]]
 
+    def live_triangles(self, organ: int | None = None) -> np.ndarray:
+        """The rows of the live surface triangles (``organ``'s only, when given)."""
+        f = self.triangles
+        live = f["alive"][: f.used]
+        if organ is not None:
+            live = live & (f["organ"][: f.used] == organ)
+        return np.flatnonzero(live)
+
     def live_tets(self, organ: int) -> np.ndarray:
         """The rows of ``organ``'s live tets (a cut appends tets after every organ's)."""
         return np.flatnonzero(self.tet_alive & (self.organ_of[self.tets[:, 0]] == organ))
@@ -502,7 +510,7 @@ class MutableTopology:
         def keys(faces):
             return face_keys(faces, len(self.rest))
 
-        live = np.flatnonzero(f["alive"][: f.used])
+        live = self.live_triangles()
         own = (v["kept"][f["vertices"][live]] < 0).all(axis=1)  # not a wound's
         live = live[own & self.dissectable[f["organ"][live]]]
         on_parent = np.isin(

@@ -49,11 +49,16 @@ SHORTEST_REST = 0.25
 short edges a cut makes near a vertex would tear at the slightest pull)."""
 
 
+def built_edges(data, organ: int) -> np.ndarray:
+    """The edges (E, 2) of ``organ``'s surface as built, as particle pairs (its
+    surface vertices are its particles)."""
+    faces = np.asarray(data.surface_triangles).reshape(-1, 3)[slice(*data.organs[organ].triangles)]
+    return unique_edges(np.asarray(data.surface_index).reshape(-1, 4)[faces, 0])
+
+
 def median_edge(data, organ: int) -> float:
     """The median edge length [m] at rest of ``organ``'s surface as built."""
-    record = data.organs[organ]
-    faces = np.asarray(data.surface_triangles).reshape(-1, 3)[slice(*record.triangles)]
-    edges = unique_edges(np.asarray(data.surface_index).reshape(-1, 4)[faces, 0])
+    edges = built_edges(data, organ)
     return float(np.median(pair_lengths(np.asarray(data.rest_position), edges)))
 
 
@@ -63,11 +68,7 @@ def built_struts(data, organ: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     first, end = data.organs[organ].particles
     pairs = np.asarray(data.distance_pair).reshape(-1, 2)
     mine = np.flatnonzero((pairs[:, 0] >= first) & (pairs[:, 0] < end))
-    record = data.organs[organ]
-    faces = np.asarray(data.surface_triangles).reshape(-1, 3)[slice(*record.triangles)]
-    edges = unique_edges(np.asarray(data.surface_index).reshape(-1, 4)[faces, 0])
-    ordered = np.sort(pairs[mine], axis=1)
-    strut = mine[~rows_in(ordered, edges)]
+    strut = mine[~rows_in(np.sort(pairs[mine], axis=1), built_edges(data, organ))]
     return (
         np.sort(pairs[strut], axis=1),
         np.asarray(data.distance_rest)[strut],
@@ -83,11 +84,11 @@ def struts_in_one_piece(struts, piece: np.ndarray):
     return tuple(values[keep] for values in struts)
 
 
-def struts_crossed(pairs: np.ndarray, sweep: Sweep, x: np.ndarray) -> np.ndarray:
-    """Which struts (particle ``pairs`` at ``x`` [m]) ``sweep`` passes through: a point
-    along the strut is inside it (the points no farther apart than the sweep's
-    thinnest shape)."""
-    low, high = sweep.bounds()
+def struts_crossed(pairs: np.ndarray, sweep: Sweep, bounds, x: np.ndarray) -> np.ndarray:
+    """Which struts (particle ``pairs`` at ``x`` [m]) ``sweep`` (within the box
+    ``bounds``, :meth:`Sweep.bounds`) passes through: a point along the strut is inside
+    it (the points no farther apart than the sweep's thinnest shape)."""
+    low, high = bounds
     a, b = x[pairs[:, 0]], x[pairs[:, 1]]
     near = np.all(np.minimum(a, b) <= high, axis=1) & np.all(np.maximum(a, b) >= low, axis=1)
     crossed = np.zeros(len(pairs), dtype=bool)
@@ -165,16 +166,17 @@ class SheetCutter:
         moving at ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``;
         returns the organs' names and changes (none where nothing was cut)."""
         changes = []
-        low, high = sweep.bounds()
+        bounds = low, high = sweep.bounds()
         for sheet in self.sheets:
-            span = x[slice(*self.dissection.model.data.organs[sheet.organ].particles)]
+            record = self.dissection.model.data.organs[sheet.organ]
+            span = x[slice(*record.particles)]
             if np.any(span.min(axis=0) > high) or np.any(span.max(axis=0) < low):
                 continue  # out of the sweep's reach
-            crossed = struts_crossed(sheet.struts[0], sweep, x)
+            crossed = struts_crossed(sheet.struts[0], sweep, bounds, x)
             sheet.struts = tuple(values[~crossed] for values in sheet.struts)
             change = self._cut_sheet(sheet, sweep, x, v, state)
             if change is not None:
-                changes.append((self.dissection.model.data.organs[sheet.organ].name, change))
+                changes.append((record.name, change))
             if change is not None or crossed.any():
                 self._write_constraints(sheet)
         return changes
@@ -182,7 +184,7 @@ class SheetCutter:
     def _cut_sheet(self, sheet: _Sheet, sweep, x, v, state) -> TopologyChange | None:
         topology = self.dissection.topology
         vertices, triangles = topology.vertices, topology.triangles
-        rows = self._rows(sheet)
+        rows = self.dissection.topology.live_triangles(sheet.organ)
         used, local = np.unique(triangles["vertices"][rows], return_inverse=True)
         particles = vertices["index"][used, 0]
         cut = cut_surface(x[particles], local.reshape(-1, 3), sweep)
@@ -272,7 +274,7 @@ class SheetCutter:
         for sheet in self.sheets:
             if sheet.tear_strain <= 0.0:
                 continue
-            rows = self._rows(sheet)
+            rows = self.dissection.topology.live_triangles(sheet.organ)
             faces = topology.vertices["index"][topology.triangles["vertices"][rows], 0]
             edges = unique_edges(faces)
             rest = np.maximum(pair_lengths(topology.rest, edges), SHORTEST_REST * sheet.edge)
@@ -343,12 +345,6 @@ class SheetCutter:
             )
         return False
 
-    def _rows(self, sheet: _Sheet) -> np.ndarray:
-        """The rows of the sheet's live triangles."""
-        triangles = self.dissection.topology.triangles
-        used = slice(0, triangles.used)
-        return np.flatnonzero(triangles["alive"][used] & (triangles["organ"][used] == sheet.organ))
-
     def _fragments(self, sheet: _Sheet, faces: np.ndarray, particles: np.ndarray, held):
         """Which of the cut sheet's ``faces`` (vertices numbered as the cut numbers
         them, the first ``len(particles)`` those of ``particles``, ``held`` those a
@@ -379,7 +375,7 @@ class SheetCutter:
         triangles (module docstring)."""
         topology = self.dissection.topology
         vertices, triangles = topology.vertices, topology.triangles
-        rows = self._rows(sheet)
+        rows = self.dissection.topology.live_triangles(sheet.organ)
         faces = vertices["index"][triangles["vertices"][rows], 0]  # particles
         edges = unique_edges(faces)
         bending = bending_pairs(faces) if sheet.is_sheet else np.zeros((0, 2), np.int64)
