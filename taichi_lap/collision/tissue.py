@@ -38,6 +38,7 @@ from taichi_lap.collision.surface_tables import (
     rest_tables,
     triangle_corner_tables,
 )
+from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, padded_rows
 from taichi_lap.core.instruments import FAR, MAX_TOOLS
 from taichi_lap.core.mesh import edge_neighbours
@@ -389,10 +390,7 @@ class TissueCollision:
 
     def revive(self):
         """Collide the surface as built again (the model was put back as built)."""
-        for name, values in self._built.items():
-            getattr(self, name).from_numpy(
-                values.astype(np.int32 if values.dtype.kind in "iub" else np.float32)
-            )
+        fields.write((getattr(self, name), values) for name, values in self._built.items())
         self._tri_vertex = self._built["tri_vertex"].astype(np.int64)
         self._written[:] = False
         scatter(
@@ -421,10 +419,9 @@ class TissueCollision:
         lists and the hash are forgotten too (every triangle rescans, as in a new
         collision), and so is the count of oversize steps. Which triangles a tool's
         contact held is forgotten (the response reads it in the next step)."""
-        self.area_last.fill(0.0)
-        self.tool_held.fill(0)
+        cleared = [(self.area_last, 0.0), (self.tool_held, 0)]
+        fields.fill(cleared + [(self.ref_sphere, FAR)] if pairs else cleared)
         if pairs:
-            self.ref_sphere.fill(FAR)
             self._hashed = False
             self.oversize_steps = 0
             if self._swapped:  # a reused collision lists in the order it first did

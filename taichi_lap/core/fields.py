@@ -13,7 +13,89 @@ import numpy as np
 import taichi as ti
 from taichi.lang import impl
 from taichi.lang.struct import StructType
+from taichi.lang.matrix import MatrixField
 from taichi.lang.util import to_numpy_type
+
+from taichi_lap.kernels import transfer
+
+_BATCHED = {ti.f32: False, ti.i32: True}
+"""The element types :func:`write` and :func:`read` move in one launch: f32, i32
+(whether integer)."""
+
+
+def _entry_shape(field) -> tuple[int, ...]:
+    if isinstance(field, MatrixField):
+        return (field.n,) if field.ndim == 1 else (field.n, field.m)
+    return ()
+
+
+def _layout(fields) -> tuple[tuple, dict[bool, int]]:
+    """The static layout of ``fields`` for :mod:`taichi_lap.kernels.transfer` and the
+    length of each buffer (keyed by whether it is the integer one)."""
+    layout, sizes = [], {False: 0, True: 0}
+    for f in fields:
+        integer = _BATCHED[f.dtype]
+        entry = _entry_shape(f)
+        layout.append((integer, sizes[integer], entry))
+        sizes[integer] += int(np.prod(f.shape + entry))
+    return tuple(layout), sizes
+
+
+def _batched(field) -> bool:
+    return field.dtype in _BATCHED and len(field.shape) > 0
+
+
+def write(pairs):
+    """Set fields to host values: ``pairs`` of (field, array of exactly the field's
+    shape, entry shape included). The f32 and i32 fields of one or more dimensions
+    are written in one launch (:func:`~taichi_lap.kernels.transfer.write_fields`,
+    compiled once per tuple of fields), the rest by ``from_numpy``."""
+    pairs = [(f, np.asarray(values)) for f, values in pairs]
+    for f, values in pairs:
+        expected = f.shape + _entry_shape(f)
+        if values.shape != expected:
+            raise ValueError(f"{values.shape} values for a field of shape {expected}")
+    batch = [(f, values) for f, values in pairs if _batched(f)]
+    for f, values in pairs:
+        if not _batched(f):
+            f.from_numpy(values.astype(to_numpy_type(f.dtype)))
+    if batch:
+        fields = tuple(f for f, _ in batch)
+        layout, _ = _layout(fields)
+        buffers = {
+            integer: np.concatenate(
+                [v.astype(dtype).ravel() for f, v in batch if _BATCHED[f.dtype] == integer]
+                + [np.zeros(1, dtype)]  # a buffer of no field still has an entry
+            )
+            for integer, dtype in ((False, np.float32), (True, np.int32))
+        }
+        transfer.write_fields(fields, layout, buffers[False], buffers[True])
+
+
+def fill(pairs):
+    """Set every entry of each field of ``pairs`` (field, value) to its value, as
+    :func:`write` does (one launch for the f32 and i32 fields)."""
+    write((f, np.full(f.shape + _entry_shape(f), value)) for f, value in pairs)
+
+
+def read(fields) -> list[np.ndarray]:
+    """The values of ``fields`` as NumPy copies (``to_numpy``), the f32 and i32 fields
+    of one or more dimensions read in one launch
+    (:func:`~taichi_lap.kernels.transfer.read_fields`)."""
+    fields = list(fields)
+    batch = tuple(f for f in fields if _batched(f))
+    out = {}
+    if batch:
+        layout, sizes = _layout(batch)
+        buffers = {
+            False: np.zeros(max(sizes[False], 1), np.float32),
+            True: np.zeros(max(sizes[True], 1), np.int32),
+        }
+        transfer.read_fields(batch, layout, buffers[False], buffers[True])
+        for f, (integer, offset, entry) in zip(batch, layout):
+            count = int(np.prod(f.shape + entry))
+            out[id(f)] = buffers[integer][offset : offset + count].reshape(f.shape + entry)
+    return [out[id(f)] if id(f) in out else f.to_numpy() for f in fields]
 
 
 def padded_rows(values: np.ndarray, rows: int, fill=0) -> np.ndarray:
@@ -85,7 +167,7 @@ class FieldGroup:
             raise ValueError("regrown: rows must name fields of the group")
         whole = len(fields) == len(self._specs)
         fill = fill or {}
-        arrays = {name: f.to_numpy() for name, f in fields.items()}  # before declaring
+        arrays = dict(zip(fields, read(fields.values())))  # before declaring
         group = FieldGroup()
         for name, f in fields.items():
             values = arrays[name]
@@ -120,12 +202,14 @@ class FieldGroup:
 
     def finalize(self):
         self.tree = self._builder.finalize()
+        writes = []
         for f, values in self._uploads:
             if len(values):
                 shape = f.shape[:1] + values.shape[1:]
                 padded = np.zeros(shape, dtype=to_numpy_type(f.dtype))
                 padded[: len(values)] = values
-                f.from_numpy(padded)
+                writes.append((f, padded))
+        write(writes)
         self._uploads = []
 
 

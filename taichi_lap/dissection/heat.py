@@ -17,6 +17,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.core.csr import both_ends
+from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.mesh import TET_EDGES, unique_edges
 from taichi_lap.kernels import heat as kernels
@@ -197,10 +198,11 @@ class HeatField(FieldOwner):
     def reset(self):
         """Back to the start: body temperature (and peak) everywhere, the particles of
         the tets alive, nothing damaged."""
-        for field in (self.temperature, self.temperature_next, self.peak, self.hottest):
-            field.fill(self.body_temperature)
-        self.alive.from_numpy(self._alive_at_start)
-        self.damaged.fill(0)
+        warm = (self.temperature, self.temperature_next, self.peak, self.hottest)
+        fields.write(
+            [(f, np.full(f.shape, self.body_temperature)) for f in warm]
+            + [(self.damaged, np.zeros(self.damaged.shape)), (self.alive, self._alive_at_start)]
+        )
 
     def remove(self, indices: np.ndarray):
         """The particles ``indices`` die: they neither gain nor pass heat from now on

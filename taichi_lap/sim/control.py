@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
+from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.instruments import (
     JAW_RADIUS,
@@ -151,13 +152,11 @@ class Control(FieldOwner):
             raise IndexError(f"tool index {index} outside 0..{MAX_TOOLS - 1}")
         geometry = ToolGeometry(tuple(shapes), length=0.0, radius=0.0)
         rows = slice(index * MAX_TOOL_SHAPES, (index + 1) * MAX_TOOL_SHAPES)
-        for field, values in zip(
-            (self.shape_kind, self.shape_a, self.shape_b, self.shape_size),
-            shape_rows(geometry.shapes),
-        ):
-            table = field.to_numpy()
+        targets = (self.shape_kind, self.shape_a, self.shape_b, self.shape_size)
+        tables = fields.read(targets)
+        for table, values in zip(tables, shape_rows(geometry.shapes)):
             table[rows] = values
-            field.from_numpy(table)
+        fields.write(zip(targets, tables))
         self.tool_reach[index] = geometry.reach()
 
     def advance(self, begin: float, end: float):

@@ -16,6 +16,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.core.csr import both_ends, incidence
+from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows
 from taichi_lap.core.mesh import incident_table
 from taichi_lap.kernels.scatter import RowWrites
@@ -461,10 +462,10 @@ class Model(FieldOwner):
     def _write_whole(self, tables: dict[str, tuple[np.ndarray, str | None, int]]):
         """Write each field of ``tables`` (:meth:`_as_built` entries) whole, its spare
         rows filled (an empty table has one row)."""
-        for name, (values, _, fill) in tables.items():
-            dtype = np.int32 if values.dtype.kind in "iu" else np.float32
-            target = getattr(self, name)
-            target.from_numpy(padded_rows(values.astype(dtype), target.shape[0], fill))
+        fields.write(
+            (getattr(self, name), padded_rows(values, getattr(self, name).shape[0], fill))
+            for name, (values, _, fill) in tables.items()
+        )
 
     def reset_topology(self):
         """Put back every field dissection changes as it was built (off the frame's

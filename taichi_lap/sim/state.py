@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
+from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.instruments import MAX_TOOLS
 from taichi_lap.kernels.collision.particle_contact import FREE
@@ -86,25 +87,24 @@ class State(FieldOwner):
 
     def reset(self, model: Model):
         """Return to the rest configuration."""
-        self.x.copy_from(model.rest_position)
-        self.p.copy_from(model.rest_position)
-        self.p_next.copy_from(model.rest_position)
-        self.goal.copy_from(model.rest_position)
-        self.v.fill(0.0)
-        self.eta.fill(0.0)
-        self.collided.fill(0)
-        identity = np.broadcast_to(
-            np.eye(3, dtype=np.float32), self.cluster_rotation.shape + (3, 3)
+        rest, centers = fields.read([model.rest_position, model.cluster_rest_center])
+        n = len(rest)
+        clusters = self.cluster_rotation.shape[0]
+        fields.write(
+            [(getattr(self, name), rest) for name in ("x", "p", "p_next", "goal")]
+            + [
+                (self.v, np.zeros((n, 3))),
+                (self.eta, np.zeros(n)),
+                (self.collided, np.zeros(n)),
+                (self.cluster_rotation, np.broadcast_to(np.eye(3), (clusters, 3, 3))),
+                (self.cluster_quaternion, np.tile([1.0, 0.0, 0.0, 0.0], (clusters, 1))),
+                (self.cluster_center, centers),
+                (self.grasp_tool, np.full(n, FREE)),
+                (self.grasp_local, np.zeros((n, 3))),
+            ]
         )
-        self.cluster_rotation.from_numpy(np.ascontiguousarray(identity))
-        self.cluster_quaternion.from_numpy(
-            np.tile(np.float32([1.0, 0.0, 0.0, 0.0]), (self.cluster_quaternion.shape[0], 1))
-        )
-        self.cluster_center.copy_from(model.cluster_rest_center)
         self.fault[None] = 0
         self.fault_particle[None] = NO_FAULT
-        self.grasp_tool.fill(FREE)
-        self.grasp_local.fill(0.0)
         self.time = 0.0
         self.frame = 0
         self.jaws_closed = [False] * MAX_TOOLS
@@ -116,7 +116,8 @@ class State(FieldOwner):
     def snapshot(self) -> dict[str, np.ndarray]:
         """Everything that evolves between frames, as NumPy copies (for determinism
         checks and :meth:`restore`)."""
-        return {name: getattr(self, name).to_numpy() for name in SNAPSHOT_FIELDS}
+        values = fields.read(getattr(self, name) for name in SNAPSHOT_FIELDS)
+        return dict(zip(SNAPSHOT_FIELDS, values))
 
     def restore(self, snapshot: dict[str, np.ndarray]):
         """Put back a :meth:`snapshot` taken while no tool held tissue, as frame 0:
@@ -137,10 +138,10 @@ class State(FieldOwner):
                 )
         if (snapshot["grasp_tool"] != FREE).any():
             raise ValueError("cannot restore a snapshot taken while a tool held tissue")
-        for name in SNAPSHOT_FIELDS:
-            getattr(self, name).from_numpy(arrays[name])
-        self.p.copy_from(self.x)
-        self.p_next.copy_from(self.x)
+        fields.write(
+            [(getattr(self, name), arrays[name]) for name in SNAPSHOT_FIELDS]
+            + [(self.p, arrays["x"]), (self.p_next, arrays["x"])]
+        )
         self.fault[None] = 0
         self.fault_particle[None] = NO_FAULT
         self.time = 0.0

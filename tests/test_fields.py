@@ -1,0 +1,73 @@
+"""Field groups and the bulk copies between host arrays and fields (core.fields)."""
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_lap.core import fields
+from taichi_lap.core.fields import FieldGroup
+from taichi_lap.runtime import kernel_compilations
+
+
+def group_of_every_kind():
+    """One field of each kind a group declares, filled with distinct values."""
+    rng = np.random.default_rng(3)
+    values = {
+        "scalar": rng.random(6),
+        "vector": rng.random((4, 3)),  # padded to 5 rows
+        "matrix": rng.random((3, 3, 3)),
+        "integers": rng.integers(-50, 50, 7),
+        "table": rng.integers(0, 9, (4, 5)),
+        "wide": rng.integers(0, 2**40, 3),  # i64: not batched
+    }
+    group = FieldGroup()
+    made = {
+        "scalar": group.field(ti.f32, 6, values=values["scalar"]),
+        "vector": group.field(ti.f32, 5, vector=3, values=values["vector"]),
+        "matrix": group.field(ti.f32, 3, matrix=(3, 3), values=values["matrix"]),
+        "integers": group.field(ti.i32, 7, values=values["integers"]),
+        "table": group.field(ti.i32, 4, columns=5, values=values["table"]),
+        "wide": group.field(ti.i64, 3, values=values["wide"]),
+        "single": group.field(ti.f32, None),
+    }
+    group.finalize()
+    return group, made, values
+
+
+def test_a_group_uploads_every_kind_of_field_and_read_returns_what_to_numpy_does():
+    group, made, values = group_of_every_kind()
+    try:
+        np.testing.assert_array_equal(made["vector"].to_numpy()[:4], values["vector"].astype("f4"))
+        assert not made["vector"].to_numpy()[4].any()  # the padding row
+        for name in ("scalar", "matrix", "integers", "table", "wide"):
+            np.testing.assert_array_equal(
+                made[name].to_numpy(), values[name].astype(made[name].to_numpy().dtype)
+            )
+        read = fields.read(made.values())
+        for (name, f), array in zip(made.items(), read):
+            expected = f.to_numpy()
+            assert array.dtype == expected.dtype and array.shape == expected.shape, name
+            np.testing.assert_array_equal(array, expected)
+    finally:
+        group.close()
+
+
+def test_write_sets_many_fields_in_one_compiled_kernel_and_checks_shapes():
+    group, made, _ = group_of_every_kind()
+    try:
+        batched = [made[name] for name in ("scalar", "vector", "matrix", "integers", "table")]
+        shapes = [f.to_numpy().shape for f in batched]
+        new = [-np.arange(np.prod(shape)).reshape(shape) for shape in shapes]
+        fields.write(zip(batched, new))  # compiles the transfer for this tuple
+        compiled = kernel_compilations()
+        fields.write(zip(batched, [2 * v for v in new]))
+        assert kernel_compilations() == compiled  # one kernel for the five fields, reused
+        for f, v in zip(batched, new):
+            np.testing.assert_array_equal(f.to_numpy(), 2 * v)
+        fields.fill([(made["vector"], 0.5), (made["wide"], 7), (made["single"], 2.0)])
+        assert (made["vector"].to_numpy() == 0.5).all()
+        assert (made["wide"].to_numpy() == 7).all() and made["single"][None] == 2.0
+        with pytest.raises(ValueError, match=r"\(4, 3\) values for a field of shape \(5, 3\)"):
+            fields.write([(made["vector"], np.zeros((4, 3)))])
+    finally:
+        group.close()
