@@ -27,6 +27,11 @@ Per substep of length h:
 
 Seed 000 §7 tunes η = 0.7 for the value set on contact; Alg. 1 writes 1 (hold the
 vertex exactly). Both are the ``eta_on_contact`` material parameter.
+
+Parallel loops over a count held in a field (``chunk_count``, ``cluster_count``) run
+over the field's capacity and skip the indices past the count: with a constant end
+Vulkan launches one thread per index instead of a fixed grid of 65,536
+(docs/architecture.md, loop bounds).
 """
 
 import taichi as ti
@@ -86,19 +91,20 @@ def cluster_partial_sums(model: ti.template(), state: ti.template()):
     member's mass in the cluster (0 once dissection took it out), q its stored
     offset plus the cluster's ``cluster_rest_shift`` (0 until members leave). Reads
     p; writes chunk_first, chunk_moment."""
-    for chunk in range(model.chunk_count[None]):
-        c = model.chunk_cluster[chunk]
-        rest_center, shift = model.cluster_rest_center[c], model.cluster_rest_shift[c]
-        first = ti.Vector([0.0, 0.0, 0.0])
-        moment = ti.Matrix.zero(ti.f32, 3, 3)
-        for k in range(model.chunk_begin[chunk], model.chunk_end[chunk]):
-            i = model.cluster_member[k]
-            m = model.cluster_member_mass[k]
-            d = state.p[i] - rest_center
-            first += m * d
-            moment += m * d.outer_product(model.cluster_rest_offset[k] + shift)
-        state.chunk_first[chunk] = first
-        state.chunk_moment[chunk] = moment
+    for chunk in range(model.chunk_cluster.shape[0]):
+        if chunk < model.chunk_count[None]:
+            c = model.chunk_cluster[chunk]
+            rest_center, shift = model.cluster_rest_center[c], model.cluster_rest_shift[c]
+            first = ti.Vector([0.0, 0.0, 0.0])
+            moment = ti.Matrix.zero(ti.f32, 3, 3)
+            for k in range(model.chunk_begin[chunk], model.chunk_end[chunk]):
+                i = model.cluster_member[k]
+                m = model.cluster_member_mass[k]
+                d = state.p[i] - rest_center
+                first += m * d
+                moment += m * d.outer_product(model.cluster_rest_offset[k] + shift)
+            state.chunk_first[chunk] = first
+            state.chunk_moment[chunk] = moment
 
 
 @ti.kernel
@@ -106,21 +112,23 @@ def cluster_frames(model: ti.template(), state: ti.template()):
     """Alg. 1 lines 8-11 per cluster: p_cm and R from the chunk sums (in order).
     Reads and writes cluster_quaternion (the warm start); writes cluster_center (p_cm)
     and cluster_rotation (R)."""
-    for c in range(model.cluster_count[None]):
-        first = ti.Vector([0.0, 0.0, 0.0])
-        moment = ti.Matrix.zero(ti.f32, 3, 3)
-        for chunk in range(model.cluster_chunk_begin[c], model.cluster_chunk_end[c]):
-            first += state.chunk_first[chunk]
-            moment += state.chunk_moment[chunk]
-        state.cluster_center[c] = model.cluster_rest_center[c] + first / ti.max(
-            model.cluster_mass[c], 1e-30
-        )
-        # R is scale-invariant: normalise A so f32 stays accurate for tiny clusters
-        q = extract_rotation(
-            moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30), state.cluster_quaternion[c]
-        )
-        state.cluster_quaternion[c] = q
-        state.cluster_rotation[c] = quaternion_to_matrix(q)
+    for c in range(model.cluster_rest_center.shape[0]):
+        if c < model.cluster_count[None]:
+            first = ti.Vector([0.0, 0.0, 0.0])
+            moment = ti.Matrix.zero(ti.f32, 3, 3)
+            for chunk in range(model.cluster_chunk_begin[c], model.cluster_chunk_end[c]):
+                first += state.chunk_first[chunk]
+                moment += state.chunk_moment[chunk]
+            state.cluster_center[c] = model.cluster_rest_center[c] + first / ti.max(
+                model.cluster_mass[c], 1e-30
+            )
+            # R is scale-invariant: normalise A so f32 stays accurate for tiny clusters
+            q = extract_rotation(
+                moment / ti.max(ti.sqrt((moment * moment).sum()), 1e-30),
+                state.cluster_quaternion[c],
+            )
+            state.cluster_quaternion[c] = q
+            state.cluster_rotation[c] = quaternion_to_matrix(q)
 
 
 def match_clusters(model, state):

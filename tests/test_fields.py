@@ -71,3 +71,18 @@ def test_write_sets_many_fields_in_one_compiled_kernel_and_checks_shapes():
             fields.write([(made["vector"], np.zeros((4, 3)))])
     finally:
         group.close()
+
+
+def test_more_fields_than_one_launch_takes_are_written_and_read_in_several():
+    count = fields.LAUNCH_FIELDS + 5
+    group = FieldGroup()
+    made = [group.field(ti.i32 if k % 2 else ti.f32, 3 + k) for k in range(count)]
+    group.finalize()
+    try:
+        values = [np.arange(3 + k) * (k + 1) for k in range(count)]
+        fields.write(zip(made, values))
+        for f, v, back in zip(made, values, fields.read(made)):
+            np.testing.assert_array_equal(f.to_numpy(), v)
+            np.testing.assert_array_equal(back, v)
+    finally:
+        group.close()

@@ -45,6 +45,10 @@ folded sheet collide.
 
 Counts are i32 totals added once per triangle (no atomics inside the candidate loops,
 see :mod:`~taichi_lap.kernels.collision.spatial_hash`). Lengths in metres.
+
+Parallel loops over a count held in a field (``row_count``, ``found.count``) run over the field's capacity
+and skip the indices past the count: with a constant end Vulkan launches one thread
+per index instead of a fixed grid of 65,536 (docs/architecture.md, loop bounds).
 """
 
 import taichi as ti
@@ -145,30 +149,33 @@ def update_bounds(
             ]
         )
     skin_vertices(model, state, coll)
-    for t in range(coll.row_count[None]):
-        v = coll.tri_vertex[t]
-        a, b, c = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]
-        center = (a + b + c) / 3.0
-        motion = center - (coll.vertex_x[v[0]] + coll.vertex_x[v[1]] + coll.vertex_x[v[2]]) / 3.0
-        far = ti.max(
-            (a - center).norm_sqr(), ti.max((b - center).norm_sqr(), (c - center).norm_sqr())
-        )
-        sphere = ti.Vector([center[0], center[1], center[2], ti.sqrt(far) + motion.norm()])
-        coll.broad_sphere[t] = sphere
-        if ti.static(coll.tissue_pairs):  # a retired triangle may hold anything
-            ref, held = coll.ref_sphere[t], coll.hash_sphere[t]
-            moved = (center - xyz(ref)).norm() + ti.abs(sphere[3] - ref[3]) > coll.rescan_drift
-            coll.moved[t] = ti.cast(moved, ti.i32)
-            if moved:
-                ti.atomic_add(coll.broad[B_MOVED], 1)
-            if (center - xyz(held)).norm() + ti.abs(sphere[3] - held[3]) > coll.hash_slack:
-                coll.broad[B_STALE] = 1
-            if sphere[3] > coll.reach_bound and coll.tri_live[t] != 0:
-                ti.atomic_add(coll.broad[B_OVERSIZE], 1)
-        if coll.tri_live[t] != 0 and any_tool_near(coll, sphere):
-            coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
-        else:
-            coll.tool_held[t] = 0
+    for t in range(coll.tri_vertex.shape[0]):
+        if t < coll.row_count[None]:
+            v = coll.tri_vertex[t]
+            a, b, c = coll.vertex_p[v[0]], coll.vertex_p[v[1]], coll.vertex_p[v[2]]
+            center = (a + b + c) / 3.0
+            motion = (
+                center - (coll.vertex_x[v[0]] + coll.vertex_x[v[1]] + coll.vertex_x[v[2]]) / 3.0
+            )
+            far = ti.max(
+                (a - center).norm_sqr(), ti.max((b - center).norm_sqr(), (c - center).norm_sqr())
+            )
+            sphere = ti.Vector([center[0], center[1], center[2], ti.sqrt(far) + motion.norm()])
+            coll.broad_sphere[t] = sphere
+            if ti.static(coll.tissue_pairs):  # a retired triangle may hold anything
+                ref, held = coll.ref_sphere[t], coll.hash_sphere[t]
+                moved = (center - xyz(ref)).norm() + ti.abs(sphere[3] - ref[3]) > coll.rescan_drift
+                coll.moved[t] = ti.cast(moved, ti.i32)
+                if moved:
+                    ti.atomic_add(coll.broad[B_MOVED], 1)
+                if (center - xyz(held)).norm() + ti.abs(sphere[3] - held[3]) > coll.hash_slack:
+                    coll.broad[B_STALE] = 1
+                if sphere[3] > coll.reach_bound and coll.tri_live[t] != 0:
+                    ti.atomic_add(coll.broad[B_OVERSIZE], 1)
+            if coll.tri_live[t] != 0 and any_tool_near(coll, sphere):
+                coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
+            else:
+                coll.tool_held[t] = 0
 
 
 @ti.kernel
@@ -176,13 +183,15 @@ def hold_spheres(coll: ti.template(), grid: ti.template()):
     """After ``grid.build(broad_sphere)``: the hash holds each triangle's broad sphere
     (hash_sphere) and, in hash order, that sphere, the rest sphere and the body
     (sorted_sphere, sorted_rest, sorted_body: what the scan loop reads)."""
-    for t in range(coll.row_count[None]):
-        coll.hash_sphere[t] = coll.broad_sphere[t]
-    for s in range(coll.row_count[None]):
-        u = grid.sorted_index[s]
-        coll.sorted_sphere[s] = coll.hash_sphere[u]
-        coll.sorted_rest[s] = coll.rest_sphere[u]
-        coll.sorted_body[s] = coll.tri_body[u]
+    for t in range(coll.tri_vertex.shape[0]):
+        if t < coll.row_count[None]:
+            coll.hash_sphere[t] = coll.broad_sphere[t]
+    for s in range(coll.tri_vertex.shape[0]):
+        if s < coll.row_count[None]:
+            u = grid.sorted_index[s]
+            coll.sorted_sphere[s] = coll.hash_sphere[u]
+            coll.sorted_rest[s] = coll.rest_sphere[u]
+            coll.sorted_body[s] = coll.tri_body[u]
 
 
 @ti.func
@@ -274,18 +283,19 @@ def list_pairs(coll: ti.template(), grid: ti.template(), found: ti.template()):
     found.count[None] = 0
     for k in ti.static(range(B_SEEN, len(BROAD))):
         coll.broad[k] = 0
-    for t in range(coll.row_count[None]):
-        if coll.moved[t]:
-            count, seen = 0, 0
-            if ti.static(grid.reserve_per_point):  # Vulkan: count, reserve, write
-                count, seen = scan_pairs(coll, grid, found, t, 0, 0)
-                scan_pairs(coll, grid, found, t, 1, ti.atomic_add(found.count[None], count))
-            else:
-                count, seen = scan_pairs(coll, grid, found, t, 2, 0)
-            coll.ref_sphere[t] = coll.broad_sphere[t]
-            ti.atomic_add(coll.broad[B_SEEN], seen)
-            ti.atomic_add(coll.broad[B_RESCANNED], 1)
-            ti.atomic_add(coll.broad[B_LISTED], count)
+    for t in range(coll.tri_vertex.shape[0]):
+        if t < coll.row_count[None]:
+            if coll.moved[t]:
+                count, seen = 0, 0
+                if ti.static(grid.reserve_per_point):  # Vulkan: count, reserve, write
+                    count, seen = scan_pairs(coll, grid, found, t, 0, 0)
+                    scan_pairs(coll, grid, found, t, 1, ti.atomic_add(found.count[None], count))
+                else:
+                    count, seen = scan_pairs(coll, grid, found, t, 2, 0)
+                coll.ref_sphere[t] = coll.broad_sphere[t]
+                ti.atomic_add(coll.broad[B_SEEN], seen)
+                ti.atomic_add(coll.broad[B_RESCANNED], 1)
+                ti.atomic_add(coll.broad[B_LISTED], count)
 
 
 @ti.kernel
@@ -294,18 +304,20 @@ def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(), foun
     did not move; every found pair adds to both rows. Writes new.cursor (kept), new.size,
     new.start (prefix sum) and, to compare with the capacities, broad[B_FOUND] and
     broad[B_ROWS] (the total)."""
-    for t in range(coll.row_count[None]):
-        kept = 0
-        if not coll.moved[t]:
-            for m in range(old.start[t], old.start[t + 1]):
-                if not coll.moved[old.partner[m]]:
-                    kept += 1
-        new.cursor[t] = kept
-        new.size[t] = kept
-    for q in range(ti.min(found.count[None], found.capacity)):
-        pair = found.pair[q]
-        ti.atomic_add(new.size[pair[0]], 1)
-        ti.atomic_add(new.size[pair[1]], 1)
+    for t in range(coll.tri_vertex.shape[0]):
+        if t < coll.row_count[None]:
+            kept = 0
+            if not coll.moved[t]:
+                for m in range(old.start[t], old.start[t + 1]):
+                    if not coll.moved[old.partner[m]]:
+                        kept += 1
+            new.cursor[t] = kept
+            new.size[t] = kept
+    for q in range(found.capacity):
+        if q < found.count[None]:
+            pair = found.pair[q]
+            ti.atomic_add(new.size[pair[0]], 1)
+            ti.atomic_add(new.size[pair[1]], 1)
     exclusive_scan(new.size, new.start, coll.row_count[None], new.block_start, ROW_BLOCK)
     coll.broad[B_FOUND] = found.count[None]
     coll.broad[B_ROWS] = new.start[coll.row_count[None]]
@@ -316,32 +328,35 @@ def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found
     """The new rows of :func:`count_rows`, each sorted by partner (the order the
     contacts are summed in: runs stay bit-reproducible); the rescan's counts go to the
     counters."""
-    for t in range(coll.row_count[None]):
-        if not coll.moved[t]:
-            slot = new.start[t]
-            for m in range(old.start[t], old.start[t + 1]):
-                u = old.partner[m]
-                if not coll.moved[u]:
-                    new.partner[slot] = u
-                    slot += 1
-    for q in range(ti.min(found.count[None], found.capacity)):
-        pair = found.pair[q]
-        for side in ti.static(range(2)):
-            row = pair[side]
-            new.partner[new.start[row] + ti.atomic_add(new.cursor[row], 1)] = pair[1 - side]
+    for t in range(coll.tri_vertex.shape[0]):
+        if t < coll.row_count[None]:
+            if not coll.moved[t]:
+                slot = new.start[t]
+                for m in range(old.start[t], old.start[t + 1]):
+                    u = old.partner[m]
+                    if not coll.moved[u]:
+                        new.partner[slot] = u
+                        slot += 1
+    for q in range(found.capacity):
+        if q < found.count[None]:
+            pair = found.pair[q]
+            for side in ti.static(range(2)):
+                row = pair[side]
+                new.partner[new.start[row] + ti.atomic_add(new.cursor[row], 1)] = pair[1 - side]
     ti.atomic_add(coll.counter[C_CANDIDATES], coll.broad[B_SEEN])
     ti.atomic_add(coll.counter[C_RESCANNED], coll.broad[B_RESCANNED])
     ti.atomic_add(coll.counter[C_LISTED], coll.broad[B_LISTED])
-    for t in range(coll.row_count[None]):  # insertion sort of the short rows
-        lo, hi = new.start[t], new.start[t + 1]
-        for a in range(lo + 1, hi):
-            v, c = new.partner[a], a
-            while c > lo:
-                if new.partner[c - 1] <= v:
-                    break
-                new.partner[c] = new.partner[c - 1]
-                c -= 1
-            new.partner[c] = v
+    for t in range(coll.tri_vertex.shape[0]):  # insertion sort of the short rows
+        if t < coll.row_count[None]:
+            lo, hi = new.start[t], new.start[t + 1]
+            for a in range(lo + 1, hi):
+                v, c = new.partner[a], a
+                while c > lo:
+                    if new.partner[c - 1] <= v:
+                        break
+                    new.partner[c] = new.partner[c - 1]
+                    c -= 1
+                new.partner[c] = v
 
 
 @ti.kernel
@@ -351,15 +366,16 @@ def mark_active(coll: ti.template(), rows: ti.template()):
     near a tool (:func:`update_bounds`), the triangles whose spheres
     :func:`kernels.collision.spheres.update_spheres` computes and that
     :func:`detect_and_respond` tests (both triangles of a pair are listed)."""
-    for t in range(coll.row_count[None]):
-        start, end = rows.start[t], rows.start[t + 1]
-        if start < end and not any_tool_near(coll, coll.broad_sphere[t]):
-            active = False
-            for m in range(start, end):
-                if not active:
-                    active = broad_overlap(coll, t, rows.partner[m], 0.0)
-            if active:
-                coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
+    for t in range(coll.tri_vertex.shape[0]):
+        if t < coll.row_count[None]:
+            start, end = rows.start[t], rows.start[t + 1]
+            if start < end and not any_tool_near(coll, coll.broad_sphere[t]):
+                active = False
+                for m in range(start, end):
+                    if not active:
+                        active = broad_overlap(coll, t, rows.partner[m], 0.0)
+                if active:
+                    coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
 
 
 @ti.kernel

@@ -32,6 +32,10 @@ are bit-reproducible), then per particle:
 
 Velocities enter as displacements over the substep (v h = p - x), so h cancels.
 Lengths in metres.
+
+Parallel loops over a count held in a field (``active_count``, ``touched_count``) run over the field's capacity
+and skip the indices past the count: with a constant end Vulkan launches one thread
+per index instead of a fixed grid of 65,536 (docs/architecture.md, loop bounds).
 """
 
 import taichi as ti
@@ -406,60 +410,64 @@ def detect_and_respond(
     and set collided. Reads the spheres, the pair rows and the tool poses; writes corner_delta,
     corner_count (zero again at the end), counter, p, collided."""
     coll.touched_count[None] = 0
-    for m in range(coll.active_count[None]):
-        t = coll.active_list[m]
-        acc, hits = ti.Matrix.zero(ti.f32, 3, 3), ti.Vector([0, 0, 0])
-        bounding, contacts, tool_candidates, tool = 0, 0, 0, 0
-        if ti.static(coll.tissue_pairs):
-            if tissue:
-                bounding, contacts, acc, hits = tissue_contacts(coll, rows, t, acc, hits)
-        if ti.static(coll.tools):
-            if tools:
-                tool_candidates, tool, acc, hits = tool_contacts(
-                    model, state, coll, control, t, acc, hits
-                )
-                coll.tool_held[t] = ti.cast(tool > 0, ti.i32)
-        for k in ti.static(range(3)):
-            coll.corner_delta[3 * t + k] = ti.Vector([acc[k, 0], acc[k, 1], acc[k, 2]]) / ti.max(
-                ti.cast(hits[k], ti.f32), 1.0
-            )
-            coll.corner_count[3 * t + k] = hits[k]
-        ti.atomic_add(coll.counter[C_BOUNDING], bounding)
-        ti.atomic_add(coll.counter[C_TISSUE], contacts)
-        ti.atomic_add(coll.counter[C_TOOL_CANDIDATES], tool_candidates)
-        ti.atomic_add(coll.counter[C_TOOL], tool)
-        ti.atomic_add(coll.counter[C_TRIANGLES], ti.cast(hits.max() > 0, ti.i32))
-    for m in range(coll.active_count[None]):  # list the particles bound to hit corners
-        t = coll.active_list[m]
-        for k in ti.static(range(3)):
-            if coll.corner_count[3 * t + k] > 0:
-                s = coll.tri_vertex[t][k]
-                idx, w = model.surface_index[s], model.surface_weight[s]
-                for j in ti.static(range(4)):
-                    if w[j] > 0.0 and ti.atomic_add(coll.particle_mark[idx[j]], 1) == 0:
-                        coll.touched_list[ti.atomic_add(coll.touched_count[None], 1)] = idx[j]
-    for n in range(coll.touched_count[None]):
-        i = coll.touched_list[n]
-        total, weight = ti.Vector([0.0, 0.0, 0.0]), 0.0
-        j = coll.particle_rank[i]
-        if j >= 0:  # corners as built, but those a dissection rewrote
-            for m in range(coll.particle_start[j], coll.particle_start[j + 1]):
-                corner = coll.particle_corner[m]
-                if coll.corner_count[corner] > 0 and coll.corner_built[corner] != 0:
-                    total += coll.particle_weight[m] * coll.corner_delta[corner]
-                    weight += coll.particle_weight[m]
-        r = coll.written_rank[i]
-        if r >= 0:  # corners a dissection wrote
-            for m in range(coll.written_start[r], coll.written_start[r + 1]):
-                corner = coll.written_corner[m]
-                if coll.corner_count[corner] > 0:
-                    total += coll.written_weight[m] * coll.corner_delta[corner]
-                    weight += coll.written_weight[m]
-        if model.inv_mass[i] > 0.0 and weight > 0.0:
-            state.p[i] = state.p[i] + total / weight
-        state.collided[i] = 1
-        coll.particle_mark[i] = 0
-    for m in range(coll.active_count[None]):
-        t = coll.active_list[m]
-        for k in ti.static(range(3)):
-            coll.corner_count[3 * t + k] = 0
+    for m in range(coll.active_list.shape[0]):
+        if m < coll.active_count[None]:
+            t = coll.active_list[m]
+            acc, hits = ti.Matrix.zero(ti.f32, 3, 3), ti.Vector([0, 0, 0])
+            bounding, contacts, tool_candidates, tool = 0, 0, 0, 0
+            if ti.static(coll.tissue_pairs):
+                if tissue:
+                    bounding, contacts, acc, hits = tissue_contacts(coll, rows, t, acc, hits)
+            if ti.static(coll.tools):
+                if tools:
+                    tool_candidates, tool, acc, hits = tool_contacts(
+                        model, state, coll, control, t, acc, hits
+                    )
+                    coll.tool_held[t] = ti.cast(tool > 0, ti.i32)
+            for k in ti.static(range(3)):
+                coll.corner_delta[3 * t + k] = ti.Vector(
+                    [acc[k, 0], acc[k, 1], acc[k, 2]]
+                ) / ti.max(ti.cast(hits[k], ti.f32), 1.0)
+                coll.corner_count[3 * t + k] = hits[k]
+            ti.atomic_add(coll.counter[C_BOUNDING], bounding)
+            ti.atomic_add(coll.counter[C_TISSUE], contacts)
+            ti.atomic_add(coll.counter[C_TOOL_CANDIDATES], tool_candidates)
+            ti.atomic_add(coll.counter[C_TOOL], tool)
+            ti.atomic_add(coll.counter[C_TRIANGLES], ti.cast(hits.max() > 0, ti.i32))
+    for m in range(coll.active_list.shape[0]):  # list the particles bound to hit corners
+        if m < coll.active_count[None]:
+            t = coll.active_list[m]
+            for k in ti.static(range(3)):
+                if coll.corner_count[3 * t + k] > 0:
+                    s = coll.tri_vertex[t][k]
+                    idx, w = model.surface_index[s], model.surface_weight[s]
+                    for j in ti.static(range(4)):
+                        if w[j] > 0.0 and ti.atomic_add(coll.particle_mark[idx[j]], 1) == 0:
+                            coll.touched_list[ti.atomic_add(coll.touched_count[None], 1)] = idx[j]
+    for n in range(coll.touched_list.shape[0]):
+        if n < coll.touched_count[None]:
+            i = coll.touched_list[n]
+            total, weight = ti.Vector([0.0, 0.0, 0.0]), 0.0
+            j = coll.particle_rank[i]
+            if j >= 0:  # corners as built, but those a dissection rewrote
+                for m in range(coll.particle_start[j], coll.particle_start[j + 1]):
+                    corner = coll.particle_corner[m]
+                    if coll.corner_count[corner] > 0 and coll.corner_built[corner] != 0:
+                        total += coll.particle_weight[m] * coll.corner_delta[corner]
+                        weight += coll.particle_weight[m]
+            r = coll.written_rank[i]
+            if r >= 0:  # corners a dissection wrote
+                for m in range(coll.written_start[r], coll.written_start[r + 1]):
+                    corner = coll.written_corner[m]
+                    if coll.corner_count[corner] > 0:
+                        total += coll.written_weight[m] * coll.corner_delta[corner]
+                        weight += coll.written_weight[m]
+            if model.inv_mass[i] > 0.0 and weight > 0.0:
+                state.p[i] = state.p[i] + total / weight
+            state.collided[i] = 1
+            coll.particle_mark[i] = 0
+    for m in range(coll.active_list.shape[0]):
+        if m < coll.active_count[None]:
+            t = coll.active_list[m]
+            for k in ti.static(range(3)):
+                coll.corner_count[3 * t + k] = 0

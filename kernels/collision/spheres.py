@@ -42,6 +42,10 @@ over the substep, unit normal N_c, area S and the collision sphere:
 * bounding sphere: C = m_b, radius R_b, any direction (``sphere_cone`` = -1).
 
 Lengths in metres, curvature in 1/m².
+
+Parallel loops over a count held in a field (``vertex_rows``; not the sphere update, see there) run over the field's capacity
+and skip the indices past the count: with a constant end Vulkan launches one thread
+per index instead of a fixed grid of 65,536 (docs/architecture.md, loop bounds).
 """
 
 import math
@@ -184,9 +188,10 @@ def skin_vertices(model: ti.template(), state: ti.template(), coll: ti.template(
     """Surface vertices in use from p and x by the surface binding (vertex_p,
     vertex_x; :func:`~taichi_lap.kernels.skinning.skin`); call at a kernel's top
     level (a parallel loop)."""
-    for s in range(coll.vertex_rows[None]):
-        coll.vertex_p[s] = skin(model, state, state.p, s)
-        coll.vertex_x[s] = skin(model, state, state.x, s)
+    for s in range(coll.vertex_p.shape[0]):
+        if s < coll.vertex_rows[None]:
+            coll.vertex_p[s] = skin(model, state, state.p, s)
+            coll.vertex_x[s] = skin(model, state, state.x, s)
 
 
 @ti.kernel
@@ -202,6 +207,8 @@ def update_spheres(
     recovery) and ``recomputed``."""
     if ti.static(every):
         skin_vertices(model, state, coll)
+    # the end read at run time, unlike the module's other loops over a count: over the
+    # capacity, lavapipe rounded the dual curvature otherwise and flipped a contact
     for m in range(coll.row_count[None] if ti.static(every) else coll.active_count[None]):
         t = m if ti.static(every) else coll.active_list[m]
         v = coll.tri_vertex[t]

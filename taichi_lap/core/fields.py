@@ -21,6 +21,9 @@ from taichi_lap.kernels import transfer
 _BATCHED = {ti.f32: False, ti.i32: True}
 """The element types :func:`write` and :func:`read` move in one launch: f32, i32
 (whether integer)."""
+LAUNCH_FIELDS = 32
+"""Fields per launch of the transfer kernels, whose loop over them is unrolled (Taichi
+warns beyond 32 unrolled iterations)."""
 
 
 def _entry_shape(field) -> tuple[int, ...]:
@@ -48,8 +51,9 @@ def _batched(field) -> bool:
 def write(pairs):
     """Set fields to host values: ``pairs`` of (field, array of exactly the field's
     shape, entry shape included). The f32 and i32 fields of one or more dimensions
-    are written in one launch (:func:`~taichi_lap.kernels.transfer.write_fields`,
-    compiled once per tuple of fields), the rest by ``from_numpy``."""
+    are written :data:`LAUNCH_FIELDS` at a time in one launch
+    (:func:`~taichi_lap.kernels.transfer.write_fields`, compiled once per tuple of
+    fields), the rest by ``from_numpy``."""
     pairs = [(f, np.asarray(values)) for f, values in pairs]
     for f, values in pairs:
         expected = f.shape + _entry_shape(f)
@@ -59,12 +63,13 @@ def write(pairs):
     for f, values in pairs:
         if not _batched(f):
             f.from_numpy(values.astype(to_numpy_type(f.dtype)))
-    if batch:
-        fields = tuple(f for f, _ in batch)
+    for begin in range(0, len(batch), LAUNCH_FIELDS):
+        launch = batch[begin : begin + LAUNCH_FIELDS]
+        fields = tuple(f for f, _ in launch)
         layout, _ = _layout(fields)
         buffers = {
             integer: np.concatenate(
-                [v.astype(dtype).ravel() for f, v in batch if _BATCHED[f.dtype] == integer]
+                [v.astype(dtype).ravel() for f, v in launch if _BATCHED[f.dtype] == integer]
                 + [np.zeros(1, dtype)]  # a buffer of no field still has an entry
             )
             for integer, dtype in ((False, np.float32), (True, np.int32))
@@ -80,19 +85,20 @@ def fill(pairs):
 
 def read(fields) -> list[np.ndarray]:
     """The values of ``fields`` as NumPy copies (``to_numpy``), the f32 and i32 fields
-    of one or more dimensions read in one launch
+    of one or more dimensions read :data:`LAUNCH_FIELDS` at a time in one launch
     (:func:`~taichi_lap.kernels.transfer.read_fields`)."""
     fields = list(fields)
-    batch = tuple(f for f in fields if _batched(f))
+    batch = [f for f in fields if _batched(f)]
     out = {}
-    if batch:
-        layout, sizes = _layout(batch)
+    for begin in range(0, len(batch), LAUNCH_FIELDS):
+        launch = tuple(batch[begin : begin + LAUNCH_FIELDS])
+        layout, sizes = _layout(launch)
         buffers = {
             False: np.zeros(max(sizes[False], 1), np.float32),
             True: np.zeros(max(sizes[True], 1), np.int32),
         }
-        transfer.read_fields(batch, layout, buffers[False], buffers[True])
-        for f, (integer, offset, entry) in zip(batch, layout):
+        transfer.read_fields(launch, layout, buffers[False], buffers[True])
+        for f, (integer, offset, entry) in zip(launch, layout):
             count = int(np.prod(f.shape + entry))
             out[id(f)] = buffers[integer][offset : offset + count].reshape(f.shape + entry)
     return [out[id(f)] if id(f) in out else f.to_numpy() for f in fields]
