@@ -46,9 +46,10 @@ folded sheet collide.
 Counts are i32 totals added once per triangle (no atomics inside the candidate loops,
 see :mod:`~taichi_lap.kernels.collision.spatial_hash`). Lengths in metres.
 
-Parallel loops over a count held in a field (``row_count``, ``found.count``) run over the field's capacity
-and skip the indices past the count: with a constant end Vulkan launches one thread
-per index instead of a fixed grid of 65,536 (docs/architecture.md, loop bounds).
+Parallel loops over a count held in a field (``row_count``, ``found.count``) run over
+the field's capacity and skip the indices past the count: with a constant end Vulkan
+launches one thread per index instead of a fixed grid of 65,536 (docs/architecture.md,
+loop bounds).
 """
 
 import taichi as ti

@@ -33,9 +33,10 @@ are bit-reproducible), then per particle:
 Velocities enter as displacements over the substep (v h = p - x), so h cancels.
 Lengths in metres.
 
-Parallel loops over a count held in a field (``active_count``, ``touched_count``) run over the field's capacity
-and skip the indices past the count: with a constant end Vulkan launches one thread
-per index instead of a fixed grid of 65,536 (docs/architecture.md, loop bounds).
+Parallel loops over a count held in a field (``active_count``, ``touched_count``) run
+over the field's capacity and skip the indices past the count: with a constant end
+Vulkan launches one thread per index instead of a fixed grid of 65,536
+(docs/architecture.md, loop bounds).
 """
 
 import taichi as ti

@@ -43,9 +43,10 @@ over the substep, unit normal N_c, area S and the collision sphere:
 
 Lengths in metres, curvature in 1/m².
 
-Parallel loops over a count held in a field (``vertex_rows``; not the sphere update, see there) run over the field's capacity
-and skip the indices past the count: with a constant end Vulkan launches one thread
-per index instead of a fixed grid of 65,536 (docs/architecture.md, loop bounds).
+Parallel loops over a count held in a field (``vertex_rows``; not the sphere update, see
+there) run over the field's capacity and skip the indices past the count: with a
+constant end Vulkan launches one thread per index instead of a fixed grid of 65,536
+(docs/architecture.md, loop bounds).
 """
 
 import math
