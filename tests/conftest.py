@@ -40,20 +40,21 @@ def taichi_backend(tmp_path_factory):
 
 
 LONGEST_FILES_FIRST = (
-    "test_dissection_device.py",
-    "test_wound_collision.py",
+    "test_recording.py",
     "test_tool_contact.py",
     "test_trajectories.py",
-    "test_recording.py",
-    "test_cli.py",
-    "test_haptic_bridge.py",
+    "test_dissection_device.py",
     "test_circumsphere.py",
+    "test_cli.py",
     "test_session.py",
+    "test_haptic_bridge.py",
+    "test_wound_collision.py",
     "test_volume_cut.py",
     "test_shape_matching.py",
-    "test_grasp.py",
     "test_sheet_cut.py",
     "test_render.py",
+    "test_cautery.py",
+    "test_lra.py",
 )
 """Test files that took the longest (over a minute each on a 2-core machine), longest
 first. The workers take files in the order collected (``--dist loadfile``); in
