@@ -3,7 +3,8 @@
 Taichi's own ``from_numpy``, ``to_numpy``, ``fill`` and ``copy_from`` compile one
 kernel per field they are given (its template argument). A session that uploads fifty
 fields compiled fifty small kernels, each paying the backend compiler's fixed cost;
-these kernels take the whole tuple of fields at once and compile once per tuple.
+:func:`copy_fields` takes the whole tuple of fields at once and compiles once per tuple
+and direction.
 
 ``layout`` holds one static entry per field: ``(integer, offset, entry_shape)``:
 whether the field is i32 (else f32), where its values start in the buffer of its
@@ -25,41 +26,24 @@ def _flat_index(index, shape: ti.template()):
 
 
 @ti.kernel
-def write_fields(
+def copy_fields(
     fields: ti.template(),
     layout: ti.template(),
     floats: ti.types.ndarray(dtype=ti.f32, ndim=1),
     ints: ti.types.ndarray(dtype=ti.i32, ndim=1),
+    into_fields: ti.template(),
 ):
-    """Fill every field of ``fields`` from its place in ``floats`` or ``ints``."""
+    """Fill every field of ``fields`` from its place in ``floats`` or ``ints``
+    (``into_fields``), or write it there."""
     for k in ti.static(range(len(fields))):
         integer, offset, entry = ti.static(layout[k])
         width = ti.static(_entry_width(entry))
         for index in ti.grouped(fields[k]):
             base = offset + _flat_index(index, ti.static(fields[k].shape)) * width
             if ti.static(integer):
-                _store(fields[k], index, entry, ints, base)
+                _copy_entry(fields[k], index, entry, ints, base, into_fields)
             else:
-                _store(fields[k], index, entry, floats, base)
-
-
-@ti.kernel
-def read_fields(
-    fields: ti.template(),
-    layout: ti.template(),
-    floats: ti.types.ndarray(dtype=ti.f32, ndim=1),
-    ints: ti.types.ndarray(dtype=ti.i32, ndim=1),
-):
-    """Write every field of ``fields`` to its place in ``floats`` or ``ints``."""
-    for k in ti.static(range(len(fields))):
-        integer, offset, entry = ti.static(layout[k])
-        width = ti.static(_entry_width(entry))
-        for index in ti.grouped(fields[k]):
-            base = offset + _flat_index(index, ti.static(fields[k].shape)) * width
-            if ti.static(integer):
-                _load(fields[k], index, entry, ints, base)
-            else:
-                _load(fields[k], index, entry, floats, base)
+                _copy_entry(fields[k], index, entry, floats, base, into_fields)
 
 
 def _entry_width(entry: tuple) -> int:
@@ -70,25 +54,31 @@ def _entry_width(entry: tuple) -> int:
     return width
 
 
-@ti.func
-def _store(field: ti.template(), index, entry: ti.template(), buffer: ti.template(), base):
-    if ti.static(len(entry) == 0):
-        field[index] = buffer[base]
-    elif ti.static(len(entry) == 1):
-        for c in ti.static(range(entry[0])):
-            field[index][c] = buffer[base + c]
-    else:
-        for r, c in ti.static(ti.ndrange(entry[0], entry[1])):
-            field[index][r, c] = buffer[base + r * entry[1] + c]
+def _component(entry: tuple, c: int) -> tuple:
+    """Index of component ``c`` (row-major) in an entry of shape ``entry``."""
+    return (c,) if len(entry) == 1 else divmod(c, entry[1])
 
 
 @ti.func
-def _load(field: ti.template(), index, entry: ti.template(), buffer: ti.template(), base):
+def _copy_entry(
+    field: ti.template(),
+    index,
+    entry: ti.template(),
+    buffer: ti.template(),
+    base,
+    into_field: ti.template(),
+):
+    """Entry ``index`` of ``field`` from the buffer's components from ``base`` on
+    (``into_field``), or to them."""
     if ti.static(len(entry) == 0):
-        buffer[base] = field[index]
-    elif ti.static(len(entry) == 1):
-        for c in ti.static(range(entry[0])):
-            buffer[base + c] = field[index][c]
+        if ti.static(into_field):
+            field[index] = buffer[base]
+        else:
+            buffer[base] = field[index]
     else:
-        for r, c in ti.static(ti.ndrange(entry[0], entry[1])):
-            buffer[base + r * entry[1] + c] = field[index][r, c]
+        for c in ti.static(range(_entry_width(entry))):
+            part = ti.static(_component(entry, c))
+            if ti.static(into_field):
+                field[index][part] = buffer[base + c]
+            else:
+                buffer[base + c] = field[index][part]

@@ -52,7 +52,7 @@ def write(pairs):
     """Set fields to host values: ``pairs`` of (field, array of exactly the field's
     shape, entry shape included). The f32 and i32 fields of one or more dimensions
     are written :data:`LAUNCH_FIELDS` at a time in one launch
-    (:func:`~taichi_lap.kernels.transfer.write_fields`, compiled once per tuple of
+    (:func:`~taichi_lap.kernels.transfer.copy_fields`, compiled once per tuple of
     fields), the rest by ``from_numpy``."""
     pairs = [(f, np.asarray(values)) for f, values in pairs]
     for f, values in pairs:
@@ -74,7 +74,7 @@ def write(pairs):
             )
             for integer, dtype in ((False, np.float32), (True, np.int32))
         }
-        transfer.write_fields(fields, layout, buffers[False], buffers[True])
+        transfer.copy_fields(fields, layout, buffers[False], buffers[True], True)
 
 
 def fill(pairs):
@@ -86,7 +86,7 @@ def fill(pairs):
 def read(fields) -> list[np.ndarray]:
     """The values of ``fields`` as NumPy copies (``to_numpy``), the f32 and i32 fields
     of one or more dimensions read :data:`LAUNCH_FIELDS` at a time in one launch
-    (:func:`~taichi_lap.kernels.transfer.read_fields`)."""
+    (:func:`~taichi_lap.kernels.transfer.copy_fields`)."""
     fields = list(fields)
     batch = [f for f in fields if _batched(f)]
     out = {}
@@ -97,7 +97,7 @@ def read(fields) -> list[np.ndarray]:
             False: np.zeros(max(sizes[False], 1), np.float32),
             True: np.zeros(max(sizes[True], 1), np.int32),
         }
-        transfer.read_fields(launch, layout, buffers[False], buffers[True])
+        transfer.copy_fields(launch, layout, buffers[False], buffers[True], False)
         for f, (integer, offset, entry) in zip(launch, layout):
             count = int(np.prod(f.shape + entry))
             out[id(f)] = buffers[integer][offset : offset + count].reshape(f.shape + entry)
