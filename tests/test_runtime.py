@@ -1,0 +1,22 @@
+"""Backend start-up (taichi_lap.runtime)."""
+
+import logging
+import os
+import time
+
+from taichi_lap import runtime
+
+
+def test_a_stale_cache_lock_is_removed_and_a_fresh_one_kept(tmp_path, monkeypatch, caplog):
+    monkeypatch.setenv("TI_OFFLINE_CACHE_FILE_PATH", str(tmp_path))
+    lock = tmp_path / "ticache.lock"
+    lock.write_bytes(b"")
+    assert runtime.clear_stale_cache_lock() is None  # just taken: another process's
+    assert lock.exists()
+    old = time.time() - runtime.STALE_LOCK_SECONDS - 60
+    os.utime(lock, (old, old))
+    with caplog.at_level(logging.WARNING, logger="taichi_lap"):
+        assert runtime.clear_stale_cache_lock() == lock
+    assert not lock.exists()
+    assert any("stale Taichi cache lock" in r.getMessage() for r in caplog.records)
+    assert runtime.clear_stale_cache_lock() is None  # no lock: nothing to do
