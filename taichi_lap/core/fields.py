@@ -21,6 +21,8 @@ from taichi_lap.kernels import transfer
 _BATCHED = {ti.f32: False, ti.i32: True}
 """The element types :func:`write` and :func:`read` move in one launch: f32, i32
 (whether integer)."""
+_BUFFER_TYPES = {False: np.float32, True: np.int32}
+"""The host buffer's type for the f32 fields (False) and the i32 ones (True)."""
 LAUNCH_FIELDS = 32
 """Fields per launch of the transfer kernels, whose loop over them is unrolled (Taichi
 warns beyond 32 unrolled iterations)."""
@@ -32,20 +34,26 @@ def _entry_shape(field) -> tuple[int, ...]:
     return ()
 
 
-def _layout(fields) -> tuple[tuple, dict[bool, int]]:
-    """The static layout of ``fields`` for :mod:`taichi_lap.kernels.transfer` and the
-    length of each buffer (keyed by whether it is the integer one)."""
-    layout, sizes = [], {False: 0, True: 0}
-    for f in fields:
-        integer = _BATCHED[f.dtype]
-        entry = _entry_shape(f)
-        layout.append((integer, sizes[integer], entry))
-        sizes[integer] += int(np.prod(f.shape + entry))
-    return tuple(layout), sizes
-
-
 def _batched(field) -> bool:
     return field.dtype in _BATCHED and len(field.shape) > 0
+
+
+def _launches(fields):
+    """The batched ``fields`` in launches of :data:`LAUNCH_FIELDS`: each launch's fields,
+    its static layout for :func:`~taichi_lap.kernels.transfer.copy_fields` (integer,
+    offset, entry shape per field), each field's place in its buffer (buffer, slice)
+    and the two zeroed buffers (a buffer of no field still has an entry)."""
+    for begin in range(0, len(fields), LAUNCH_FIELDS):
+        launch = tuple(fields[begin : begin + LAUNCH_FIELDS])
+        layout, places, sizes = [], [], {False: 0, True: 0}
+        for f in launch:
+            integer, entry = _BATCHED[f.dtype], _entry_shape(f)
+            count = int(np.prod(f.shape + entry))
+            layout.append((integer, sizes[integer], entry))
+            places.append((integer, slice(sizes[integer], sizes[integer] + count)))
+            sizes[integer] += count
+        buffers = {k: np.zeros(max(sizes[k], 1), _BUFFER_TYPES[k]) for k in sizes}
+        yield launch, tuple(layout), places, buffers
 
 
 def write(pairs):
@@ -59,22 +67,15 @@ def write(pairs):
         expected = f.shape + _entry_shape(f)
         if values.shape != expected:
             raise ValueError(f"{values.shape} values for a field of shape {expected}")
-    batch = [(f, values) for f, values in pairs if _batched(f)]
     for f, values in pairs:
         if not _batched(f):
             f.from_numpy(values.astype(to_numpy_type(f.dtype)))
-    for begin in range(0, len(batch), LAUNCH_FIELDS):
-        launch = batch[begin : begin + LAUNCH_FIELDS]
-        fields = tuple(f for f, _ in launch)
-        layout, _ = _layout(fields)
-        buffers = {
-            integer: np.concatenate(
-                [v.astype(dtype).ravel() for f, v in launch if _BATCHED[f.dtype] == integer]
-                + [np.zeros(1, dtype)]  # a buffer of no field still has an entry
-            )
-            for integer, dtype in ((False, np.float32), (True, np.int32))
-        }
-        transfer.copy_fields(fields, layout, buffers[False], buffers[True], True)
+    batch = [(f, values) for f, values in pairs if _batched(f)]
+    values_of = {id(f): values for f, values in batch}
+    for launch, layout, places, buffers in _launches([f for f, _ in batch]):
+        for f, (integer, rows) in zip(launch, places):
+            buffers[integer][rows] = values_of[id(f)].ravel()
+        transfer.copy_fields(launch, layout, buffers[False], buffers[True], True)
 
 
 def fill(pairs):
@@ -88,19 +89,11 @@ def read(fields) -> list[np.ndarray]:
     of one or more dimensions read :data:`LAUNCH_FIELDS` at a time in one launch
     (:func:`~taichi_lap.kernels.transfer.copy_fields`)."""
     fields = list(fields)
-    batch = [f for f in fields if _batched(f)]
     out = {}
-    for begin in range(0, len(batch), LAUNCH_FIELDS):
-        launch = tuple(batch[begin : begin + LAUNCH_FIELDS])
-        layout, sizes = _layout(launch)
-        buffers = {
-            False: np.zeros(max(sizes[False], 1), np.float32),
-            True: np.zeros(max(sizes[True], 1), np.int32),
-        }
+    for launch, layout, places, buffers in _launches([f for f in fields if _batched(f)]):
         transfer.copy_fields(launch, layout, buffers[False], buffers[True], False)
-        for f, (integer, offset, entry) in zip(launch, layout):
-            count = int(np.prod(f.shape + entry))
-            out[id(f)] = buffers[integer][offset : offset + count].reshape(f.shape + entry)
+        for f, (integer, rows) in zip(launch, places):
+            out[id(f)] = buffers[integer][rows].reshape(f.shape + _entry_shape(f))
     return [out[id(f)] if id(f) in out else f.to_numpy() for f in fields]
 
 
