@@ -114,6 +114,15 @@ def test_no_constraint_joins_the_pieces_and_the_free_piece_has_no_anchor(cut_she
     assert len(free) >= 1 and not np.isin(piece_of[owner], free).any()
 
 
+def test_the_cut_sheet_holds_each_constraint_once(cut_sheet):
+    """Its edges and bending pairs found again on the cut sheet, none twice (a sheet
+    has no struts: its constraints that are not edges are its bending pairs)."""
+    session, _, _ = cut_sheet
+    host = session.model._constraint_host
+    pairs = np.sort(host["pairs"], axis=1)
+    assert len(np.unique(pairs, axis=0)) == len(pairs)
+
+
 def test_the_tables_spliced_after_each_cut_are_those_written_whole(cut_sheet):
     """A cut writes the sheet's constraint lists into the model's tables from the first
     row that changed on; the tables equal those of all constraints written whole."""

@@ -39,7 +39,7 @@ from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
 from taichi_lap.kernels.collision.particle_contact import FREE
 from taichi_lap.kernels.scatter import gather
-from taichi_lap.preprocess.organs import CUT_SURFACES
+from taichi_lap.preprocess.organs import CUT_SURFACES, CUTTABLE_SHEETS
 from taichi_lap.preprocess.sheets import bending_pairs, long_range_attachments
 
 log = logging.getLogger("taichi_lap")
@@ -102,6 +102,8 @@ def struts_crossed(pairs: np.ndarray, sweep: Sweep, bounds, x: np.ndarray) -> np
     return crossed
 
 
+_NO_STRUTS = (np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0))
+
 FRAGMENT_TRIANGLES = 8
 """A piece of a cut sheet of at most this many triangles holding no anchor is a
 fragment, removed with the cut (the slivers the kerf leaves between its edges)."""
@@ -123,11 +125,8 @@ class _Sheet:
     tear_strain: float
     edge: float  # the median edge length at rest as built [m]
     struts: tuple[np.ndarray, np.ndarray, np.ndarray]
+    is_sheet: bool  # a sheet (bending pairs, LRAs), not a truss (struts)
     spent: bool = False  # whether the reserve ran out (said once)
-
-    @property
-    def is_sheet(self) -> bool:
-        return self.anchors_per_vertex > 0
 
 
 class SheetCutter:
@@ -146,6 +145,7 @@ class SheetCutter:
             first, end = organ.particles
             built = np.arange(first, end - organ.reserve)
             material = materials[k]
+            is_sheet = organ.model in CUTTABLE_SHEETS
             sheet = _Sheet(
                 organ=k,
                 free=list(range(end - 1, end - organ.reserve - 1, -1)),
@@ -155,7 +155,9 @@ class SheetCutter:
                 anchors=built[np.asarray(data.pinned)[built]],
                 tear_strain=float(material.get("tear_strain", 0.0)),
                 edge=median_edge(data, k),
-                struts=built_struts(data, k),
+                # a sheet's constraints that are not edges are its bending pairs
+                struts=_NO_STRUTS if is_sheet else built_struts(data, k),
+                is_sheet=is_sheet,
             )
             self.sheets.append(sheet)
 
