@@ -126,12 +126,15 @@ class VolumeCutter:
         """Cut ``organ``'s live tets near ``path`` (module docstring); None where no
         tet was split or the reserve is spent."""
         topology = self.dissection.topology
-        tets = topology.live_tets(organ.organ)
-        corners = x[topology.tets[tets]]
         low, high = (
             path.segments.reshape(-1, 3).min(axis=0),
             path.segments.reshape(-1, 3).max(axis=0),
         )
+        span = x[slice(*self.dissection.model.data.organs[organ.organ].particles)]
+        if np.any(span.min(axis=0) > high) or np.any(span.max(axis=0) < low):
+            return None  # the organ lies out of the path's reach
+        tets = topology.live_tets(organ.organ)
+        corners = x[topology.tets[tets]]
         near = ((corners.max(axis=1) >= low) & (corners.min(axis=1) <= high)).all(axis=1)
         tets = tets[near]
         if not len(tets):
