@@ -24,7 +24,8 @@ def bending_pairs(triangles: np.ndarray) -> np.ndarray:
     same = np.all(key[1:] == key[:-1], axis=1)
     pairs = np.stack([opposite[:-1][same], opposite[1:][same]], axis=1)
     pairs = np.sort(pairs[pairs[:, 0] != pairs[:, 1]], axis=1)
-    return np.unique(pairs, axis=0) if len(pairs) else np.zeros((0, 2), dtype=np.int64)
+    n = np.int64(t.max(initial=0) + 1)
+    return np.stack(np.divmod(np.unique(pairs[:, 0] * n + pairs[:, 1]), n), axis=1)
 
 
 @dataclass
