@@ -16,25 +16,50 @@ def serial_on_cpu() -> bool:
     return impl.current_cfg().arch == ti.cpu
 
 
+@ti.data_oriented
+class _Plan:
+    """The groups (targets, layout) of one flush, as one object: the compile-time
+    argument of :func:`_scatter_groups`. Taichi keys a template argument that is a
+    tuple by each of its items (a flush of 30 fields spent 0.17 ms on that, more than
+    the launch), an object by itself; :func:`_plan` gives one object per distinct
+    set of groups."""
+
+    def __init__(self, groups: tuple):
+        self.groups = groups
+
+
+_PLANS: dict[tuple, _Plan] = {}
+
+
+def _plan(groups: tuple) -> _Plan:
+    """The one :class:`_Plan` of ``groups`` (it holds its fields, so their ids in the
+    key stay theirs)."""
+    key = tuple((tuple(map(id, targets)), layout) for targets, layout in groups)
+    plan = _PLANS.get(key)
+    if plan is None:
+        plan = _PLANS[key] = _Plan(groups)
+    return plan
+
+
 @ti.kernel
 def _scatter_groups(
-    groups: ti.template(),
+    plan: ti.template(),
     rows: ti.types.ndarray(),
     bounds: ti.types.ndarray(),
     ints: ti.types.ndarray(),
     floats: ti.types.ndarray(),
 ):
-    """For each group g = (targets, layout) and each k in [bounds[g], bounds[g + 1]):
-    row rows[k] of targets[t] = the columns of row k that layout[t] = (is_int, first
-    column, width; 0 for a scalar field, is_table: a 2-D table field) names, of
-    ``ints`` or ``floats``."""
+    """For each group g = (targets, layout) of ``plan`` and each k in [bounds[g],
+    bounds[g + 1]): row rows[k] of targets[t] = the columns of row k that layout[t] =
+    (is_int, first column, width; 0 for a scalar field, is_table: a 2-D table field)
+    names, of ``ints`` or ``floats``."""
     ti.loop_config(serialize=ti.static(serial_on_cpu()))
     for k in range(rows.shape[0]):
-        for g in ti.static(range(len(groups))):
+        for g in ti.static(range(len(plan.groups))):
             if bounds[g] <= k and k < bounds[g + 1]:
-                for t in ti.static(range(len(groups[g][0]))):
-                    target = ti.static(groups[g][0][t])
-                    is_int, first, width, is_table = ti.static(groups[g][1][t])
+                for t in ti.static(range(len(plan.groups[g][0]))):
+                    target = ti.static(plan.groups[g][0][t])
+                    is_int, first, width, is_table = ti.static(plan.groups[g][1][t])
                     if ti.static(is_table):
                         for a in range(width):  # a loop: a table's row can be wide
                             if ti.static(is_int):
@@ -110,7 +135,7 @@ class RowWrites:
             return
         bounds = np.cumsum([0] + [len(block) for block in blocks[np.int32]]).astype(np.int32)
         ints, floats = (_stacked(blocks[dtype], dtype) for dtype in (np.int32, np.float32))
-        _scatter_groups(tuple(groups), rows, bounds, ints, floats)
+        _scatter_groups(_plan(tuple(groups)), rows, bounds, ints, floats)
 
 
 def _host_type(field):
