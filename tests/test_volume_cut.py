@@ -150,7 +150,10 @@ def test_scissors_cut_the_stalk_the_head_is_excised_and_they_cut_through_the_ves
     loose = [piece for organ, piece in session._loose if organ == k]
     assert len(loose) >= 1
     head = max(loose, key=len)
-    assert np.isin(built[session.data.rest_position[built, 1] > STALK_CUT + 0.004], head).all()
+    top = built[session.data.rest_position[built, 1] > STALK_CUT + 0.004]
+    alive = session._dissection.topology.particle_alive[top]
+    assert alive.mean() > 0.95  # a few chips the blade cut off went as fragments
+    assert np.isin(top[alive], head).all()
 
     start = session.state.x.to_numpy()[head].mean(axis=0)
     for _ in range(5):
