@@ -34,7 +34,7 @@ def distance_delta(pi, pj, wi, wj, rest, stiffness):
 def distance_correction(model: ti.template(), positions: ti.template(), i, p):
     """The sum of the corrections of particle ``i``'s distance constraints at ``p``
     [m] (their other ends read from ``positions``), and how many there are."""
-    begin, end = model.distance_start[i], model.distance_start[i + 1]
+    begin, end = model.distance_begin[i], model.distance_end[i]
     delta = ti.Vector([0.0, 0.0, 0.0])
     for e in range(begin, end):
         j = model.distance_other[e]

@@ -18,7 +18,7 @@ import taichi as ti
 def lra_correction(model: ti.template(), positions: ti.template(), i, p):
     """Averaged Eq. 3 correction for particle ``i`` at ``p`` [m]; anchors are read
     from ``positions``. Returns a zero vector when no anchor is violated."""
-    begin, end = model.lra_start[i], model.lra_start[i + 1]
+    begin, end = model.lra_begin[i], model.lra_end[i]
     delta = ti.Vector([0.0, 0.0, 0.0])
     if end > begin:
         beta = model.lra_relaxation[i]

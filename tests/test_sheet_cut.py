@@ -8,12 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from taichi_lap.core.csr import rows_of_extents
 from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON
 from taichi_lap.core.mesh import element_pieces, unique_edges
 from taichi_lap.devices import ScriptedDevice
 from taichi_lap.preprocess.organs import CUT_RESERVE
 from taichi_lap.scene import Scene, from_tables
 from taichi_lap.session import Session
+from taichi_lap.sim.model import LISTS
 from tests.archrun import assert_backend_matches_cpu
 from tests.helpers import instrument, run_script
 from tests.test_lra import fascia
@@ -55,13 +57,21 @@ def sheet_particles(session: Session) -> np.ndarray:
     return np.arange(organ.particles[0], organ.particles[1] - organ.reserve)
 
 
+def model_lists(model, kind: str, *columns: str, tables=None) -> tuple[np.ndarray, ...]:
+    """Every entry of the per-particle ``kind`` lists ("distance" or "lra") the
+    model's Jacobi gather reads (or those of host ``tables``), particle by particle:
+    its particle and its values of ``columns``."""
+    read = (lambda name: tables[name]) if tables else (lambda name: getattr(model, name).to_numpy())
+    begin, end = read(f"{kind}_begin"), read(f"{kind}_end")
+    rows = rows_of_extents(begin, end - begin)
+    owner = np.repeat(np.arange(len(begin)), end - begin)
+    return (owner, *(read(name)[rows] for name in columns))
+
+
 def model_pairs(model) -> np.ndarray:
     """The distance constraints the model's Jacobi gather reads, (i, j) i < j."""
-    start = model.distance_start.to_numpy()
-    other = model.distance_other.to_numpy()
-    owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
-    pairs = np.sort(np.stack([owner, other[: start[-1]]], axis=1), axis=1)
-    return np.unique(pairs, axis=0)
+    owner, other = model_lists(model, "distance", "distance_other")
+    return np.unique(np.sort(np.stack([owner, other], axis=1), axis=1), axis=0)
 
 
 @pytest.fixture(scope="module")
@@ -105,9 +115,7 @@ def test_no_constraint_joins_the_pieces_and_the_free_piece_has_no_anchor(cut_she
     assert len(pairs) > 0
     assert (piece_of[pairs] >= 0).all()  # every constraint is between live sheet particles
     assert (piece_of[pairs[:, 0]] == piece_of[pairs[:, 1]]).all()
-    start = model.lra_start.to_numpy()
-    anchor = model.lra_anchor.to_numpy()[: start[-1]]
-    owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
+    owner, anchor = model_lists(model, "lra", "lra_anchor")
     assert (piece_of[owner] == piece_of[anchor]).all()
     anchored_pieces = np.unique(piece_of[anchor])
     free = np.setdiff1d(np.unique(piece_of[piece_of >= 0]), anchored_pieces)
@@ -118,26 +126,45 @@ def test_the_cut_sheet_holds_each_constraint_once(cut_sheet):
     """Its edges and bending pairs found again on the cut sheet, none twice (a sheet
     has no struts: its constraints that are not edges are its bending pairs)."""
     session, _, _ = cut_sheet
-    host = session.model._constraint_host
-    pairs = np.sort(host["pairs"], axis=1)
+    pairs = np.sort(session.model.constraints()["pairs"], axis=1)
     assert len(np.unique(pairs, axis=0)) == len(pairs)
 
 
-def test_the_tables_spliced_after_each_cut_are_those_written_whole(cut_sheet):
-    """A cut writes the sheet's constraint lists into the model's tables from the first
-    row that changed on; the tables equal those of all constraints written whole."""
+def test_the_lists_written_after_each_cut_are_those_of_a_whole_write(cut_sheet):
+    """A cut writes the sheet's changed constraint lists after the rows in use; each
+    particle's lists equal those of all constraints written whole."""
     session, _, _ = cut_sheet
     model = session.model
-    whole = model._constraint_tables(*model._constraint_host.values())
-    for name in ("distance_start", "lra_start"):
-        assert np.array_equal(getattr(model, name).to_numpy(), whole[name][0]), name
-    for name in ("distance_other", "distance_rest", "distance_stiffness", "lra_anchor", "lra_rest"):
-        values = whole[name][0]
-        np.testing.assert_array_equal(
-            getattr(model, name).to_numpy()[: len(values)],
-            values.astype(getattr(model, name).to_numpy().dtype),
-            err_msg=name,
-        )
+    whole = model.jacobi_lists(model.constraints())
+    for kind, columns in LISTS.items():
+        names = columns[1]
+        written = model_lists(model, kind, *names)
+        expected = model_lists(model, kind, *names, tables=whole)
+        for name, got, want in zip(("particle", *names), written, expected):
+            np.testing.assert_array_equal(got, want.astype(got.dtype), err_msg=f"{kind} {name}")
+
+
+def test_a_relist_writes_only_the_lists_that_changed(cut_sheet):
+    session, _, _ = cut_sheet
+    model = session.model
+    first, end = session.data.organs[0].particles
+    now = model.constraints()
+    mine = (now["pairs"][:, 0] >= first) & (now["pairs"][:, 0] < end)
+    attached = (now["lra_particle"] >= first) & (now["lra_particle"] < end)
+    lists = [now[name][attached if name.startswith("lra") else mine] for name in now]
+    used = {name: len(model._jacobi[name]) for name in ("distance_other", "lra_anchor")}
+    model.replace_constraints(first, end, *lists)  # the same lists: nothing written
+    assert {name: len(model._jacobi[name]) for name in used} == used
+    pair = lists[0][0]
+    lists[1] = lists[1].copy()
+    lists[1][0] *= 1.5  # one constraint longer: its two particles' lists change
+    model.replace_constraints(first, end, *lists)
+    sizes = model._jacobi["distance_end"][pair] - model._jacobi["distance_begin"][pair]
+    assert len(model._jacobi["distance_other"]) == used["distance_other"] + sizes.sum()
+    assert len(model._jacobi["lra_anchor"]) == used["lra_anchor"]
+    owner, other, rest = model_lists(model, "distance", "distance_other", "distance_rest")
+    longer = (owner == pair[0]) & (other == pair[1])
+    assert np.isclose(rest[longer], 1.5 * now["rest"][mine][0], rtol=1e-6).all()
 
 
 def test_new_vertices_take_reserve_rows_where_their_parents_were(cut_sheet):
@@ -161,7 +188,7 @@ def test_a_reset_puts_the_sheet_and_its_constraints_back(cut_sheet):
     data = session.data
     expected = np.unique(np.sort(data.distance_pair.reshape(-1, 2), axis=1), axis=0)
     assert np.array_equal(model_pairs(session.model), expected)
-    assert session.model.lra_start.to_numpy()[-1] == len(data.lra_particle)
+    assert len(model_lists(session.model, "lra")[0]) == len(data.lra_particle)
     assert np.array_equal(session.model.inv_mass.to_numpy(), data.inverse_mass().astype(np.float32))
     session.step()
     session.check_topology()
@@ -271,8 +298,7 @@ def test_a_pulled_sheet_tears_round_the_grip_and_the_rest_lets_go():
         assert len(grip) == 1 and grip[0] >= 0
         in_grip = pieces == grip[0]
         assert in_grip.sum() < 0.1 * len(triangles)  # the patch alone tore off
-        start = session.model.lra_start.to_numpy()
-        owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
+        owner = model_lists(session.model, "lra")[0]
         assert not np.isin(owner, triangles[in_grip]).any()
         x, rest = session.state.x.to_numpy(), session._dissection.topology.rest
         edges = unique_edges(triangles[~in_grip])

@@ -33,8 +33,13 @@ def rows_of(start: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """The row indices ``start[i]:start[i + 1]`` of every ``i`` in ``ids``, in order
     (a vectorised gather of several compressed rows)."""
     ids = np.asarray(ids, dtype=np.int64)
-    first, counts = start[ids], start[ids + 1] - start[ids]
-    offsets = np.repeat(first - np.cumsum(counts) + counts, counts)
+    return rows_of_extents(start[ids], start[ids + 1] - start[ids])
+
+
+def rows_of_extents(begin: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The rows ``begin[k]..begin[k] + counts[k]`` of every k, in order."""
+    begin, counts = np.asarray(begin, dtype=np.int64), np.asarray(counts, dtype=np.int64)
+    offsets = np.repeat(begin - np.cumsum(counts) + counts, counts)
     return offsets + np.arange(counts.sum(), dtype=np.int64)
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.csr import both_ends, incidence
+from taichi_lap.core.csr import both_ends, incidence, rows_of, rows_of_extents
 from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows
 from taichi_lap.core.mesh import incident_table
@@ -57,16 +57,34 @@ def spare_rows(count: int, dissectable: bool, spare: float = 0.5) -> int:
 
 
 JACOBI_ROWS = {
-    "distance_start": None,
+    "distance_begin": None,
+    "distance_end": None,
     "distance_other": "distance_ends",
     "distance_rest": "distance_ends",
     "distance_stiffness": "distance_ends",
-    "lra_start": None,
+    "lra_begin": None,
+    "lra_end": None,
     "lra_anchor": "attachments",
     "lra_rest": "attachments",
 }
 """The Jacobi tables of the distance constraints and long-range attachments: field ->
-the kind of its spare rows (None: one row per particle and one more)."""
+the kind of its spare rows (None: one row per particle). Particle i's entries are the
+rows ``begin[i]..end[i]`` of its table; as built, one particle's follow the last's,
+and a cut appends a particle's new list after the rows in use
+(:meth:`Model.replace_constraints`)."""
+LISTS = {
+    "distance": ("distance_ends", ("distance_other", "distance_rest", "distance_stiffness")),
+    "lra": ("attachments", ("lra_anchor", "lra_rest")),
+}
+"""The two kinds of per-particle lists in :data:`JACOBI_ROWS`: their rows' kind and
+the fields of their entries."""
+CONSTRAINT_SPARE = {"distances": 3.0, "distance_ends": 3.0, "attachments": 20.0}
+"""Spare rows of the constraint tables of a model with cuttable sheets, as a fraction
+of those built: a cut appends the lists it changed there, and a table is written
+whole again (compacted) when it is full. A cut changes the distance lists near it,
+but the attachments of every particle whose geodesics to its anchors it lengthened
+(half the fascia's, late in the rectum scene's cut: the table filled every fourth
+frame with 3.0)."""
 
 
 def constraint_arrays(pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest) -> dict:
@@ -299,7 +317,10 @@ class Model(FieldOwner):
                 "clusters": spare_rows(self.cluster_total, self.dissectable),
                 # a cut lists a cluster's chunks again to give it members
                 "chunks": spare_rows(self.chunk_total, self.dissectable, CHUNK_SPARE),
-                **{k: max(spare_rows(n, self.cuttable), 1) for k, n in constraints.items()},
+                **{
+                    k: max(spare_rows(n, self.cuttable, CONSTRAINT_SPARE[k]), 1)
+                    for k, n in constraints.items()
+                },
             }
         organ = np.zeros(len(data.surface_triangles), dtype=np.int64)
         for k, record in enumerate(data.organs):
@@ -352,36 +373,55 @@ class Model(FieldOwner):
         attachments per constrained particle (seed 000 §3.2), as :meth:`_as_built`
         entries. Sets the counts and :attr:`color_ranges`."""
         n = self.particle_count
-        # as given: replace_constraints splices them
+        # as given (replace_constraints relists particle ranges of them)
         host = self._constraint_host = constraint_arrays(
             pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest
         )
+        self._relisted: dict[tuple[int, int], dict[str, np.ndarray]] = {}
         pairs, rest = host["pairs"], host["rest"]
         stiff = iteration_stiffness(host["stiffness"], self.iterations)
-        start, edge, other = both_ends(pairs, n)
         gauss_seidel = self.constraint_solver == "gauss_seidel"
         colors = greedy_colors(pairs, n) if gauss_seidel else np.zeros(len(pairs), dtype=np.int64)
         order = np.argsort(colors, kind="stable")
         bounds = np.searchsorted(colors[order], np.arange(colors.max() + 2)) if len(pairs) else [0]
         self.color_ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         self.distance_count = len(pairs)
-        lra_start, rows = incidence(host["lra_particle"], n)
-        self.lra_count = len(rows)
-        self._jacobi = {  # the Jacobi tables as written (replace_constraints splices them)
-            "distance_start": start,
-            "distance_other": other,
-            "distance_rest": rest[edge],
-            "distance_stiffness": stiff[edge],
-            "lra_start": lra_start,
-            "lra_anchor": host["lra_anchor"][rows],
-            "lra_rest": host["lra_rest"][rows],
-        }
+        self.lra_count = len(host["lra_particle"])
+        # the Jacobi tables as written (replace_constraints appends)
+        self._jacobi = self.jacobi_lists(host)
         tables = {name: (values, JACOBI_ROWS[name], 0) for name, values in self._jacobi.items()}
         if gauss_seidel:  # the same constraints sorted by colour (Jacobi does not read them)
             tables["colored_pair"] = (pairs[order], "distances", 0)
             tables["colored_rest"] = (rest[order], "distances", 0)
             tables["colored_stiffness"] = (stiff[order], "distances", 0)
         return tables
+
+    def jacobi_lists(
+        self, constraints: dict[str, np.ndarray], kinds=tuple(LISTS)
+    ) -> dict[str, np.ndarray]:
+        """The :data:`JACOBI_ROWS` tables of the ``kinds`` of lists (:data:`LISTS`) of
+        ``constraints`` (:func:`constraint_arrays`) written whole: each particle's
+        entries follow the last's."""
+        n, out = self.particle_count, {}
+        if "distance" in kinds:
+            stiff = iteration_stiffness(constraints["stiffness"], self.iterations)
+            start, edge, other = both_ends(constraints["pairs"], n)
+            out |= {
+                "distance_begin": start[:-1].copy(),
+                "distance_end": start[1:].copy(),
+                "distance_other": other,
+                "distance_rest": constraints["rest"][edge],
+                "distance_stiffness": stiff[edge],
+            }
+        if "lra" in kinds:
+            start, rows = incidence(constraints["lra_particle"], n)
+            out |= {
+                "lra_begin": start[:-1].copy(),
+                "lra_end": start[1:].copy(),
+                "lra_anchor": constraints["lra_anchor"][rows],
+                "lra_rest": constraints["lra_rest"][rows],
+            }
+        return out
 
     def replace_constraints(
         self, first: int, end: int, pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest
@@ -390,45 +430,28 @@ class Model(FieldOwner):
         distance constraints, and ``lra_particle``/``lra_anchor``/``lra_rest`` the
         long-range attachments, of the particles ``first..end`` (a cut sheet's,
         :mod:`taichi_lap.dissection.sheet_cut`; constraints stay within an organ).
-        The Jacobi tables are spliced on the host and written from the first row that
-        changed on, in one launch; rows that run out grow (:meth:`grow`, then the
-        tables are written whole), and the Gauss-Seidel solver's colours are found
-        again over all constraints."""
-        host = self._constraint_host
-        mine = (host["pairs"][:, 0] >= first) & (host["pairs"][:, 0] < end)
-        attached = (host["lra_particle"] >= first) & (host["lra_particle"] < end)
-        keep = {
-            name: values[~(attached if name.startswith("lra") else mine)]
-            for name, values in host.items()
-        }
+        Only the particles whose lists changed are written: their new lists are
+        appended after the rows in use and their extents point there, in one launch.
+        A table that is full is written whole, compacted (grown, :meth:`grow`, when
+        that is not enough). The Gauss-Seidel solver's tables are written whole,
+        their colours found again over all constraints."""
         new = constraint_arrays(pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest)
-        merged = {name: np.concatenate([keep[name], new[name]]) for name in host}
-        need = {
-            "distances": len(merged["pairs"]),
-            "distance_ends": 2 * len(merged["pairs"]),
-            "attachments": len(merged["lra_particle"]),
-        }
-        short = {k: n for k, n in need.items() if n > self.capacity[k]}
-        if short or self.constraint_solver == "gauss_seidel":
-            if short:
-                self.grow(**{k: max(n, int(1.5 * self.capacity[k])) for k, n in short.items()})
+        self._relisted[(first, end)] = new
+        if self.constraint_solver == "gauss_seidel":
+            merged = self.constraints()
+            self._fit_constraints(
+                distances=len(merged["pairs"]),
+                distance_ends=2 * len(merged["pairs"]),
+                attachments=len(merged["lra_particle"]),
+            )
             self._write_whole(self._constraint_tables(*merged.values()))
             return
-        self._splice_constraints(first, end, new)
-        self._constraint_host = merged
-
-    def _splice_constraints(self, first: int, end: int, new: dict[str, np.ndarray]):
-        """Write the Jacobi tables with particles ``first..end``'s lists replaced by
-        those of ``new`` (:meth:`replace_constraints`)."""
         count = end - first
-        pairs = new["pairs"] - first
-        start, edge, other = both_ends(pairs, count)
+        start, edge, other = both_ends(new["pairs"] - first, count)
         lra_start, rows = incidence(new["lra_particle"] - first, count)
         stiff = iteration_stiffness(new["stiffness"], self.iterations)
-        writes = RowWrites()
-        for name, ends, columns in (
-            (
-                "distance_start",
+        lists = {
+            "distance": (
                 start,
                 {
                     "distance_other": other + first,
@@ -436,28 +459,121 @@ class Model(FieldOwner):
                     "distance_stiffness": stiff[edge],
                 },
             ),
-            (
-                "lra_start",
+            "lra": (
                 lra_start,
                 {"lra_anchor": new["lra_anchor"][rows], "lra_rest": new["lra_rest"][rows]},
             ),
-        ):
-            old = self._jacobi[name]
-            e0, e1 = int(old[first]), int(old[end])
-            entries = {
-                field: np.concatenate([values, self._jacobi[field][e1 : old[-1]]])
-                for field, values in columns.items()
-            }
-            starts = np.concatenate([e0 + ends, old[end + 1 :] + (e0 + int(ends[-1]) - e1)])
-            self._jacobi[name] = np.concatenate([old[:first], starts])
-            for field, values in entries.items():
-                self._jacobi[field] = np.concatenate([self._jacobi[field][:e0], values])
-            writes.add(np.arange(first, len(old)), {getattr(self, name): starts})
-            rows_written = np.arange(e0, e0 + len(next(iter(entries.values()))))
-            writes.add(rows_written, {getattr(self, field): v for field, v in entries.items()})
+        }
+        writes = RowWrites()
+        for kind, (start, columns) in lists.items():
+            changed = self._changed_lists(kind, first, start, columns)
+            appended = int(np.diff(start)[changed].sum())
+            if len(self._jacobi[LISTS[kind][1][0]]) + appended > self.capacity[LISTS[kind][0]]:
+                self._compact_lists(writes, kind)
+            else:
+                self._append_lists(writes, kind, first, changed, start, columns)
         writes.flush()
-        self.distance_count = int(self._jacobi["distance_start"][-1]) // 2
-        self.lra_count = int(self._jacobi["lra_start"][-1])
+        self._count_lists()
+
+    def _fit_constraints(self, **need: int):
+        """Grow the constraint rows of the kinds whose capacity is below ``need``."""
+        short = {k: n for k, n in need.items() if n > self.capacity[k]}
+        if short:
+            self.grow(**{k: max(n, int(1.5 * self.capacity[k])) for k, n in short.items()})
+
+    def _compact_lists(self, writes: RowWrites, kind: str):
+        """Write the ``kind`` lists (:data:`LISTS`) whole (host tables and ``writes``,
+        flushed first if the rows must grow): each particle's entries after the
+        last's, no rows between them."""
+        whole = self.jacobi_lists(self.constraints(), (kind,))
+        rows_kind, columns = LISTS[kind]
+        if len(whole[columns[0]]) > self.capacity[rows_kind]:
+            writes.flush()  # into the fields before they are reallocated
+            self._fit_constraints(**{rows_kind: len(whole[columns[0]])})
+        self._jacobi.update(whole)
+        extents = (f"{kind}_begin", f"{kind}_end")
+        writes.add(
+            np.arange(self.particle_count), {getattr(self, name): whole[name] for name in extents}
+        )
+        writes.add(
+            np.arange(len(whole[columns[0]])),
+            {getattr(self, name): whole[name] for name in columns},
+        )
+
+    def _count_lists(self):
+        """The distance constraints and long-range attachments the lists hold."""
+        live = {k: self._jacobi[f"{k}_end"] - self._jacobi[f"{k}_begin"] for k in LISTS}
+        self.distance_count = int(live["distance"].sum()) // 2
+        self.lra_count = int(live["lra"].sum())
+
+    def constraints(self) -> dict[str, np.ndarray]:
+        """The model's distance constraints and long-range attachments now
+        (:func:`constraint_arrays`): as built, with the lists of the particle ranges
+        :meth:`replace_constraints` replaced."""
+        host = self._constraint_host
+        if not self._relisted:
+            return host
+        mine = np.zeros(len(host["pairs"]), dtype=bool)
+        attached = np.zeros(len(host["lra_particle"]), dtype=bool)
+        for first, end in self._relisted:
+            mine |= (host["pairs"][:, 0] >= first) & (host["pairs"][:, 0] < end)
+            attached |= (host["lra_particle"] >= first) & (host["lra_particle"] < end)
+        return {
+            name: np.concatenate(
+                [values[~(attached if name.startswith("lra") else mine)]]
+                + [new[name] for new in self._relisted.values()]
+            )
+            for name, values in host.items()
+        }
+
+    def _changed_lists(
+        self, kind: str, first: int, start: np.ndarray, columns: dict[str, np.ndarray]
+    ) -> np.ndarray:
+        """The particles (from ``first``) whose ``kind`` list (:data:`LISTS`) as
+        given (entries ``start[i]..start[i + 1]`` of ``columns``) differs from the
+        one written."""
+        count = len(start) - 1
+        begin = self._jacobi[f"{kind}_begin"][first : first + count]
+        size = np.diff(start)
+        alike = np.flatnonzero((self._jacobi[f"{kind}_end"][first : first + count] - begin) == size)
+        old, now = rows_of_extents(begin[alike], size[alike]), rows_of(start, alike)
+        owner = np.repeat(np.arange(len(alike)), size[alike])
+        differs = np.zeros(len(alike), dtype=bool)
+        for name, values in columns.items():
+            differs[owner[self._jacobi[name][old] != values[now]]] = True
+        changed = np.ones(count, dtype=bool)
+        changed[alike[~differs]] = False
+        return np.flatnonzero(changed)
+
+    def _append_lists(
+        self,
+        writes: RowWrites,
+        kind: str,
+        first: int,
+        changed: np.ndarray,
+        start: np.ndarray,
+        columns: dict[str, np.ndarray],
+    ):
+        """Append the ``kind`` lists of the particles ``first + changed`` (entries
+        ``start[i]..start[i + 1]`` of ``columns``) after the rows in use and point
+        their extents there (host tables and ``writes``)."""
+        rows = rows_of(start, changed)
+        used = len(self._jacobi[LISTS[kind][1][0]])
+        size = np.diff(start)[changed]
+        begin = used + np.cumsum(size) - size
+        particles = first + changed
+        self._jacobi[f"{kind}_begin"][particles] = begin
+        self._jacobi[f"{kind}_end"][particles] = begin + size
+        writes.add(
+            particles,
+            {getattr(self, f"{kind}_begin"): begin, getattr(self, f"{kind}_end"): begin + size},
+        )
+        for name, values in columns.items():
+            self._jacobi[name] = np.concatenate([self._jacobi[name], values[rows]])
+        writes.add(
+            np.arange(used, used + len(rows)),
+            {getattr(self, name): values[rows] for name, values in columns.items()},
+        )
 
     def _write_whole(self, tables: dict[str, tuple[np.ndarray, str | None, int]]):
         """Write each field of ``tables`` (:meth:`_as_built` entries) whole, its spare
