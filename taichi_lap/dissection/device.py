@@ -131,6 +131,12 @@ class DeviceTopology:
         writes.add(particles, {**columns, state.x: x, state.p: x, state.v: v})
         writes.flush()
 
+    def out_of_reach(self, organ: int, x: np.ndarray, low, high) -> bool:
+        """Whether ``organ``'s particles at ``x`` (N, 3) [m] lie outside the box
+        ``low``..``high`` (a cut's reach), by their bounding box."""
+        span = x[slice(*self.model.data.organs[organ].particles)]
+        return bool(np.any(span.min(axis=0) > high) or np.any(span.max(axis=0) < low))
+
     def surface_rows(self) -> SurfaceRows:
         """The model's surface rows as the changes so far left them (what the tissue
         collision follows, :meth:`~taichi_lap.collision.tissue.TissueCollision.rewrite`)."""

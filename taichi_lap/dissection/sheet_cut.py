@@ -171,9 +171,8 @@ class SheetCutter:
         bounds = low, high = sweep.bounds()
         for sheet in self.sheets:
             record = self.dissection.model.data.organs[sheet.organ]
-            span = x[slice(*record.particles)]
-            if np.any(span.min(axis=0) > high) or np.any(span.max(axis=0) < low):
-                continue  # out of the sweep's reach
+            if self.dissection.out_of_reach(sheet.organ, x, low, high):
+                continue
             crossed = struts_crossed(sheet.struts[0], sweep, bounds, x)
             sheet.struts = tuple(values[~crossed] for values in sheet.struts)
             change = self._cut_sheet(sheet, sweep, x, v, state)

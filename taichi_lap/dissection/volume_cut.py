@@ -130,9 +130,8 @@ class VolumeCutter:
             path.segments.reshape(-1, 3).min(axis=0),
             path.segments.reshape(-1, 3).max(axis=0),
         )
-        span = x[slice(*self.dissection.model.data.organs[organ.organ].particles)]
-        if np.any(span.min(axis=0) > high) or np.any(span.max(axis=0) < low):
-            return None  # the organ lies out of the path's reach
+        if self.dissection.out_of_reach(organ.organ, x, low, high):
+            return None
         tets = topology.live_tets(organ.organ)
         corners = x[topology.tets[tets]]
         near = ((corners.max(axis=1) >= low) & (corners.min(axis=1) <= high)).all(axis=1)
