@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.csr import both_ends, incidence, rows_of, rows_of_extents
+from taichi_lap.core.csr import both_ends, incidence, rows_of_extents
 from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows
 from taichi_lap.core.mesh import incident_table
@@ -397,24 +397,30 @@ class Model(FieldOwner):
         return tables
 
     def jacobi_lists(
-        self, constraints: dict[str, np.ndarray], kinds=tuple(LISTS)
+        self,
+        constraints: dict[str, np.ndarray],
+        kinds=tuple(LISTS),
+        first: int = 0,
+        count: int | None = None,
     ) -> dict[str, np.ndarray]:
         """The :data:`JACOBI_ROWS` tables of the ``kinds`` of lists (:data:`LISTS`) of
         ``constraints`` (:func:`constraint_arrays`) written whole: each particle's
-        entries follow the last's."""
-        n, out = self.particle_count, {}
+        entries follow the last's. Those of the ``count`` particles from ``first``
+        (all by default; ``constraints`` then hold theirs alone), the extents
+        counted from their first entry."""
+        n, out = self.particle_count - first if count is None else count, {}
         if "distance" in kinds:
             stiff = iteration_stiffness(constraints["stiffness"], self.iterations)
-            start, edge, other = both_ends(constraints["pairs"], n)
+            start, edge, other = both_ends(constraints["pairs"] - first, n)
             out |= {
                 "distance_begin": start[:-1].copy(),
                 "distance_end": start[1:].copy(),
-                "distance_other": other,
+                "distance_other": other + first,
                 "distance_rest": constraints["rest"][edge],
                 "distance_stiffness": stiff[edge],
             }
         if "lra" in kinds:
-            start, rows = incidence(constraints["lra_particle"], n)
+            start, rows = incidence(constraints["lra_particle"] - first, n)
             out |= {
                 "lra_begin": start[:-1].copy(),
                 "lra_end": start[1:].copy(),
@@ -446,32 +452,17 @@ class Model(FieldOwner):
             )
             self._write_whole(self._constraint_tables(*merged.values()))
             return
-        count = end - first
-        start, edge, other = both_ends(new["pairs"] - first, count)
-        lra_start, rows = incidence(new["lra_particle"] - first, count)
-        stiff = iteration_stiffness(new["stiffness"], self.iterations)
-        lists = {
-            "distance": (
-                start,
-                {
-                    "distance_other": other + first,
-                    "distance_rest": new["rest"][edge],
-                    "distance_stiffness": stiff[edge],
-                },
-            ),
-            "lra": (
-                lra_start,
-                {"lra_anchor": new["lra_anchor"][rows], "lra_rest": new["lra_rest"][rows]},
-            ),
-        }
+        lists = self.jacobi_lists(new, first=first, count=end - first)
         writes = RowWrites()
-        for kind, (start, columns) in lists.items():
-            changed = self._changed_lists(kind, first, start, columns)
-            appended = int(np.diff(start)[changed].sum())
-            if len(self._jacobi[LISTS[kind][1][0]]) + appended > self.capacity[LISTS[kind][0]]:
+        for kind, (rows_kind, names) in LISTS.items():
+            begin = lists[f"{kind}_begin"]
+            size = lists[f"{kind}_end"] - begin
+            columns = {name: lists[name] for name in names}
+            changed = self._changed_lists(kind, first, begin, size, columns)
+            if len(self._jacobi[names[0]]) + int(size[changed].sum()) > self.capacity[rows_kind]:
                 self._compact_lists(writes, kind)
             else:
-                self._append_lists(writes, kind, first, changed, start, columns)
+                self._append_lists(writes, kind, first, changed, begin, size, columns)
         writes.flush()
         self._count_lists()
 
@@ -527,16 +518,23 @@ class Model(FieldOwner):
         }
 
     def _changed_lists(
-        self, kind: str, first: int, start: np.ndarray, columns: dict[str, np.ndarray]
+        self,
+        kind: str,
+        first: int,
+        begin: np.ndarray,
+        size: np.ndarray,
+        columns: dict[str, np.ndarray],
     ) -> np.ndarray:
         """The particles (from ``first``) whose ``kind`` list (:data:`LISTS`) as
-        given (entries ``start[i]..start[i + 1]`` of ``columns``) differs from the
-        one written."""
-        count = len(start) - 1
-        begin = self._jacobi[f"{kind}_begin"][first : first + count]
-        size = np.diff(start)
-        alike = np.flatnonzero((self._jacobi[f"{kind}_end"][first : first + count] - begin) == size)
-        old, now = rows_of_extents(begin[alike], size[alike]), rows_of(start, alike)
+        given (the ``size[i]`` entries of ``columns`` from ``begin[i]``) differs from
+        the one written."""
+        count = len(begin)
+        written = self._jacobi[f"{kind}_begin"][first : first + count]
+        alike = np.flatnonzero(
+            (self._jacobi[f"{kind}_end"][first : first + count] - written) == size
+        )
+        old = rows_of_extents(written[alike], size[alike])
+        now = rows_of_extents(begin[alike], size[alike])
         owner = np.repeat(np.arange(len(alike)), size[alike])
         differs = np.zeros(len(alike), dtype=bool)
         for name, values in columns.items():
@@ -551,22 +549,23 @@ class Model(FieldOwner):
         kind: str,
         first: int,
         changed: np.ndarray,
-        start: np.ndarray,
+        begin: np.ndarray,
+        size: np.ndarray,
         columns: dict[str, np.ndarray],
     ):
-        """Append the ``kind`` lists of the particles ``first + changed`` (entries
-        ``start[i]..start[i + 1]`` of ``columns``) after the rows in use and point
-        their extents there (host tables and ``writes``)."""
-        rows = rows_of(start, changed)
+        """Append the ``kind`` lists of the particles ``first + changed`` (the
+        ``size[i]`` entries of ``columns`` from ``begin[i]``) after the rows in use
+        and point their extents there (host tables and ``writes``)."""
+        rows = rows_of_extents(begin[changed], size[changed])
         used = len(self._jacobi[LISTS[kind][1][0]])
-        size = np.diff(start)[changed]
-        begin = used + np.cumsum(size) - size
+        sizes = size[changed]
+        starts = used + np.cumsum(sizes) - sizes
         particles = first + changed
-        self._jacobi[f"{kind}_begin"][particles] = begin
-        self._jacobi[f"{kind}_end"][particles] = begin + size
+        self._jacobi[f"{kind}_begin"][particles] = starts
+        self._jacobi[f"{kind}_end"][particles] = starts + sizes
         writes.add(
             particles,
-            {getattr(self, f"{kind}_begin"): begin, getattr(self, f"{kind}_end"): begin + size},
+            {getattr(self, f"{kind}_begin"): starts, getattr(self, f"{kind}_end"): starts + sizes},
         )
         for name, values in columns.items():
             self._jacobi[name] = np.concatenate([self._jacobi[name], values[rows]])
