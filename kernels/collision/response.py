@@ -443,8 +443,10 @@ def detect_and_respond(
                     s = coll.tri_vertex[t][k]
                     idx, w = model.surface_index[s], model.surface_weight[s]
                     for j in ti.static(range(4)):
-                        if w[j] > 0.0 and ti.atomic_add(coll.particle_mark[idx[j]], 1) == 0:
-                            coll.touched_list[ti.atomic_add(coll.touched_count[None], 1)] = idx[j]
+                        if w[j] > 0.0:  # nested: Taichi evaluates both operands of `and`
+                            if ti.atomic_add(coll.particle_mark[idx[j]], 1) == 0:
+                                touched = ti.atomic_add(coll.touched_count[None], 1)
+                                coll.touched_list[touched] = idx[j]
     for n in range(coll.touched_list.shape[0]):
         if n < coll.touched_count[None]:
             i = coll.touched_list[n]
