@@ -137,3 +137,4 @@ def render_still(scene: Scene, *, frames: int, out: str, size, use_cache: bool =
     renderer = Renderer.for_scene(scene, session.model, size=size)
     renderer.render(session.state, session.control, session.peak_temperature)
     write_png(out, renderer.image())
+    session.close()

@@ -332,11 +332,13 @@ def cmd_run(args) -> int:
         )
     if args.record is not None:
         print(f"recorded {args.record}")
+    status = 0
     if replay is not None:
         matches, report = replay.compare_final_state(session.state)
         print(report if matches else f"error: {report}", file=sys.stdout if matches else sys.stderr)
-        return 0 if matches else 1
-    return 0
+        status = 0 if matches else 1
+    session.close()  # kept for a next run of the scene in this process (Session.close)
+    return status
 
 
 def cmd_render(args) -> int:

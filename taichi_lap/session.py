@@ -97,6 +97,7 @@ class _Parts:
     start_state: dict | None
     settle_seconds: float
     cautery: Cautery | None
+    dissection: DeviceTopology | None  # tissue removed or cut: restored when taken
 
     def close(self):
         owners = (self.solver, self.control, self.state, self.model)
@@ -135,7 +136,8 @@ class Session:
     Control and Solver are kept for the next session of the same scene in this
     process (:func:`session_key`), which takes them, with the settled start, instead
     of allocating new fields: Taichi compiles a kernel once per object it is given, so
-    that session compiles nothing and starts at once. Only the last closed session is
+    that session compiles nothing and starts at once (the tissue the closed session
+    removed or cut is put back then, not at closing). Only the last closed session is
     kept; closing another frees the fields of the one kept before
     (:func:`release_parked` frees it too), after which Taichi compiles every kernel
     again (:meth:`taichi_lap.core.fields.FieldGroup.close`)."""
@@ -162,9 +164,10 @@ class Session:
             self.data = parts.model.data
             self.model, self.state, self.control = parts.model, parts.state, parts.control
             self.solver, self._start_state = parts.solver, parts.start_state
-            self._cautery = parts.cautery
+            self._cautery, self._dissection = parts.cautery, parts.dissection
             self.settle_seconds = parts.settle_seconds
             self.build_seconds = time.perf_counter() - start
+            self._restore_topology()  # the closed session's cuts and removals
             self.solver.reset(pairs=True)
             self.reset()
         else:
@@ -198,7 +201,6 @@ class Session:
         if self._closed:
             return
         self._closed = True
-        self._restore_topology()
         release_parked()
         _parked = _Parts(
             self.key,
@@ -209,6 +211,7 @@ class Session:
             self._start_state,
             self.settle_seconds,
             self._cautery,
+            self._dissection,
         )
 
     def reset(self):
