@@ -9,8 +9,10 @@ import pytest
 from taichi_lap import scene as scene_mod
 from taichi_lap.cli import main
 from taichi_lap.haptics.bridge import openhaptics_bridge
+from taichi_lap.replay import read_recording
 from taichi_lap.session import Session
 from tests import fake_hd
+from tests.blocks import block_scene_file
 from tests.helpers import BOX
 
 SMALL = {"scene.detail": 0.03}
@@ -105,23 +107,24 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
     one takes the free tool (the grasper); the run completes and writes its frames, and
     the recording names both devices, places each tool at its scene tip (the device
     origin) and holds every servo tick."""
-    from pathlib import Path
-
-    import taichi_lap.scenes
-
-    from taichi_lap.replay import read_recording
-
-    second = {
-        "name": "probe",
-        "kind": "probe",
-        "tip": [0.03, 0.06, 0.0],
-        "device": "openhaptics:Left Device",
-    }
+    tips = {"grasper": [-0.01, 0.03, 0.0], "probe": [0.01, 0.03, 0.0]}
     scene = tmp_path / "two_hands.toml"
     scene.write_text(
-        Path(taichi_lap.scenes.__file__).with_name("rectum.toml").read_text()
-        + "\n[[tools]]\n"
-        + "".join(f"{key} = {value!r}\n".replace("'", '"') for key, value in second.items())
+        block_scene_file(
+            "two_hands",
+            f"""
+[[tools]]
+name = "grasper"
+kind = "grasper"
+tip = {tips["grasper"]}
+
+[[tools]]
+name = "probe"
+kind = "probe"
+tip = {tips["probe"]}
+device = "openhaptics:Left Device"
+""",
+        )
     )
     monkeypatch.setenv("TAICHI_LAP_LIBHD", fake_library)
     record = tmp_path / "s.tlap"
@@ -138,8 +141,8 @@ def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeyp
     left_first = [t for t in recording.ticks if "probe" in t.poses][0].clock
     assert left_first < right_first  # the left device was opened first, for the probe
     last = recording.frames[-1].poses
-    assert np.allclose(last["grasper"].tip, [-0.04, 0.07, 0.0], atol=1e-6)
-    assert np.allclose(last["probe"].tip, second["tip"], atol=1e-6)
+    assert np.allclose(last["grasper"].tip, tips["grasper"], atol=1e-6)
+    assert np.allclose(last["probe"].tip, tips["probe"], atol=1e-6)
     # every servo tick of both devices is in the record, each device's in clock order (the
     # servo's rate is checked in the realtime group, tests/test_servo.py)
     for name in ("grasper", "probe"):
