@@ -15,7 +15,6 @@ from tests import fake_hd
 from tests.blocks import block_scene_file
 from tests.helpers import BOX
 
-SMALL = {"scene.detail": 0.03}
 TWO_DEVICES = ("openhaptics:Left Device", "openhaptics:Right Device")
 
 
@@ -28,6 +27,11 @@ def headless_run(out, scene: str, frames: int, *devices: str, extra: tuple = ())
     return main([*arguments, "--out", str(out), *extra, "--set", "scene.detail=0.03"])
 
 
+def block_with_probe() -> scene_mod.Scene:
+    """The test block under a probe 3.8 cm above its top."""
+    return scene_mod.from_tables([BOX], tools=[{"name": "probe", "tip": [0.0, 0.05, 0.0]}])
+
+
 @pytest.fixture(scope="module")
 def fake_library(tmp_path_factory):
     if fake_hd.compiler() is None:
@@ -38,8 +42,8 @@ def fake_library(tmp_path_factory):
 def test_device_origin_puts_the_tool_at_its_scene_tip(fake_library):
     """The fake stylus rests at its origin with the identity rotation: the graphical
     tool sits at the tool's scene tip with its shaft along +z (the stylus axis)."""
-    scene = scene_mod.load("rectum", SMALL)
-    session = Session(scene, progress=False)
+    scene = block_with_probe()
+    session = Session(scene, use_cache=False, progress=False)
     tool = scene.tools[0]
     bridge = openhaptics_bridge(tool, None, fake_library)
     bridge.attach(session)
@@ -49,6 +53,7 @@ def test_device_origin_puts_the_tool_at_its_scene_tip(fake_library):
         feedback = bridge.servo.feedback.read()
     finally:
         bridge.close()
+        session.close()  # the next test's session of this scene takes its fields
     assert np.allclose(pose.tip, tool["tip"], atol=1e-6)
     assert np.allclose(pose.direction, [0.0, 0.0, 1.0], atol=1e-6)
     assert feedback.tick > 0
@@ -166,7 +171,7 @@ def test_a_second_haptic_device_needs_a_second_tool(fake_library, monkeypatch, t
 def test_the_published_surface_follows_a_dissection(fake_library):
     """After tissue is removed the servo's surface holds the particles left on it and
     those the wound exposed (the kept ends of its vertices), none of the removed."""
-    scene = scene_mod.from_tables([BOX], tools=[{"name": "probe", "tip": [0.0, 0.05, 0.0]}])
+    scene = block_with_probe()
     session = Session(scene, use_cache=False, progress=False)
     bridge = openhaptics_bridge(scene.tools[0], None, fake_library)
     bridge.attach(session)
@@ -199,7 +204,7 @@ def test_a_wound_that_outgrows_the_snapshot_moves_it_and_the_servo_follows(
     from taichi_lap.haptics.servo import ServoState
 
     monkeypatch.setattr(bridge_mod, "spare_rows", lambda count, *_: count)
-    scene = scene_mod.from_tables([BOX], tools=[{"name": "probe", "tip": [0.0, 0.05, 0.0]}])
+    scene = block_with_probe()
     session = Session(scene, use_cache=False, progress=False)
     bridge = openhaptics_bridge(scene.tools[0], None, fake_library)
     bridge.attach(session)
