@@ -172,7 +172,11 @@ def window_screenshot() -> dict[str, np.ndarray]:
     renderer's own image."""
     from taichi_lap.viewer import Viewer
 
-    session = small_session("rectum")
+    from taichi_lap import scene as scene_mod
+
+    # unsettled: the window shows what the renderer drew, whatever the organs' shape
+    scene = scene_mod.load("rectum", {"scene.detail": 0.05, "scene.settle_time": 0.0})
+    session = Session(scene, progress=False)
     viewer = Viewer(
         session,
         Renderer.for_scene(session.scene, session.model, size=(160, 120)),
