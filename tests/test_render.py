@@ -115,10 +115,12 @@ def test_srgb_encoding_is_within_a_quarter_level_of_the_standard_curve():
     assert np.abs(out - exact).max() * 255.0 <= 0.26
 
 
-def small_session(name: str) -> Session:
+def small_session(name: str, overrides: dict | None = None) -> Session:
+    """A session of built-in scene ``name`` at detail 0.05, with more ``overrides``."""
     from taichi_lap import scene as scene_mod
 
-    return Session(scene_mod.load(name, {"scene.detail": 0.05}), progress=False)
+    settings = {"scene.detail": 0.05, **(overrides or {})}
+    return Session(scene_mod.load(name, settings), progress=False)
 
 
 def test_organs_get_their_appearance_and_colour():
@@ -172,11 +174,8 @@ def window_screenshot() -> dict[str, np.ndarray]:
     renderer's own image."""
     from taichi_lap.viewer import Viewer
 
-    from taichi_lap import scene as scene_mod
-
     # unsettled: the window shows what the renderer drew, whatever the organs' shape
-    scene = scene_mod.load("rectum", {"scene.detail": 0.05, "scene.settle_time": 0.0})
-    session = Session(scene, progress=False)
+    session = small_session("rectum", {"scene.settle_time": 0.0})
     viewer = Viewer(
         session,
         Renderer.for_scene(session.scene, session.model, size=(160, 120)),
