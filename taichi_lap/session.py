@@ -105,16 +105,33 @@ class _Parts:
             owner.close()
 
 
-_parked: _Parts | None = None
-"""The last closed session's parts (one at a time: the fields of others are freed)."""
+_parked: list[_Parts] = []
+"""The parts of the last closed sessions, oldest first (:func:`keep_closed_sessions`)."""
+_parked_capacity = 1
 
 
-def release_parked():
-    """Free the fields of the session kept for reuse, if any."""
-    global _parked
-    if _parked is not None:
-        _parked.close()
-        _parked = None
+def keep_closed_sessions(count: int):
+    """Keep the parts of the last ``count`` closed sessions (at least 1; the default
+    1) for sessions of their scenes; the fields of older ones are freed when another
+    closes. Freeing fields makes Taichi compile every kernel of the process again
+    (:meth:`taichi_lap.core.fields.FieldGroup.close`): a process that alternates
+    between a few scenes (the tests) keeps them all."""
+    global _parked_capacity
+    if count < 1:
+        raise ValueError(f"keep_closed_sessions: count must be at least 1, not {count}")
+    _parked_capacity = count
+
+
+def release_parked(key: str | None = None):
+    """Free the fields of the sessions kept for reuse: those of the scene ``key``
+    (:func:`session_key`), or all of them."""
+    kept = []
+    for parts in _parked:
+        if key is None or parts.key == key:
+            parts.close()
+        else:
+            kept.append(parts)
+    _parked[:] = kept
 
 
 class Session:
@@ -137,10 +154,11 @@ class Session:
     process (:func:`session_key`), which takes them, with the settled start, instead
     of allocating new fields: Taichi compiles a kernel once per object it is given, so
     that session compiles nothing and starts at once (the tissue the closed session
-    removed or cut is put back then, not at closing). Only the last closed session is
-    kept; closing another frees the fields of the one kept before
-    (:func:`release_parked` frees it too), after which Taichi compiles every kernel
-    again (:meth:`taichi_lap.core.fields.FieldGroup.close`)."""
+    removed or cut is put back then, not at closing; so are the tools' shapes). Only
+    the last closed session is kept, unless :func:`keep_closed_sessions` asks for
+    more; closing another frees the fields of the oldest one kept
+    (:func:`release_parked` frees them too), after which Taichi compiles every
+    kernel again (:meth:`taichi_lap.core.fields.FieldGroup.close`)."""
 
     def __init__(self, scene: Scene, *, use_cache: bool = True, progress: bool = True):
         start = time.perf_counter()
@@ -168,6 +186,7 @@ class Session:
             self.settle_seconds = parts.settle_seconds
             self.build_seconds = time.perf_counter() - start
             self._restore_topology()  # the closed session's cuts and removals
+            self._set_tool_shapes()  # as the scene gives them, whatever changed them since
             self.solver.reset(pairs=True)
             self.reset()
         else:
@@ -176,8 +195,7 @@ class Session:
             self.model = model_for(scene, self.data)
             self.state = State(self.model)
             self.control = Control()
-            for index, tool in enumerate(scene.tools):
-                self.control.set_tool_shapes(index, tool_geometry(tool).shapes)
+            self._set_tool_shapes()
             self.solver = Solver(self.model, SolverSettings.from_scene(scene.settings))
             self._start_state = None
             self.settle_seconds = 0.0
@@ -197,21 +215,23 @@ class Session:
 
     def close(self):
         """End the session (class docstring); it must not be used afterwards."""
-        global _parked
         if self._closed:
             return
         self._closed = True
-        release_parked()
-        _parked = _Parts(
-            self.key,
-            self.model,
-            self.state,
-            self.control,
-            self.solver,
-            self._start_state,
-            self.settle_seconds,
-            self._cautery,
-            self._dissection,
+        while len(_parked) >= _parked_capacity:
+            _parked.pop(0).close()
+        _parked.append(
+            _Parts(
+                self.key,
+                self.model,
+                self.state,
+                self.control,
+                self.solver,
+                self._start_state,
+                self.settle_seconds,
+                self._cautery,
+                self._dissection,
+            )
         )
 
     def reset(self):
@@ -508,6 +528,11 @@ class Session:
         if problems:
             raise SimulationFault(f"frame {self.state.frame}: {TopologyError(problems)}")
 
+    def _set_tool_shapes(self):
+        """Each scene tool's union of implicit shapes into the control."""
+        for index, tool in enumerate(self.scene.tools):
+            self.control.set_tool_shapes(index, tool_geometry(tool).shapes)
+
     def _restore_topology(self):
         """Put the model back as built if tissue was removed or cut."""
         self._cutter = self._volume_cutter = None
@@ -583,9 +608,8 @@ class Session:
 
 
 def _take_parked(key: str) -> _Parts | None:
-    """The kept parts when they are of the scene ``key`` names (then no longer kept)."""
-    global _parked
-    if _parked is None or _parked.key != key:
-        return None
-    parts, _parked = _parked, None
-    return parts
+    """The last kept parts of the scene ``key`` names (then no longer kept), if any."""
+    for index in range(len(_parked) - 1, -1, -1):
+        if _parked[index].key == key:
+            return _parked.pop(index)
+    return None

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from taichi_lap import runtime
+from taichi_lap import session as session_mod
 
 TEST_ARCH = os.environ.get("TAICHI_LAP_TEST_ARCH", "cpu")
 
@@ -36,7 +37,46 @@ def taichi_backend(tmp_path_factory):
     and settled them again; cache files are written atomically)."""
     os.environ["TAICHI_LAP_CACHE"] = str(model_cache(tmp_path_factory))
     runtime.init(TEST_ARCH, threads=2 if TEST_ARCH == "cpu" else None)
+    session_mod.keep_closed_sessions(KEPT_SESSIONS)
     yield
+
+
+KEPT_SESSIONS = 1000
+"""Closed sessions a test process keeps for reuse: all of them. Freeing one's fields
+would make Taichi compile every kernel of the process again; not closing them keeps
+the same fields allocated."""
+
+_made_in_test: list | None = None
+"""The sessions the running test made (:func:`pytest_runtest_call`)."""
+
+_session_init = session_mod.Session.__init__
+
+
+def _tracked_init(self, *args, **kwargs):
+    _session_init(self, *args, **kwargs)
+    if _made_in_test is not None:
+        _made_in_test.append(self)
+
+
+session_mod.Session.__init__ = _tracked_init
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item):
+    """Close the sessions a test made (not those of its fixtures) when it ends, so that
+    later tests of the same scene in this process take their fields and compiled
+    kernels instead of compiling every kernel again (half the suite's time went to
+    compiling). Reuse resets the state, the tools and the topology; a test that
+    changes a session beyond that (its solver, its model's fields) is marked
+    ``keeps_sessions`` and leaves its sessions unclosed."""
+    global _made_in_test
+    _made_in_test = [] if item.get_closest_marker("keeps_sessions") is None else None
+    try:
+        yield
+    finally:
+        made, _made_in_test = _made_in_test or [], None
+        for session in made:
+            session.close()
 
 
 LONGEST_FILES_FIRST = (

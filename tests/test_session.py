@@ -71,7 +71,7 @@ def test_solver_settings_take_every_default_from_the_scene_schema():
 @pytest.mark.parametrize("name", ["rectum", "intestine"])
 def test_a_second_session_of_a_scene_compiles_nothing_and_runs_the_same(name):
     from taichi_lap.runtime import kernel_compilations
-    from taichi_lap.session import release_parked, scene_script
+    from taichi_lap.session import release_parked, scene_script, session_key
 
     scene = scene_mod.load(name, {"scene.detail": 0.1, "scene.settle_time": 0.1})
 
@@ -85,7 +85,7 @@ def test_a_second_session_of_a_scene_compiles_nothing_and_runs_the_same(name):
                 frames.append(session.state.positions())
         return frames
 
-    release_parked()  # another test's session (freeing it drops every compiled kernel)
+    release_parked(session_key(scene))  # another test's session of the scene
     first = run()
     compiled = kernel_compilations()
     second = run()
@@ -95,7 +95,8 @@ def test_a_second_session_of_a_scene_compiles_nothing_and_runs_the_same(name):
 
 
 def test_a_closed_session_cannot_step_and_its_fields_are_freed_for_another_scene():
-    from taichi_lap.session import release_parked
+    from taichi_lap.session import keep_closed_sessions, release_parked, session_key
+    from tests.conftest import KEPT_SESSIONS
 
     session = ball_session(0.0)
     session.close()
@@ -104,23 +105,30 @@ def test_a_closed_session_cannot_step_and_its_fields_are_freed_for_another_scene
     tree = session.model._group.tree
     assert tree is not None  # kept for the next session of the ball scene
     other = Session(scene_mod.from_tables([BALL], substeps=3), use_cache=False, progress=False)
-    other.close()  # another scene: the ball's fields are freed
+    keep_closed_sessions(1)  # the default: only the last closed session is kept
+    try:
+        other.close()  # another scene: the ball's fields are freed
+    finally:
+        keep_closed_sessions(KEPT_SESSIONS)
     assert session.model._group.tree is None
-    release_parked()
+    assert other.model._group.tree is not None
+    release_parked(session_key(other.scene))
     assert other.model._group.tree is None
+    with pytest.raises(ValueError, match="at least 1"):
+        keep_closed_sessions(0)
 
 
 def test_settled_start_is_cached_and_a_damaged_cache_is_settled_again(
     tmp_path, monkeypatch, caplog
 ):
-    from taichi_lap.session import release_parked
+    from taichi_lap.session import release_parked, session_key
 
     monkeypatch.setenv("TAICHI_LAP_CACHE", str(tmp_path))
     scene = scene_mod.from_tables([BALL], planes=[FLOOR], substeps=2, settle_time=0.5)
 
     def start() -> tuple[float, dict]:
         """A new session (not the one kept for reuse): its settling time and start."""
-        release_parked()
+        release_parked(session_key(scene))
         with Session(scene, progress=False) as session:
             return session.settle_seconds, session.state.snapshot()
 

@@ -132,6 +132,7 @@ def reference_case():
     return simulation(REFERENCE_ORGANS, **REFERENCE_SETTINGS)
 
 
+@pytest.mark.keeps_sessions  # takes the collision out of the solver
 def test_kernel_agrees_with_numpy_reference():
     scene, data, model, state, control, solver = reference_case()
     # the reference is Alg. 1 with particle contacts; the drawn surface's own contact
