@@ -534,10 +534,11 @@ class Session:
             self.control.set_tool_shapes(index, tool_geometry(tool).shapes)
 
     def _restore_topology(self):
-        """Put the model back as built if tissue was removed or cut."""
+        """Put the model back as built if tissue was removed or cut (through this
+        session, or through a DeviceTopology of its own on the model)."""
         self._cutter = self._volume_cutter = None
         self._loose = []
-        if self._dissection is not None:
+        if self._dissection is not None or not self.model.as_built:
             self.model.reset_topology()
             if self.solver.collision is not None:
                 self.solver.collision.revive()

@@ -19,7 +19,7 @@ from taichi_lap.kernels.collision import spheres
 from taichi_lap.kernels.skinning import skin_surface
 from taichi_lap.scene import from_tables
 from taichi_lap.render.renderer import Renderer
-from taichi_lap.session import Session
+from taichi_lap.session import Session, release_parked, session_key
 from taichi_lap.sim import model as model_module
 from tests.blocks import block_scene_file
 from tests.helpers import BOX, simulation
@@ -302,9 +302,11 @@ def dumbbell_cut_with_growth(spare: bool, monkeypatch) -> dict:
     the session is drawn before and after, the drawn mesh following the growth).
     Returns the positions after 22 frames, the renderer's triangle counts (without
     ``spare``) and the session."""
+    scene = from_tables([BOX], gravity=[0, 0, 0])
     if not spare:
         monkeypatch.setattr(model_module, "spare_rows", lambda count, *_: count)
-    session = Session(from_tables([BOX], gravity=[0, 0, 0]), use_cache=False, progress=False)
+        release_parked(session_key(scene))  # the block built here, with no spare rows
+    session = Session(scene, use_cache=False, progress=False)
     drawn = []
     if not spare:
         renderer = Renderer.for_scene(session.scene, session.model, size=(64, 48))
@@ -328,6 +330,7 @@ def dumbbell_cut_with_growth(spare: bool, monkeypatch) -> dict:
     return {"x": session.state.x.to_numpy(), "drawn": drawn, "session": session, "before": before}
 
 
+@pytest.mark.keeps_sessions  # one built without spare rows: other tests expect them
 def test_a_cut_beyond_the_spare_rows_grows_the_model_and_changes_nothing_else(monkeypatch, caplog):
     """Built without spare rows, the dumbbell's cut grows the model's rows (one log
     line per growth) and the state's; the tables stay right, the topology valid, the

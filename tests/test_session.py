@@ -141,3 +141,29 @@ def test_settled_start_is_cached_and_a_damaged_cache_is_settled_again(
     next(tmp_path.glob("*.start.npz")).write_bytes(b"not an archive")
     seconds, _ = start()
     assert seconds > 0.0 and "ignoring unreadable settled start" in caplog.text
+
+
+def test_a_session_that_takes_a_model_dissected_outside_its_session_gets_it_as_built():
+    """Tissue removed through a DeviceTopology of its own (not the session's) is put
+    back too when the next session of the scene takes the closed one's model."""
+    from taichi_lap.dissection.device import DeviceTopology
+    from taichi_lap.dissection.removal import MutableTopology
+    from taichi_lap.session import release_parked, session_key
+
+    scene = scene_mod.from_tables([BALL], substeps=1, gravity=[0.0, 0.0, 0.0])
+    release_parked(session_key(scene))
+    first = Session(scene, use_cache=False, progress=False)
+    model = first.model
+    built = (model.surface_triangles.to_numpy(), model.as_built)
+    topology = MutableTopology(first.data)
+    rest = first.data.rest_position
+    DeviceTopology(model, topology).apply(
+        topology.remove(np.flatnonzero(rest[:, 0] > 0.005)), first.state
+    )
+    assert not model.as_built
+    assert not np.array_equal(model.surface_triangles.to_numpy(), built[0])  # the wound
+    first.close()
+    second = Session(scene, use_cache=False, progress=False)
+    assert second.model is model and model.as_built and built[1]
+    np.testing.assert_array_equal(model.surface_triangles.to_numpy(), built[0])
+    second.close()

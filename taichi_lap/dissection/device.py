@@ -115,6 +115,7 @@ class DeviceTopology:
         self._write_surface(writes, change)
         writes.flush()
         model.topology_version += 1
+        model.as_built = False
 
     def set_particles(self, particles, rest, mass, x, v, state):
         """Give the particle rows ``particles`` (reserve rows a cut or tear takes, a
@@ -122,6 +123,7 @@ class DeviceTopology:
         position, mass, inverse mass, position and velocity ((P, 3) or (P,) each) in
         the model and ``state``."""
         model = self.model
+        model.as_built = False
         inverse = 1.0 / np.asarray(mass, dtype=np.float64)
         self.inverse_mass[particles] = inverse
         self.topology.mass[particles] = mass

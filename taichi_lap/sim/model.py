@@ -242,6 +242,7 @@ class Model(FieldOwner):
                 self._row_fill[name] = (kind, fill)
         self._set_capacities()
         self.topology_version = 0  # counts the changes written to the model
+        self.as_built = True  # no dissection changed the model since it was built or reset
         self.layout_version = 0  # counts the reallocations of the row fields (grow)
 
     def _set_capacities(self):
@@ -588,6 +589,7 @@ class Model(FieldOwner):
         self._write_whole(self._as_built(self.data))
         self.finalize_counts()
         self.topology_version += 1
+        self.as_built = True
 
     def finalize_counts(self):
         """Write the Python-side counts of clusters and chunks to their fields."""
