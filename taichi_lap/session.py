@@ -535,14 +535,15 @@ class Session:
 
     def _restore_topology(self):
         """Put the model back as built if tissue was removed or cut (through this
-        session, or through a DeviceTopology of its own on the model)."""
+        session, or through a DeviceTopology of its own on the model:
+        :attr:`~taichi_lap.sim.model.Model.as_built` tells either)."""
         self._cutter = self._volume_cutter = None
         self._loose = []
-        if self._dissection is not None or not self.model.as_built:
+        self._dissection = None
+        if not self.model.as_built:
             self.model.reset_topology()
             if self.solver.collision is not None:
                 self.solver.collision.revive()
-            self._dissection = None
 
     def _settled_start(self, frames: int, use_cache: bool) -> dict:
         """The state after ``frames`` frames from the rest state with collision off
