@@ -406,7 +406,9 @@ def detect_and_respond(
     tools: ti.i32,
 ):
     """The module docstring: contacts of the active triangles (corner translations,
-    averaged; tissue pairs if ``tissue``, tools if ``tools``), then per particle under
+    averaged; tissue pairs if ``tissue``, tools if ``tools``: 1 the step's first pass of
+    the tools, 2 a further one, which keeps ``tool_held`` of the triangles an earlier
+    pass held), then per particle under
     a contact the bound corners' translations averaged with the binding weights move p
     and set collided. Reads the spheres, the pair rows and the tool poses; writes corner_delta,
     corner_count (zero again at the end), counter, p, collided."""
@@ -424,7 +426,10 @@ def detect_and_respond(
                     tool_candidates, tool, acc, hits = tool_contacts(
                         model, state, coll, control, t, acc, hits
                     )
-                    coll.tool_held[t] = ti.cast(tool > 0, ti.i32)
+                    held = ti.cast(tool > 0, ti.i32)
+                    if tools > 1:  # a further pass: a triangle an earlier one held stays held
+                        held |= coll.tool_held[t]
+                    coll.tool_held[t] = held
             for k in ti.static(range(3)):
                 coll.corner_delta[3 * t + k] = ti.Vector(
                     [acc[k, 0], acc[k, 1], acc[k, 2]]
