@@ -167,3 +167,25 @@ def test_a_session_that_takes_a_model_dissected_outside_its_session_gets_it_as_b
     assert second.model is model and model.as_built and built[1]
     np.testing.assert_array_equal(model.surface_triangles.to_numpy(), built[0])
     second.close()
+
+
+def test_a_session_that_takes_a_closed_ones_control_has_only_its_scenes_tools():
+    """A tool placed in a closed session's Control by hand (a test pressing the model
+    through it) is out of the next session of the scene, which has no tools: that
+    session.s ball stays at rest (a tool left in pushed the test block 26 mm)."""
+    from taichi_lap.session import release_parked, session_key
+
+    scene = scene_mod.from_tables([BALL], substeps=1, gravity=[0.0, 0.0, 0.0])
+    release_parked(session_key(scene))
+    first = Session(scene, use_cache=False, progress=False)
+    top = first.data.rest_position[:, 1].max()
+    first.control.set_tool(0, [-0.03, top - 0.002, 0.0], [0.03, top - 0.002, 0.0], 0.005)
+    control = first.control
+    first.close()
+    second = Session(scene, use_cache=False, progress=False)
+    assert second.control is control
+    assert not second.control.tool_active.to_numpy().any()
+    for _ in range(3):
+        second.step()
+    assert np.abs(second.state.x.to_numpy() - second.data.rest_position).max() < 1e-6
+    second.close()

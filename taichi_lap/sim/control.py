@@ -166,7 +166,10 @@ class Control(FieldOwner):
         interpolate_tools(self, begin, end)
 
     def reset(self):
-        """Forget the tools' frames and motion and open every grasper."""
+        """Forget the tools' frames and motion, open every grasper and take every tool
+        out (inactive until :meth:`set_tool` places it again: a session that reuses a
+        closed one's Control gets only its own scene's tools)."""
+        self.tool_active.fill(0)
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
         self.tips = [np.zeros(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
