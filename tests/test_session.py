@@ -172,7 +172,7 @@ def test_a_session_that_takes_a_model_dissected_outside_its_session_gets_it_as_b
 def test_a_session_that_takes_a_closed_ones_control_has_only_its_scenes_tools():
     """A tool placed in a closed session's Control by hand (a test pressing the model
     through it) is out of the next session of the scene, which has no tools: that
-    session.s ball stays at rest (a tool left in pushed the test block 26 mm)."""
+    session's ball stays at rest (a tool left in pushed the test block 26 mm)."""
     from taichi_lap.session import release_parked, session_key
 
     scene = scene_mod.from_tables([BALL], substeps=1, gravity=[0.0, 0.0, 0.0])
