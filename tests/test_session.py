@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from taichi_lap import scene as scene_mod
-from taichi_lap.session import Session
+from taichi_lap.session import Session, release_parked, session_key
 
 BALL = {
     "name": "ball",
@@ -26,6 +26,17 @@ def ball_session(settle_time: float) -> Session:
         collision="circumsphere",
     )
     return Session(scene, use_cache=False, progress=False)
+
+
+def fresh_session(scene, use_cache: bool = False) -> Session:
+    """A session of ``scene`` built anew, not the one a closed session left for reuse."""
+    release_parked(session_key(scene))
+    return Session(scene, use_cache=use_cache, progress=False)
+
+
+def still_ball():
+    """The ball alone, one substep, no gravity: at rest it stays where it was built."""
+    return scene_mod.from_tables([BALL], substeps=1, gravity=[0.0, 0.0, 0.0])
 
 
 def test_settled_start_is_at_rest_on_the_floor_and_reset_returns_to_it():
@@ -71,7 +82,7 @@ def test_solver_settings_take_every_default_from_the_scene_schema():
 @pytest.mark.parametrize("name", ["rectum", "intestine"])
 def test_a_second_session_of_a_scene_compiles_nothing_and_runs_the_same(name):
     from taichi_lap.runtime import kernel_compilations
-    from taichi_lap.session import release_parked, scene_script, session_key
+    from taichi_lap.session import scene_script
 
     scene = scene_mod.load(name, {"scene.detail": 0.1, "scene.settle_time": 0.1})
 
@@ -95,7 +106,7 @@ def test_a_second_session_of_a_scene_compiles_nothing_and_runs_the_same(name):
 
 
 def test_a_closed_session_cannot_step_and_its_fields_are_freed_for_another_scene():
-    from taichi_lap.session import keep_closed_sessions, release_parked, session_key
+    from taichi_lap.session import keep_closed_sessions
     from tests.conftest import KEPT_SESSIONS
 
     session = ball_session(0.0)
@@ -121,15 +132,12 @@ def test_a_closed_session_cannot_step_and_its_fields_are_freed_for_another_scene
 def test_settled_start_is_cached_and_a_damaged_cache_is_settled_again(
     tmp_path, monkeypatch, caplog
 ):
-    from taichi_lap.session import release_parked, session_key
-
     monkeypatch.setenv("TAICHI_LAP_CACHE", str(tmp_path))
     scene = scene_mod.from_tables([BALL], planes=[FLOOR], substeps=2, settle_time=0.5)
 
     def start() -> tuple[float, dict]:
         """A new session (not the one kept for reuse): its settling time and start."""
-        release_parked(session_key(scene))
-        with Session(scene, progress=False) as session:
+        with fresh_session(scene, use_cache=True) as session:
             return session.settle_seconds, session.state.snapshot()
 
     seconds, settled = start()
@@ -148,11 +156,9 @@ def test_a_session_that_takes_a_model_dissected_outside_its_session_gets_it_as_b
     back too when the next session of the scene takes the closed one's model."""
     from taichi_lap.dissection.device import DeviceTopology
     from taichi_lap.dissection.removal import MutableTopology
-    from taichi_lap.session import release_parked, session_key
 
-    scene = scene_mod.from_tables([BALL], substeps=1, gravity=[0.0, 0.0, 0.0])
-    release_parked(session_key(scene))
-    first = Session(scene, use_cache=False, progress=False)
+    scene = still_ball()
+    first = fresh_session(scene)
     model = first.model
     built = (model.surface_triangles.to_numpy(), model.as_built)
     topology = MutableTopology(first.data)
@@ -173,11 +179,8 @@ def test_a_session_that_takes_a_closed_ones_control_has_only_its_scenes_tools():
     """A tool placed in a closed session's Control by hand (a test pressing the model
     through it) is out of the next session of the scene, which has no tools: that
     session's ball stays at rest (a tool left in pushed the test block 26 mm)."""
-    from taichi_lap.session import release_parked, session_key
-
-    scene = scene_mod.from_tables([BALL], substeps=1, gravity=[0.0, 0.0, 0.0])
-    release_parked(session_key(scene))
-    first = Session(scene, use_cache=False, progress=False)
+    scene = still_ball()
+    first = fresh_session(scene)
     top = first.data.rest_position[:, 1].max()
     first.control.set_tool(0, [-0.03, top - 0.002, 0.0], [0.03, top - 0.002, 0.0], 0.005)
     control = first.control
