@@ -34,6 +34,13 @@ INTESTINE = {
 }
 
 
+OFF_MIDDLE = (0.0053, 0.0068)
+"""Where the legs cross [m], from the middle of segment 10 along x and of segment 29
+along z: crossing at both middles, each segment's two neighbours were as near as each
+other, and which one a climb took was decided by rounding (the CPU one way, CUDA the
+other, and the pairs found after that differed)."""
+
+
 def crossing(distance: float) -> np.ndarray:
     """Particles (80, 3) [m] of the strip laid as two straight legs: row-0 points
     0-19 along x, points 20-39 along z at height ``distance`` [m] above the middle
@@ -41,8 +48,8 @@ def crossing(distance: float) -> np.ndarray:
     each leg's mesentery row lies 10 cm aside in its own plane."""
     row = np.zeros((40, 3))
     row[:20, 0] = np.arange(20) * SEGMENT
-    row[20:] = [0.42, distance, 0.0]
-    row[20:, 2] = (np.arange(20, 40) - 29.5) * SEGMENT
+    row[20:] = [0.42 + OFF_MIDDLE[0], distance, 0.0]
+    row[20:, 2] = (np.arange(20, 40) - 29.5) * SEGMENT + OFF_MIDDLE[1]
     mesentery = row + np.where(np.arange(40)[:, None] < 20, [0.0, 0.0, -0.1], [0.1, 0.0, 0.0])
     return np.concatenate([row, mesentery])
 
@@ -310,12 +317,15 @@ def compute_planted_case() -> dict:
     """Planted crossing: 12 detections, then a response (run on any backend). The
     exact detector's colliding pairs are those more than 1 µm deep: the response leaves
     resting contacts at a gap of about 0, on one side or the other of it by a rounding
-    (1e-9 m) that differs between backends."""
+    (1e-9 m) that differs between backends. The active pairs are not returned: the
+    legs are straight, so along them many element pairs are as near as their
+    neighbours and the climb's ties leave another set tracked after 1e-9 m of noise on
+    the start (the contacts and the exact pairs stay the same)."""
     _, _, model, state, _, _ = simulation([STRIP])
     _, state, collision = planted((model, state, IntestineCollision(model)), 0.02, approach=0.5)
     for _ in range(12):
         collision.detect(state)
-    active, contacts = collision.active_pairs()[0], collision.contacts()[0]
+    contacts = collision.contacts()[0]
     collision.respond(state, H)
     exact = ExactDetector(collision)
     exact.run(state.p)
@@ -326,7 +336,6 @@ def compute_planted_case() -> dict:
         pairs[np.lexsort(pairs.T[::-1])], ((0, 256 - len(pairs)), (0, 0)), constant_values=-1
     )
     return {
-        "active": padded(active),
         "contacts": padded(contacts),
         "exact": padded(exact),
         "x": state.x.to_numpy(),
@@ -336,5 +345,6 @@ def compute_planted_case() -> dict:
 
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
-    cpu = assert_backend_matches_cpu("tests.test_intestine_collision:compute_planted_case", 1e-5)
+    # positions: 1e-8 m of noise on the start moves them by up to 1.5e-5 m on the CPU
+    cpu = assert_backend_matches_cpu("tests.test_intestine_collision:compute_planted_case", 1e-4)
     assert (cpu["contacts"][:, 0] >= 0).sum() > 5
