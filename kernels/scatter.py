@@ -92,7 +92,8 @@ class RowWrites:
     :meth:`add` and written in one launch by :meth:`flush`: what one topology update
     changes. Adds to the same fields join one group, and a group stays when it has no
     rows, so that the launches of one caller compile once. No row of a field may be
-    written twice."""
+    written twice in one flush (:meth:`flush` raises: a GPU writes the rows in
+    parallel, so which of the two values stays would be its choice)."""
 
     def __init__(self):
         self._groups: dict[tuple, tuple[tuple, list, list]] = {}
@@ -130,12 +131,31 @@ class RowWrites:
                 )
             groups.append((targets, tuple(layout)))
         self._groups = {}
+        _check_written_once(groups, rows)
         rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int32)
         if not len(rows):
             return
         bounds = np.cumsum([0] + [len(block) for block in blocks[np.int32]]).astype(np.int32)
         ints, floats = (_stacked(blocks[dtype], dtype) for dtype in (np.int32, np.float32))
         _scatter_groups(_plan(tuple(groups)), rows, bounds, ints, floats)
+
+
+def _check_written_once(groups: list, rows: list[np.ndarray]):
+    """Raise if a row of a field is written twice in one flush (:class:`RowWrites`;
+    the CPU backend writes the rows in order, a GPU in parallel)."""
+    groups_of: dict[int, list[int]] = {}
+    for g, (targets, _) in enumerate(groups):
+        for target in targets:
+            groups_of.setdefault(id(target), []).append(g)
+    for together in {tuple(g) for g in groups_of.values()}:
+        written = np.concatenate([rows[g] for g in together])
+        unique = np.unique(written)
+        if len(unique) < len(written):
+            twice = unique[np.bincount(np.searchsorted(unique, written)) > 1]
+            raise RuntimeError(
+                f"RowWrites: rows {twice[:8].tolist()} of a field are written twice in "
+                "one launch; flush between the writes"
+            )
 
 
 def _host_type(field):

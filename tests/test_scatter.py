@@ -82,6 +82,27 @@ def test_one_caller_compiles_once_whatever_its_row_counts():
     assert f["member"].to_numpy()[[8, 9, 10]].tolist() == [108, 109, 110]
 
 
+def test_a_row_written_twice_in_one_launch_is_refused_and_two_flushes_keep_the_last():
+    """A GPU writes a launch's rows in parallel, so of two values for one row either
+    could stay: the flush refuses them, also when the two writes are in different
+    groups; written in two flushes, the later one stays."""
+    f = fields()
+    writes = RowWrites()
+    writes.add([3, 5], {f["mass"]: [1.0, 2.0]})
+    writes.add([5], {f["mass"]: [3.0]})
+    with pytest.raises(RuntimeError, match=r"rows \[5\] of a field are written twice"):
+        writes.flush()
+    writes.add([6], {f["mass"]: [1.0], f["member"]: [7]})
+    writes.add([6], {f["mass"]: [2.0]})
+    with pytest.raises(RuntimeError, match=r"rows \[6\]"):
+        writes.flush()
+    writes.add([6], {f["mass"]: [1.0], f["member"]: [7]})
+    writes.flush()
+    writes.add([6], {f["mass"]: [2.0]})
+    writes.flush()
+    assert f["mass"].to_numpy()[6] == 2.0 and f["member"].to_numpy()[6] == 7
+
+
 @pytest.mark.vulkan
 def test_vulkan_writes_the_rows_of_the_cpu():
     assert_backend_matches_cpu("tests.test_scatter:written_rows", 0.0)

@@ -89,6 +89,7 @@ class DeviceTopology:
         writes = RowWrites()  # the rows of the update, written in one launch
         if len(change.joined):
             self._add_members(writes, change.joined[:, 0], change.joined[:, 1])
+            writes.flush()  # the members dropped below rewrite rows of the same clusters
         writes.add(removed, {model.inv_mass: np.zeros(len(removed))})
         self.inverse_mass[removed] = 0.0
         held = removed[gather(state.grasp_tool, removed) != FREE]
@@ -107,7 +108,7 @@ class DeviceTopology:
             writes, np.concatenate([a for a, _ in left]), np.concatenate([b for _, b in left])
         )
         for c in new:
-            self._append_cluster(writes, c, state)
+            self._append_cluster(writes, c, state, not change.memberships_rebuilt)
         if new or len(change.joined):
             model.finalize_counts()
         if change.memberships_rebuilt:
@@ -323,9 +324,10 @@ class DeviceTopology:
             },
         )
 
-    def _append_cluster(self, writes: RowWrites, c: int, state):
+    def _append_cluster(self, writes: RowWrites, c: int, state, memberships: bool):
         """Rows, chunks, rest data and a warm-started frame for split-off cluster
-        ``c``; its members gather their goals from it."""
+        ``c``; with ``memberships`` its members' membership rows name it (else
+        :meth:`_write_memberships` writes them all)."""
         model, topology = self.model, self.topology
         members = topology.cluster_members[c]
         first, count = self.rows_used, len(members)
@@ -375,6 +377,8 @@ class DeviceTopology:
         self.chunk_rows = np.concatenate(
             [self.chunk_rows, np.stack([chunks["begin"], chunks["end"]], 1)]
         )
+        if not memberships:
+            return
         membership = rows_of(topology.membership_start, members)
         owner = members[owners_of(topology.membership_start, members)]
         mine = topology.membership_cluster[membership] == c
