@@ -253,12 +253,16 @@ class MutableTopology:
         self.membership_start, rows = incidence(member, len(self.rest))
         self.membership_cluster = owner[rows]
 
-    def _index_originals(self, original: np.ndarray):
+    def _index_originals(self, original: np.ndarray, particles: np.ndarray | None = None):
         """The surface triangles a removal can clip (``original``: slots; as built the
-        directly bound organs' triangles, then also those a cut made) by particle."""
+        directly bound organs' triangles, then also those a cut made) by particle:
+        their corners' particles ``particles`` (len(original), 3), by default those
+        their slots hold now."""
         self.original = original
-        f, v = self.triangles, self.vertices
-        self.original_particles = v["index"][f["vertices"][original], 0]
+        if particles is None:
+            f, v = self.triangles, self.vertices
+            particles = v["index"][f["vertices"][original], 0]
+        self.original_particles = particles
         self.original_start, rows = incidence(self.original_particles.ravel(), len(self.rest))
         self.particle_original = rows // 3
 
@@ -558,9 +562,15 @@ class MutableTopology:
         for t in dead.tolist():
             self.original_pieces.pop(t, None)
         self.original_pieces.update({int(t): [int(t)] for t in slots})
-        # a slot taken may have been an original a removal took whole: listed once
-        kept = self.original[~np.isin(self.original, np.concatenate([dead, slots]))]
-        self._index_originals(np.concatenate([kept, slots]))
+        # the originals that keep pieces keep their corners (a clipped one's slot may
+        # hold another triangle by now); one a removal took whole leaves the index
+        listed = np.fromiter(self.original_pieces, dtype=np.int64, count=len(self.original_pieces))
+        kept = np.isin(self.original, listed) & ~np.isin(self.original, slots)
+        f, v = self.triangles, self.vertices
+        self._index_originals(
+            np.concatenate([self.original[kept], slots]),
+            np.concatenate([self.original_particles[kept], v["index"][f["vertices"][slots], 0]]),
+        )
         return dict(
             dead_triangles=np.setdiff1d(dead, slots),
             new_triangles=slots,
