@@ -149,9 +149,9 @@ def _check_written_once(groups: list, rows: list[np.ndarray]):
             groups_of.setdefault(id(target), []).append(g)
     for together in {tuple(g) for g in groups_of.values()}:
         written = np.concatenate([rows[g] for g in together])
-        unique = np.unique(written)
+        unique, counts = np.unique(written, return_counts=True)
         if len(unique) < len(written):
-            twice = unique[np.bincount(np.searchsorted(unique, written)) > 1]
+            twice = unique[counts > 1]
             raise RuntimeError(
                 f"RowWrites: rows {twice[:8].tolist()} of a field are written twice in "
                 "one launch; flush between the writes"

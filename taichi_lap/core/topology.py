@@ -82,6 +82,11 @@ class OrganRecord:
     row_length: int = 0  # spring sheets: masses per row (row 0 is the intestine)
     reserve: int = 0  # rows at the end of ``particles`` a cut takes for new vertices
 
+    @property
+    def volume_cuttable(self) -> bool:
+        """Whether scissors cut through it (seed 000 §5.3): it has tets and a reserve."""
+        return bool(self.reserve) and self.tets[1] > self.tets[0]
+
 
 @dataclass
 class Topology:

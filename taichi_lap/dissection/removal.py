@@ -566,7 +566,6 @@ class MutableTopology:
         # hold another triangle by now); one a removal took whole leaves the index
         listed = np.fromiter(self.original_pieces, dtype=np.int64, count=len(self.original_pieces))
         kept = np.isin(self.original, listed) & ~np.isin(self.original, slots)
-        f, v = self.triangles, self.vertices
         self._index_originals(
             np.concatenate([self.original[kept], slots]),
             np.concatenate([self.original_particles[kept], v["index"][f["vertices"][slots], 0]]),

@@ -88,7 +88,7 @@ class VolumeCutter:
         data = dissection.model.data
         self.organs = []
         for k, organ in enumerate(data.organs):
-            if organ.reserve and organ.tets[1] > organ.tets[0]:
+            if organ.volume_cuttable:
                 end = organ.particles[1]
                 self.organs.append(_Organ(k, list(range(end - 1, end - organ.reserve - 1, -1))))
         self.strokes: dict[int, _Stroke] = {}

@@ -164,7 +164,7 @@ def volume_cut_rows(data) -> dict[str, int]:
     owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
     touched = np.zeros(len(start) - 1, dtype=bool)
     for organ in data.organs:
-        if organ.reserve and organ.tets[1] > organ.tets[0]:
+        if organ.volume_cuttable:
             first, end = organ.particles
             touched[owner[(member >= first) & (member < end)]] = True
     sizes = np.diff(start)[touched]
