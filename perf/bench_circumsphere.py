@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from taichi_lap import plots
 from taichi_lap.perf.common import arguments, report, result
 
 METHODS = ("circumsphere", "bounding_sphere", "polygon")
@@ -195,21 +196,12 @@ def quartiles(samples: list[float]) -> dict:
     return {"q1": q1, "q3": q3}
 
 
-def box_plot(results: list[dict], path: Path) -> bool:
-    """Fig. 10-like box plot of rel_error per iteration count, one colour per method;
-    False (and a line saying which extra gives it) without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        print("no box plot: it needs matplotlib (pip install 'taichi-lap[perf]')")
-        return False
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def box_plot(results: list[dict], path: Path):
+    """Fig. 10-like box plot of rel_error per iteration count, one colour per method."""
     rows = [r for r in results if r["metric"] == "rel_error" and r["case"] == "cylinder"]
     iterations = sorted({r["params"]["iterations"] for r in rows})
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+    fig, axes = plots.figure(size=(10, 4.5))
+    ax = axes[0, 0]
     colours = {"circumsphere": "tab:blue", "bounding_sphere": "tab:orange", "polygon": "tab:green"}
     for m, method in enumerate(METHODS):
         stats = [
@@ -236,10 +228,8 @@ def box_plot(results: list[dict], path: Path) -> bool:
     ax.set_ylabel("(d_ave - d_exa) / d_exa")
     ax.set_title("Rigid cylinder pressed into a tissue block (seed 000 Fig. 10)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    plots.save_png(fig, path, dpi=120)
     print(f"wrote {path}")
-    return True
 
 
 def main():

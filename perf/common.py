@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from taichi_lap.core.files import write_atomically
+
 
 def gpu() -> str | None:
     """The NVIDIA GPU and its driver (``nvidia-smi``), or None where there is none."""
@@ -128,9 +130,4 @@ def report(benchmark: str, arch: str, results: list[dict], path: str):
         "arch": arch,
         "results": results,
     }
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_suffix(target.suffix + ".tmp")
-    tmp.write_text(json.dumps(out, indent=2))
-    os.replace(tmp, target)
-    print(f"wrote {target}")
+    print(f"wrote {write_atomically(path, json.dumps(out, indent=2))}")

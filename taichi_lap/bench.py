@@ -2,7 +2,7 @@
 asked, each in a process of its own (one Taichi backend per process), then one
 ``summary.md`` over all of them: a table per benchmark, a column of medians per
 backend and the ratio of each other backend to the CPU, with a bar chart of the
-timings (``summary.png``; matplotlib, from the ``perf`` extra), and how the cost of
+timings (``summary.png``), and how the cost of
 each series of sizes grows with the particles (a table, and ``scaling.png``).
 
 Layout of ``out``: ``<arch>/bench_<name>.json`` (the format every benchmark writes,
@@ -18,7 +18,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+from taichi_lap import plots
 from taichi_lap.core.errors import InputError
+from taichi_lap.core.files import write_atomically
 from taichi_lap.perf import BENCHMARKS
 
 ARCHES = ("cpu", "cuda", "vulkan", "metal")
@@ -216,35 +218,12 @@ def scaling_markdown(series: dict) -> list[str]:
     return lines
 
 
-def _pyplot():
-    """matplotlib's pyplot drawing off screen, or None without matplotlib (the
-    ``perf`` extra)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return None
-    return plt
-
-
-def _save(plt, fig, path: Path):
-    """Write ``fig`` to the PNG ``path`` atomically and close it."""
-    fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
-
-
 def scaling_chart(series: dict, path: Path) -> bool:
     """Cost against particles (log-log), a panel per series, a line per backend, into
-    ``path``; False without matplotlib or without a series."""
-    plt = _pyplot()
-    if plt is None or not series:
+    ``path``; False without a series."""
+    if not series:
         return False
-    fig, axes = plt.subplots(len(series), 1, figsize=(6, 2.6 * len(series)), squeeze=False)
+    fig, axes = plots.figure(len(series), 1, size=(6, 2.6 * len(series)))
     for ax, (key, per_arch) in zip(axes[:, 0], series.items()):
         for arch, points in per_arch.items():
             ax.loglog(*zip(*points), marker="o", label=arch)
@@ -252,25 +231,20 @@ def scaling_chart(series: dict, path: Path) -> bool:
         ax.set_xlabel("particles", fontsize=8)
         ax.set_ylabel("median", fontsize=8)
         ax.legend(fontsize=7)
-    _save(plt, fig, path)
+    plots.save_png(fig, path)
     return True
 
 
 def bar_chart(results: dict, path: Path) -> bool:
     """Grouped bars of the timings per benchmark, one colour per backend, into
-    ``path``; False (and says which extra gives it) without matplotlib."""
-    plt = _pyplot()
-    if plt is None:
-        print("no bar chart: it needs matplotlib (pip install 'taichi-lap[perf]')")
-        return False
+    ``path``; False without a timing."""
     panels = timing_rows(results)
     if not panels:
         return False
-    fig, axes = plt.subplots(
-        len(panels), 1, figsize=(10, 2.0 + 0.9 * sum(min(len(r), 16) for r in panels.values()))
+    fig, axes = plots.figure(
+        len(panels), 1, size=(10, 2.0 + 0.9 * sum(min(len(r), 16) for r in panels.values()))
     )
-    axes = axes if len(panels) > 1 else [axes]
-    for ax, (name, rows) in zip(axes, panels.items()):
+    for ax, (name, rows) in zip(axes[:, 0], panels.items()):
         rows = rows[:16]  # the first cases of a long benchmark
         arches = sorted({arch for _, medians in rows for arch in medians}, key=ARCHES.index)
         height = 0.8 / len(arches)
@@ -286,7 +260,7 @@ def bar_chart(results: dict, path: Path) -> bool:
         ax.set_xscale("log")
         ax.set_title(f"{name} (median; log scale, each row in its own unit)", fontsize=9)
         ax.legend(fontsize=7)
-    _save(plt, fig, path)
+    plots.save_png(fig, path)
     return True
 
 
@@ -295,11 +269,8 @@ def write_summary(out: Path, arches: list[str], status: dict[str, dict[str, str]
     ``out`` holds."""
     results = load_results(out, arches)
     series = scaling_series(results)
-    path = out / "summary.md"
-    tmp = path.with_suffix(".md.tmp")
     growth = "".join(line + "\n" for line in scaling_markdown(series))
-    tmp.write_text(summary_markdown(results, status) + growth)
-    os.replace(tmp, path)
+    path = write_atomically(out / "summary.md", summary_markdown(results, status) + growth)
     bar_chart(results, out / "summary.png")
     scaling_chart(series, out / "scaling.png")
     return path

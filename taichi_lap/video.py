@@ -15,6 +15,7 @@ import imageio.v2 as imageio
 import numpy as np
 
 from taichi_lap.core.errors import InputError
+from taichi_lap.core.files import give_ordinary_mode
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -22,9 +23,7 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 def _publish(tmp: str, path: Path):
     """Give a finished temporary file the usual permissions and move it into place
     (``mkstemp`` creates files readable by their owner only)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    give_ordinary_mode(tmp)
     os.replace(tmp, path)
 
 
