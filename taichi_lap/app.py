@@ -24,6 +24,15 @@ def _render(session: Session, renderer: Renderer):
     session.timings["render"] = (time.perf_counter() - start) * 1e3
 
 
+def _record_stats(session: Session, recorder: SessionRecorder | None):
+    """After a frame was stepped and drawn: its stage times and the force the tissue
+    pushed each tool with go to the recording."""
+    if recorder is None:
+        return
+    forces = {tool["name"]: session.tool_reaction(k) for k, tool in enumerate(session.scene.tools)}
+    recorder.record_stats(session.timings, forces)
+
+
 def _advance(
     session: Session, device, recorder: SessionRecorder | None, check_topology: bool = False
 ):
@@ -85,6 +94,7 @@ def run_headless(
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
             _advance(session, device, recorder, check_topology)
             _render(session, renderer)
+            _record_stats(session, recorder)
             writer.write(renderer.image())
     return session
 
@@ -124,6 +134,8 @@ def run_window(
             start = time.perf_counter()
             viewer.draw()
             session.timings["render"] = (time.perf_counter() - start) * 1e3
+            if not viewer.paused:
+                _record_stats(session, recorder)
             window.show()
     return session
 

@@ -15,13 +15,17 @@ tag    record   payload
                 f64[3] direction (tip towards handle), u32 buttons
 ``T``  tick     a haptic servo tick: f64 clock [s, monotonic], u8 count, then per tool:
                 u8 tool index, f32[3] tip [m], f32[3] direction, u32 buttons, f32[3] force [N]
+``S``  stats    UTF-8 JSON ``{"time" [s], "frame", "stages": {stage: wall time [ms]},
+                "forces": {tool: [N, N, N]}}`` of the frame that just ended (after its
+                frame record and events)
 =====  =======  ==========================================================================
 
 The first record is the ``session_start`` event: scene name and source, ``digest``
 (sha256 of the scene's values after overrides and its mesh files), ``raw_scene``,
 ``seed``, ``dt`` [s], ``arch``, ``threads``, ``versions``, ``tools`` (the names tool
 indices refer to), ``started`` (UTC) and ``clock``. Then ``device`` events, one frame
-record before every step, events as they happen (``EVENT_KINDS``), and last
+record before every step, events as they happen (``EVENT_KINDS``), a stats record
+after every frame (stage times and tool forces, for the training metrics), and last
 ``session_end`` with ``status``, ``frames`` and ``checksum`` (:func:`state_checksum`).
 
 Why binary records and not JSON lines: a 1 kHz servo tick is 59 bytes here against
@@ -63,6 +67,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_lap.core.errors import InputError, SimulationFault
+from taichi_lap.core.files import give_ordinary_mode
 from taichi_lap.devices import Pose, applied_poses
 from taichi_lap.runtime import current_arch
 
@@ -71,7 +76,7 @@ VERSION = 1
 HEADER = struct.Struct("<8sI")  # magic, version
 RECORD_HEAD = struct.Struct("<BI")  # tag, payload length [bytes]
 CRC = struct.Struct("<I")
-TAG_EVENT, TAG_FRAME, TAG_TICK = b"E"[0], b"F"[0], b"T"[0]
+TAG_EVENT, TAG_FRAME, TAG_TICK, TAG_STATS = b"E"[0], b"F"[0], b"T"[0], b"S"[0]
 FRAME_HEAD = struct.Struct("<dIdB")  # time [s], frame, clock [s], tool count
 FRAME_TOOL = struct.Struct("<B3d3dI")  # tool index, tip [m], direction, buttons
 TICK_HEAD = struct.Struct("<dB")  # clock [s], tool count
@@ -145,6 +150,40 @@ def encode_event(kind: str, *, time: float, frame: int, **fields) -> bytes:
     return encode_record(TAG_EVENT, json.dumps(event, default=_json_value).encode())
 
 
+def encode_frame(
+    time: float,
+    frame: int,
+    clock: float,
+    poses: dict[str, Pose],
+    buttons: dict[str, int] | None = None,
+) -> bytes:
+    """A frame record: the poses about to be applied to every tool, in tool-index
+    order (the order of ``session_start.tools``), and the buttons per tool name."""
+    buttons = buttons or {}
+    payload = FRAME_HEAD.pack(time, frame, clock, len(poses))
+    payload += b"".join(
+        FRAME_TOOL.pack(index, *pose.tip, *pose.direction, buttons.get(name, 0))
+        for index, (name, pose) in enumerate(poses.items())
+    )
+    return encode_record(TAG_FRAME, payload)
+
+
+def encode_stats(
+    time: float, frame: int, timings: dict[str, float], forces: dict[str, np.ndarray]
+) -> bytes:
+    """A statistics record of the frame that ended at ``time`` [s]: the wall time
+    [ms] of each stage (``physics``, ``topology``, ``heat``, ``render``, ...) and the
+    force [N] the tissue pushed each tool with (by name). The training metrics read
+    it (:mod:`taichi_lap.training.metrics`); replay does not need it."""
+    stats = {
+        "time": float(time),
+        "frame": int(frame),
+        "stages": {name: float(ms) for name, ms in timings.items()},
+        "forces": {name: [float(f) for f in force] for name, force in forces.items()},
+    }
+    return encode_record(TAG_STATS, json.dumps(stats).encode())
+
+
 class RecordStream:
     """Appends records to an open recording: buffered, written by :meth:`flush` in one
     ``write`` (``O_APPEND``), fsynced at most once per ``FSYNC_INTERVAL`` and on close.
@@ -166,9 +205,7 @@ class RecordStream:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         try:
             os.write(fd, HEADER.pack(MAGIC, VERSION) + start)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.fchmod(fd, 0o666 & ~umask)
+            give_ordinary_mode(fd)
             os.fsync(fd)
             os.link(tmp, path)
         except FileExistsError:
@@ -315,15 +352,16 @@ class SessionRecorder:
         """Append the poses about to be applied (every tool, as :func:`applied_poses`
         places it) and the buttons per tool name, then flush."""
         state = self.session.state
-        buttons = buttons or {}
         placed = applied_poses(self.session.scene.tools, poses or {})
-        payload = FRAME_HEAD.pack(state.time, state.frame, monotonic(), len(placed))
-        payload += b"".join(
-            FRAME_TOOL.pack(index, *pose.tip, *pose.direction, buttons.get(name, 0))
-            for index, (name, pose) in enumerate(placed.items())
-        )
-        self.stream.append(encode_record(TAG_FRAME, payload))
+        self.stream.append(encode_frame(state.time, state.frame, monotonic(), placed, buttons))
         self.stream.flush()
+
+    def record_stats(self, timings: dict[str, float], forces: dict[str, np.ndarray]):
+        """Append the statistics of the frame just stepped (:func:`encode_stats`):
+        ``timings`` [ms] per stage and the force [N] on each tool; written with the
+        next frame."""
+        state = self.session.state
+        self.stream.append(encode_stats(state.time, state.frame, timings, forces))
 
     def close(self, status: str = "complete"):
         """Append ``session_end`` (status, frames, checksum) and close the file."""

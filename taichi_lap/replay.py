@@ -30,6 +30,7 @@ from taichi_lap.recording import (
     RECORD_HEAD,
     TAG_EVENT,
     TAG_FRAME,
+    TAG_STATS,
     TAG_TICK,
     TICK_HEAD,
     TICK_TOOL,
@@ -71,14 +72,16 @@ class Tick:
 
 @dataclass
 class Recording:
-    """A recording as read: events (``session_start`` first), frames and ticks in file
-    order; ``truncated_at`` is the byte offset of an incomplete last record."""
+    """A recording as read: events (``session_start`` first), frames, ticks and
+    per-frame statistics in file order; ``truncated_at`` is the byte offset of an
+    incomplete last record."""
 
     path: str
     version: int
     events: list[dict] = field(default_factory=list)
     frames: list[Frame] = field(default_factory=list)
     ticks: list[Tick] = field(default_factory=list)
+    stats: list[dict] = field(default_factory=list)
     truncated_at: int | None = None
 
     @property
@@ -237,6 +240,21 @@ def _decode_event(payload: bytes) -> dict:
     return event
 
 
+def _decode_stats(payload: bytes, tools: list[str]) -> dict:
+    try:
+        stats = json.loads(payload.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"statistics as UTF-8 JSON were expected, found {exc}") from None
+    if not isinstance(stats, dict) or not {"time", "frame", "stages", "forces"} <= set(stats):
+        raise ValueError(
+            f"statistics with time, frame, stages and forces were expected, found {payload[:60]!r}"
+        )
+    unknown = sorted(set(stats["forces"]) - set(tools))
+    if unknown:
+        raise ValueError(f"forces on the recorded tools were expected, found {unknown}")
+    return stats
+
+
 def _expect_size(payload: bytes, size: int, what: str, *, at_least: bool = False):
     if len(payload) < size or (len(payload) > size and not at_least):
         raise ValueError(f"{size} bytes for {what} were expected, found {len(payload)}")
@@ -312,6 +330,8 @@ def _read(path: str, file, ticks: bool) -> Recording:
                 recording.frames.append(_decode_frame(payload, recording.tools))
             elif tag == TAG_TICK and ticks:
                 recording.ticks.append(_decode_tick(payload, recording.tools))
+            elif tag == TAG_STATS:
+                recording.stats.append(_decode_stats(payload, recording.tools))
         except ValueError as exc:
             raise InputError(path, key, str(exc)) from None
         offset += RECORD_HEAD.size + length + CRC.size

@@ -75,6 +75,17 @@ def test_replay_reproduces_the_recorded_final_state(recorded, tmp_path, capsys):
     assert f"replay matches {recorded}" in out and f"after {FRAMES} frames" in out
 
 
+def test_each_recorded_frame_has_its_stage_times_and_tool_force(recorded):
+    stats = read_recording(recorded).stats
+    assert [s["frame"] for s in stats] == list(range(1, FRAMES + 1))
+    assert all({"physics", "render"} <= set(s["stages"]) for s in stats)
+    assert all(s["stages"]["physics"] > 0.0 for s in stats)
+    force = np.linalg.norm([s["forces"]["probe"] for s in stats], axis=1)
+    assert np.isfinite(force).all()
+    assert force[:15].max() == 0.0  # the probe comes down through the air
+    assert force[56:].max() > 0.1  # and pushes the intestine from frame 56
+
+
 def test_replayed_state_arrays_equal_a_scripted_run(recorded, scene):
     recording = read_recording(recorded)
     assert len(recording.frames) == FRAMES and recording.end["status"] == "complete"
@@ -95,7 +106,8 @@ def test_replayed_state_arrays_equal_a_scripted_run(recorded, scene):
 def test_a_diverging_replay_is_reported_with_status_1(recorded, tmp_path, capsys):
     data = recorded.read_bytes()
     frames = 5
-    cut = record_bounds(data)[2 + frames - 1][1]  # session_start, device, five frames
+    # session_start, device, then five frames, each with its statistics
+    cut = record_bounds(data)[2 + 2 * frames - 1][1]
     forged = tmp_path / "forged.tlap"
     forged.write_bytes(
         data[:cut]
@@ -126,7 +138,8 @@ def test_a_cut_file_reads_up_to_its_last_complete_record_and_warns(recorded, tmp
         with caplog.at_level(logging.WARNING, logger="taichi_lap"):
             recording = read_recording(cut_file)
         complete = [b for b in bounds if b[1] <= cut]
-        assert len(recording.events) + len(recording.frames) == len(complete)
+        read = len(recording.events) + len(recording.frames) + len(recording.stats)
+        assert read == len(complete)
         assert recording.truncated_at == complete[-1][1]
         assert f"truncated at byte {recording.truncated_at}" in caplog.text
     cut_file.write_bytes(data[: bounds[20][1]] + bytes(500))  # power cut: a zero-filled tail
