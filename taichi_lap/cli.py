@@ -1,4 +1,4 @@
-"""The ``taichi-lap`` command line: run, render, check, bench, list, info.
+"""The ``taichi-lap`` command line: run, render, check, bench, report, list, info.
 
 Exit status 0 on success, 2 on bad input (one line on stderr:
 ``error: FILE: KEY: what was expected, what was found``), 1 on an internal error
@@ -92,6 +92,13 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument(
         "--only", default=None, help="comma-separated benchmarks (default: all of them)"
     )
+
+    report = sub.add_parser(
+        "report", help="score recorded sessions: an HTML page with plots, and the numbers"
+    )
+    report.add_argument("sessions", nargs="+", metavar="SESSION.tlap", help="recordings, in order")
+    report.add_argument("--out", default="report.html", help="the HTML page to write")
+    report.add_argument("--json", default=None, metavar="PATH", help="also write the numbers")
 
     sub.add_parser("list", help="list the built-in scenes")
     sub.add_parser("info", help="versions, backends and devices")
@@ -377,6 +384,17 @@ def cmd_bench(args) -> int:
     return 1 if failed else 0
 
 
+def cmd_report(args) -> int:
+    from taichi_lap.training.report import write_report
+
+    numbers = write_report(args.sessions, args.out, args.json)
+    for session in numbers["sessions"]:
+        mark = "" if session["complete"] else f" ({session['status']})"
+        print(f"{session['path']}: {session['frames']} frames, {session['duration']:.2f} s{mark}")
+    print(f"wrote {args.out}" + (f" and {args.json}" if args.json else ""))
+    return 0
+
+
 COMMANDS = {
     "run": cmd_run,
     "render": cmd_render,
@@ -384,6 +402,7 @@ COMMANDS = {
     "list": cmd_list,
     "info": cmd_info,
     "bench": cmd_bench,
+    "report": cmd_report,
 }
 
 

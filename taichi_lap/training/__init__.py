@@ -1,0 +1,2 @@
+"""Training: skill metrics of recorded sessions (:mod:`.metrics`) and the session
+report (:mod:`.report`)."""
