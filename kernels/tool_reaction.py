@@ -1,5 +1,5 @@
 """The force the tissue pushes a tool with, for the haptic coupling (seed 002 §3.4;
-:mod:`taichi_lap.haptics.bridge`).
+:mod:`taichi_lap.haptics.bridge`), and which organs touch it.
 
 PBD has no forces: each constraint moves its particles by a correction Δ per
 substep h. Read as the force that would move the particle's haptic mass r m by Δ in
@@ -38,7 +38,7 @@ def constraint_pull(model: ti.template(), state: ti.template(), i, h):
 
 
 @ti.kernel
-def measure_tool_reaction(
+def measure_tool_contact(
     model: ti.template(), state: ti.template(), control: ti.template(), k: ti.i32, h: ti.f32
 ):
     """``control.tool_reaction[k]``: the force [N] the tissue touching tool k pushes it
@@ -46,8 +46,12 @@ def measure_tool_reaction(
     :func:`constraint_pull`, weighted 1 up to a particle radius from the tool's
     contact surface and down to 0 a radius further (a particle crossing that edge
     changes the force smoothly; a hard edge left a 10 % ripple in a held stylus's
-    force). Reads x, goal, collided (after a step)."""
+    force); ``control.tool_contacts[k, organ]``: how many of those particles (weight
+    above 0) each organ has (the training metrics' instrument contacts). Reads x,
+    goal, collided (after a step)."""
     control.tool_reaction[k] = ti.Vector([0.0, 0.0, 0.0])
+    for organ in range(control.tool_contacts.shape[1]):
+        control.tool_contacts[k, organ] = 0
     pose = control_pose(control, k)
     for i in range(model.particle_count):
         if state.collided[i] and model.inv_mass[i] > 0.0:
@@ -56,3 +60,4 @@ def measure_tool_reaction(
             weight = ti.min(1.0, (reach - dist) / model.radius[i])
             if weight > 0.0:
                 control.tool_reaction[k] += weight * constraint_pull(model, state, i, h)
+                ti.atomic_add(control.tool_contacts[k, model.particle_organ[i]], 1)

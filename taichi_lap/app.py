@@ -25,12 +25,16 @@ def _render(session: Session, renderer: Renderer):
 
 
 def _record_stats(session: Session, recorder: SessionRecorder | None):
-    """After a frame was stepped and drawn: its stage times and the force the tissue
-    pushed each tool with go to the recording."""
+    """After a frame was stepped and drawn: its stage times, the force the tissue
+    pushed each tool with and the organs touching each go to the recording."""
     if recorder is None:
         return
-    forces = {tool["name"]: session.tool_reaction(k) for k, tool in enumerate(session.scene.tools)}
-    recorder.record_stats(session.timings, forces)
+    contact = {tool["name"]: session.tool_contact(k) for k, tool in enumerate(session.scene.tools)}
+    recorder.record_stats(
+        session.timings,
+        {name: force for name, (force, _) in contact.items()},
+        {name: touching for name, (_, touching) in contact.items()},
+    )
 
 
 def _advance(

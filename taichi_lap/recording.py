@@ -16,8 +16,8 @@ tag    record   payload
 ``T``  tick     a haptic servo tick: f64 clock [s, monotonic], u8 count, then per tool:
                 u8 tool index, f32[3] tip [m], f32[3] direction, u32 buttons, f32[3] force [N]
 ``S``  stats    UTF-8 JSON ``{"time" [s], "frame", "stages": {stage: wall time [ms]},
-                "forces": {tool: [N, N, N]}}`` of the frame that just ended (after its
-                frame record and events)
+                "forces": {tool: [N, N, N]}, "contacts": {tool: {organ: particles}}}``
+                of the frame that just ended (after its frame record and events)
 =====  =======  ==========================================================================
 
 The first record is the ``session_start`` event: scene name and source, ``digest``
@@ -169,17 +169,26 @@ def encode_frame(
 
 
 def encode_stats(
-    time: float, frame: int, timings: dict[str, float], forces: dict[str, np.ndarray]
+    time: float,
+    frame: int,
+    timings: dict[str, float],
+    forces: dict[str, np.ndarray],
+    contacts: dict[str, dict[str, int]] | None = None,
 ) -> bytes:
     """A statistics record of the frame that ended at ``time`` [s]: the wall time
-    [ms] of each stage (``physics``, ``topology``, ``heat``, ``render``, ...) and the
-    force [N] the tissue pushed each tool with (by name). The training metrics read
-    it (:mod:`taichi_lap.training.metrics`); replay does not need it."""
+    [ms] of each stage (``physics``, ``topology``, ``heat``, ``render``, ...), the
+    force [N] the tissue pushed each tool with and, per tool, the particles of each
+    organ touching it (by name; organs not touching it left out). The training
+    metrics read it (:mod:`taichi_lap.training.metrics`); replay does not need it."""
     stats = {
         "time": float(time),
         "frame": int(frame),
         "stages": {name: float(ms) for name, ms in timings.items()},
         "forces": {name: [float(f) for f in force] for name, force in forces.items()},
+        "contacts": {
+            name: {organ: int(n) for organ, n in touching.items()}
+            for name, touching in (contacts or {}).items()
+        },
     }
     return encode_record(TAG_STATS, json.dumps(stats).encode())
 
@@ -356,12 +365,17 @@ class SessionRecorder:
         self.stream.append(encode_frame(state.time, state.frame, monotonic(), placed, buttons))
         self.stream.flush()
 
-    def record_stats(self, timings: dict[str, float], forces: dict[str, np.ndarray]):
+    def record_stats(
+        self,
+        timings: dict[str, float],
+        forces: dict[str, np.ndarray],
+        contacts: dict[str, dict[str, int]],
+    ):
         """Append the statistics of the frame just stepped (:func:`encode_stats`):
-        ``timings`` [ms] per stage and the force [N] on each tool; written with the
-        next frame."""
+        ``timings`` [ms] per stage, the force [N] on each tool and the particles of
+        each organ touching it; written with the next frame."""
         state = self.session.state
-        self.stream.append(encode_stats(state.time, state.frame, timings, forces))
+        self.stream.append(encode_stats(state.time, state.frame, timings, forces, contacts))
 
     def close(self, status: str = "complete"):
         """Append ``session_end`` (status, frames, checksum) and close the file."""

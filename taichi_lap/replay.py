@@ -42,6 +42,7 @@ from taichi_lap.recording import (
 
 log = logging.getLogger("taichi_lap")
 
+STATS_FIELDS = ("time", "frame", "stages", "forces", "contacts")
 REQUIRED_FIELDS = {
     "session_start": ("source", "digest", "raw_scene", "arch", "threads", "versions", "tools"),
     "session_end": ("status", "frames", "checksum"),
@@ -245,13 +246,13 @@ def _decode_stats(payload: bytes, tools: list[str]) -> dict:
         stats = json.loads(payload.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"statistics as UTF-8 JSON were expected, found {exc}") from None
-    if not isinstance(stats, dict) or not {"time", "frame", "stages", "forces"} <= set(stats):
+    if not isinstance(stats, dict) or not set(STATS_FIELDS) <= set(stats):
         raise ValueError(
-            f"statistics with time, frame, stages and forces were expected, found {payload[:60]!r}"
+            f"statistics with {', '.join(STATS_FIELDS)} were expected, found {payload[:60]!r}"
         )
-    unknown = sorted(set(stats["forces"]) - set(tools))
+    unknown = sorted((set(stats["forces"]) | set(stats["contacts"])) - set(tools))
     if unknown:
-        raise ValueError(f"forces on the recorded tools were expected, found {unknown}")
+        raise ValueError(f"the recorded tools were expected, found {unknown}")
     return stats
 
 

@@ -606,7 +606,15 @@ class Session:
     def tool_reaction(self, tool: int) -> np.ndarray:
         """The force [N] (3,) the tissue pushed scene tool ``tool`` (an index) with at
         the end of the last step."""
-        return self.solver.tool_reaction(self.state, self.control, tool, self.dt)
+        return self.tool_contact(tool)[0]
+
+    def tool_contact(self, tool: int) -> tuple[np.ndarray, dict[str, int]]:
+        """``(force, touching)`` of scene tool ``tool`` (an index) at the end of the last
+        step: the force [N] (3,) the tissue pushed it with and, by organ name, the
+        particles of each organ touching it (organs that touch it only)."""
+        force, touching = self.solver.tool_contact(self.state, self.control, tool, self.dt)
+        organs = self.data.organs
+        return force, {organs[k].name: int(n) for k, n in enumerate(touching) if n}
 
 
 def _take_parked(key: str) -> _Parts | None:

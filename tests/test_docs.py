@@ -18,6 +18,8 @@ TABLES = {
     "geometry": scene_mod.GEOMETRY_COMMON,
     "mesh": scene_mod.MESH_PARAMS,
     "attachments": scene_mod.ATTACHMENT_PARAMS,
+    "task": scene_mod.TASK_PARAMS,
+    "task pass": scene_mod.TASK_PASS_PARAMS,
     **{f"material {m}": p for m, p in scene_mod.MATERIAL_PARAMS.items()},
     **{f"generator {g.name}": g.params for g in GENERATORS.values()},
 }

@@ -84,6 +84,10 @@ def test_each_recorded_frame_has_its_stage_times_and_tool_force(recorded):
     assert np.isfinite(force).all()
     assert force[:15].max() == 0.0  # the probe comes down through the air
     assert force[56:].max() > 0.1  # and pushes the intestine from frame 56
+    # the particles pushing it are the ones counted as touching it (the one organ)
+    touching = np.array([s["contacts"]["probe"].get("intestine", 0) for s in stats])
+    assert all(set(s["contacts"]["probe"]) <= {"intestine"} for s in stats)
+    np.testing.assert_array_equal(touching > 0, force > 0.0)
 
 
 def test_replayed_state_arrays_equal_a_scripted_run(recorded, scene):

@@ -4,11 +4,13 @@ planted events, and files cut short or damaged."""
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from taichi_lap.cli import main
+from taichi_lap.core.errors import InputError
 from taichi_lap.devices import Pose
 from taichi_lap.recording import (
     CRC,
@@ -20,6 +22,7 @@ from taichi_lap.recording import (
     encode_stats,
 )
 from taichi_lap.replay import read_recording
+from taichi_lap.scene import validate
 from taichi_lap.training.metrics import IDLE_SPEED, session_metrics
 from taichi_lap.training.report import report_html
 
@@ -36,10 +39,12 @@ def write_session(
     ticks=(),
     stats=(),
     end: bool = True,
+    raw_scene=None,
 ):
     """A recording of ``tips`` (per tool, (frames, 3) [m]) one frame per DT, with
     ``events`` ``(frame, kind, fields)`` after their frame, haptic ``ticks``
-    ``(clock, tool, force)`` and ``stats`` ``(frame, stages, forces)``."""
+    ``(clock, tool, force)`` and ``stats`` ``(frame, stages, forces[, contacts])``,
+    of the scene ``raw_scene`` (its TOML tables)."""
     tools = list(tips)
     start = encode_event(
         "session_start",
@@ -48,7 +53,7 @@ def write_session(
         scene="synthetic",
         source="synthetic.toml",
         digest="0" * 64,
-        raw_scene={},
+        raw_scene=raw_scene or {},
         dt=DT,
         arch="cpu",
         threads=1,
@@ -68,9 +73,9 @@ def write_session(
         for frame, kind, fields in events:
             if frame == k:
                 stream.append(encode_event(kind, time=(k + 1) * DT, frame=k + 1, **fields))
-        for frame, stages, forces in stats:
+        for frame, stages, forces, *contacts in stats:
             if frame == k:
-                stream.append(encode_stats((k + 1) * DT, k + 1, stages, forces))
+                stream.append(encode_stats((k + 1) * DT, k + 1, stages, forces, *contacts))
     if end:
         stream.append(
             encode_event(
@@ -263,3 +268,114 @@ def test_a_damaged_or_foreign_file_is_one_line_with_status_2(tmp_path, capsys):
         assert err.startswith(f"error: {path}") and expected in err
         assert err.count("\n") == 1 and "Traceback" not in err
     assert not (tmp_path / "r.html").exists()
+
+
+TASK_SCENE = {
+    "organs": [{"name": "colon"}, {"name": "vessel"}],
+    "task": {
+        "name": "Expose the colon",
+        "instructions": "Lift the loop off the colon; do not touch the vessel.",
+        "time_limit": 1.5,
+        "forbidden": ["vessel"],
+        "pass": {"path_length": 0.2, "forbidden_contacts": 0, "peak_force": 1.0},
+    },
+}
+
+
+def touching(frames: int, pattern: dict[str, list[int]]) -> list[tuple]:
+    """Statistics records where the probe touches each organ of ``pattern`` with the
+    particle counts given per frame (0: not touching)."""
+    return [
+        (
+            k,
+            {"physics": 1.0},
+            {"probe": [0.0, 0.3, 0.0]},
+            {"probe": {organ: counts[k] for organ, counts in pattern.items() if counts[k]}},
+        )
+        for k in range(frames)
+    ]
+
+
+def test_organ_contacts_count_the_contacts_begun_and_their_time(tmp_path):
+    pattern = {"colon": [0, 3, 5, 0, 0, 2, 0, 1, 1, 1], "vessel": [1, 0, 0, 0, 0, 0, 0, 0, 0, 0]}
+    path = write_session(
+        tmp_path / "t.tlap",
+        {"probe": line([0.0, 0.0, 0.0], [0.01, 0.0, 0.0], 10)},
+        stats=touching(10, pattern),
+    )
+    touched = session_metrics(read_recording(path)).instruments["probe"].touched
+    assert touched == {
+        "colon": {"time": pytest.approx(6 * DT), "contacts": 3},
+        "vessel": {"time": pytest.approx(DT), "contacts": 1},  # touching from the start
+    }
+
+
+def test_a_task_passes_within_its_bounds_and_fails_naming_the_bound_it_broke(tmp_path):
+    frames = 100  # 1 s, within the time limit
+    careful = {"colon": [1] * frames, "vessel": [0] * frames}
+    expert = write_session(
+        tmp_path / "expert.tlap",
+        {"probe": line([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], frames)},
+        stats=touching(frames, careful),
+        raw_scene=TASK_SCENE,
+    )
+    task = session_metrics(read_recording(expert)).task
+    assert task["passed"] and task["name"] == "Expose the colon"
+    assert [c["metric"] for c in task["checks"]] == [
+        "time_limit",
+        "path_length",
+        "peak_force",
+        "forbidden_contacts",
+    ]
+    assert all(c["passed"] for c in task["checks"])
+
+    careless = {"colon": [1] * frames, "vessel": [0] * 40 + [2] * 5 + [0] * 30 + [1] * 25}
+    slow = 2 * frames  # 2 s, past the time limit
+    careless_path = write_session(
+        tmp_path / "careless.tlap",
+        {"probe": line([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], slow)},
+        stats=touching(frames, careless),
+        raw_scene=TASK_SCENE,
+    )
+    task = session_metrics(read_recording(careless_path)).task
+    failed = {c["metric"]: c["value"] for c in task["checks"] if not c["passed"]}
+    assert not task["passed"]
+    assert failed == {"time_limit": pytest.approx(2.0), "forbidden_contacts": 2}
+    assert task["forbidden_contacts"] == 2
+    page = report_html([session_metrics(read_recording(careless_path))])
+    assert "Task: Expose the colon (<span class='incomplete'>failed</span>)" in page
+    assert "vessel (forbidden)" in page
+
+    unfinished = write_session(
+        tmp_path / "unfinished.tlap",
+        {"probe": line([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], frames)},
+        stats=touching(frames, careful),
+        raw_scene=TASK_SCENE,
+        end=False,
+    )
+    task = session_metrics(read_recording(unfinished)).task
+    assert all(c["passed"] for c in task["checks"]) and not task["passed"]
+
+
+@pytest.mark.parametrize(
+    "task, key, message",
+    [
+        ({"forbidden": ["liver"]}, "task.forbidden[0]", "an organ in this scene (colon, vessel)"),
+        ({"forbidden": "vessel"}, "task.forbidden", "an array of strings was expected"),
+        ({"pass": {"speed": 1.0}}, "task.pass.speed", "unknown key in task.pass"),
+        ({"pass": {"economy": 0.5}}, "task.pass.economy", "a value in [1, 10000]"),
+        ({"time_limit": -1.0}, "task.time_limit", "a value in [0, 86400] s"),
+    ],
+)
+def test_a_bad_task_table_names_its_key(task, key, message):
+    organs = [
+        {
+            "name": name,
+            "model": "tet_clusters",
+            "geometry": {"generator": "box", "half_extents": [0.01, 0.01, 0.01]},
+        }
+        for name in ("colon", "vessel")
+    ]
+    with pytest.raises(InputError) as error:
+        validate({"scene": {"name": "t"}, "organs": organs, "task": task}, "t.toml", Path("."))
+    assert error.value.key == key and message in error.value.message

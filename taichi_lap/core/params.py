@@ -15,7 +15,7 @@ from typing import Any
 
 from taichi_lap.core.errors import InputError
 
-KINDS = ("float", "int", "bool", "str", "vec3", "vec3list", "intlist")
+KINDS = ("float", "int", "bool", "str", "strlist", "vec3", "vec3list", "intlist")
 
 REQUIRED = object()
 """Marks a :class:`Param` default that must be given in the file."""
@@ -97,6 +97,17 @@ def check_value(file: str, key: str, value: Any, param: Param) -> Any:
                 file, key, f"one of {', '.join(param.choices)} was expected, found {value!r}"
             )
         return value
+    if kind == "strlist":
+        if not isinstance(value, list):
+            raise InputError(
+                file, key, f"an array of strings was expected, found {describe(value)}"
+            )
+        for k, item in enumerate(value):
+            if not isinstance(item, str):
+                raise InputError(
+                    file, f"{key}[{k}]", f"a string was expected, found {describe(item)}"
+                )
+        return list(value)
     if kind == "vec3":
         return _vec3(file, key, value, param)
     if kind == "vec3list":

@@ -40,6 +40,7 @@ from taichi_lap.core.mesh import (
 )
 
 VOLUME_TOLERANCE = 1e-9
+MAX_ORGANS = 32  # organs of a scene (the tools' contacts are counted per organ)
 """Relative tolerance of the removed-volume balance (of the organs' rest volume)."""
 
 

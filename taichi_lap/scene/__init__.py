@@ -18,6 +18,7 @@ from typing import Any
 from taichi_lap.core.errors import InputError
 from taichi_lap.core.instruments import MAX_TOOLS
 from taichi_lap.core.params import REQUIRED, Param, check_table, check_value, describe
+from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.scene.keyframes import read_keyframes
 from taichi_lap.scene.schema import (
     ATTACHMENT_PARAMS,
@@ -29,6 +30,8 @@ from taichi_lap.scene.schema import (
     ORGAN_PARAMS,
     PLANE_PARAMS,
     SCENE_PARAMS,
+    TASK_PARAMS,
+    TASK_PASS_PARAMS,
     TOOL_PARAMS,
     UNITS,
 )
@@ -88,6 +91,7 @@ class Scene:
     tools: list[dict[str, Any]]
     organs: list[OrganSpec]
     raw: dict[str, Any]
+    task: dict[str, Any] | None = None  # the [task] table, if the scene has one
 
 
 def builtin_names() -> list[str]:
@@ -192,7 +196,7 @@ def _list_of_tables(source: str, key: str, value: Any) -> list[dict]:
 
 def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     """Check a parsed scene; return the :class:`Scene` with every default filled in."""
-    known = {"scene", "camera", "environment", "tools", "organs"}
+    known = {"scene", "camera", "environment", "tools", "organs", "task"}
     for key in raw:
         if key not in known:
             raise InputError(
@@ -220,8 +224,17 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     organ_tables = _list_of_tables(source, "organs", raw.get("organs", []))
     if not organ_tables:
         raise InputError(source, "organs", "at least one [[organs]] table was expected, found none")
+    if len(organ_tables) > MAX_ORGANS:
+        raise InputError(
+            source,
+            "organs",
+            f"at most {MAX_ORGANS} organs were expected, found {len(organ_tables)}",
+        )
     organs = [_organ(source, directory, f"organs[{k}]", t) for k, t in enumerate(organ_tables)]
     _check_names(source, organs, tools)
+    task = (
+        check_task(source, "task", raw["task"], [o.name for o in organs]) if "task" in raw else None
+    )
     return Scene(
         source=source,
         directory=directory,
@@ -231,7 +244,25 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
         tools=tools,
         organs=organs,
         raw=copy.deepcopy(raw),
+        task=task,
     )
+
+
+def check_task(source: str, key: str, table: Any, organ_names: list[str]) -> dict[str, Any]:
+    """A ``[task]`` table (:data:`TASK_PARAMS`, its ``pass`` thresholds
+    :data:`TASK_PASS_PARAMS`) with defaults filled in; its ``forbidden`` organs must
+    be organs of the scene (``organ_names``)."""
+    task = check_table(source, key, table, TASK_PARAMS, ignore=("pass",))
+    task["pass"] = check_table(source, f"{key}.pass", table.get("pass", {}), TASK_PASS_PARAMS)
+    for k, name in enumerate(task["forbidden"]):
+        if name not in organ_names:
+            raise InputError(
+                source,
+                f"{key}.forbidden[{k}]",
+                f"the name of an organ in this scene ({', '.join(organ_names)}) was expected, "
+                f"found {name!r}",
+            )
+    return task
 
 
 def _tools(source: str, tables: list[dict]) -> list[dict]:

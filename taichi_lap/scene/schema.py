@@ -315,3 +315,41 @@ ATTACHMENT_PARAMS = {
     ),
     "organ": Param("str", None, "join: the organ to tie to"),
 }
+TASK_PARAMS = {
+    "name": Param("str", "", "the task's title"),
+    "instructions": Param("str", "", "what the trainee is asked to do"),
+    "time_limit": Param(
+        "float",
+        0.0,
+        "the task is failed past this time (0: no limit)",
+        lo=0.0,
+        hi=86400.0,
+        unit="s",
+    ),
+    "forbidden": Param(
+        "strlist", [], "organs the instruments must not touch (instrument contacts counted)"
+    ),
+}
+TASK_PASS_PARAMS = {  # upper bounds; a metric without one is reported, not judged
+    "path_length": Param(
+        "float", None, "instrument path length, all instruments", lo=0.0, hi=1e4, unit="m"
+    ),
+    "economy": Param(
+        "float", None, "economy of motion of the least economical instrument", lo=1.0, hi=1e4
+    ),
+    "idle_time": Param("float", None, "idle time, all instruments", lo=0.0, hi=86400.0, unit="s"),
+    "peak_force": Param("float", None, "peak tool force", lo=0.0, hi=1e4, unit="N"),
+    "mean_contact_force": Param(
+        "float",
+        None,
+        "mean tool force in contact, largest of the instruments",
+        lo=0.0,
+        hi=1e4,
+        unit="N",
+    ),
+    "forbidden_contacts": Param(
+        "int", None, "instrument contacts with forbidden organs", lo=0, hi=1_000_000
+    ),
+    "vessel_damage": Param("int", None, "vessel damage events", lo=0, hi=1_000_000),
+    "tears": Param("int", None, "tear events", lo=0, hi=1_000_000),
+}

@@ -26,6 +26,7 @@ from taichi_lap.core.instruments import (
     ToolGeometry,
     ToolShape,
 )
+from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.kernels.collision.tool_shapes import ToolPose, interpolate_tools, place_tool
 
 
@@ -74,8 +75,9 @@ class Control(FieldOwner):
     (``tool_start``) and the one it goes to (``tool_goal``); the solver places it in
     between for every substep (:meth:`advance`), ``tool_last`` holding its pose at
     the substep's start. Between steps the Control entry is the goal.
-    ``tool_reaction`` [N]: the force the tissue pushes a tool with, where
-    :meth:`Solver.tool_reaction` measured it."""
+    ``tool_reaction`` [N]: the force the tissue pushes a tool with, and
+    ``tool_contacts`` (a row per tool, a column per organ): the particles of each organ
+    touching it, where :meth:`Solver.tool_contact` measured them."""
 
     def __init__(self):
         group = FieldGroup()
@@ -98,6 +100,7 @@ class Control(FieldOwner):
         self.tool_goal = group.field(ToolPose, MAX_TOOLS)
         self.tool_last = group.field(ToolPose, MAX_TOOLS)
         self.tool_reaction = group.field(ti.f32, MAX_TOOLS, vector=3)
+        self.tool_contacts = group.field(ti.i32, MAX_TOOLS, columns=MAX_ORGANS)
         group.finalize()
         self._group = group
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]

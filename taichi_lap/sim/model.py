@@ -19,6 +19,7 @@ from taichi_lap.core.csr import both_ends, incidence, rows_of_extents
 from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows
 from taichi_lap.core.mesh import incident_table
+from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.kernels.scatter import RowWrites
 from taichi_lap.preprocess.model_data import ModelData
 
@@ -151,6 +152,19 @@ def cluster_tables(
     }
 
 
+def particle_organs(data: ModelData) -> np.ndarray:
+    """Each particle's organ (an index of ``data.organs``): the organs' particle ranges
+    cover the particle array, the rows a cut takes for new particles included."""
+    if len(data.organs) > MAX_ORGANS:
+        raise ValueError(f"at most {MAX_ORGANS} organs were expected, found {len(data.organs)}")
+    organ = np.full(data.particle_count, -1, dtype=np.int32)
+    for k, record in enumerate(data.organs):
+        organ[record.particles[0] : record.particles[1]] = k
+    if (organ < 0).any():
+        raise ValueError(f"particles outside every organ's range: {np.flatnonzero(organ < 0)[:5]}")
+    return organ
+
+
 def volume_cut_rows(data) -> dict[str, int]:
     """Member and chunk rows to add for the volume cuts of ``data``'s organs that can
     be cut through (a cut reserve and tets, :mod:`taichi_lap.dissection.volume_cut`):
@@ -213,6 +227,7 @@ class Model(FieldOwner):
         self.dissectable = len(data.tets) > 0 or self.cuttable
         self.radius = self._floats(data.radius)
         self.contact_radius = self._floats(data.contact_radius())
+        self.particle_organ = self._ints(particle_organs(data))
         for name, values in data.material.items():
             setattr(self, name, self._floats(values))
 

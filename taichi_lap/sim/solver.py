@@ -43,7 +43,7 @@ from taichi_lap.core.instruments import JAW_REACH, MAX_TOOLS
 from taichi_lap.kernels import distance, grasp, shape_matching, skinning
 from taichi_lap.kernels.collision import particle_contact
 from taichi_lap.kernels.health import NO_FAULT
-from taichi_lap.kernels.tool_reaction import measure_tool_reaction
+from taichi_lap.kernels.tool_reaction import measure_tool_contact
 from taichi_lap.scene.schema import SCENE_PARAMS
 from taichi_lap.sim.control import Control
 from taichi_lap.sim.model import Model
@@ -157,12 +157,16 @@ class Solver:
         state.frame += 1
         self.check_health(state)
 
-    def tool_reaction(self, state: State, control: Control, tool: int, dt: float) -> np.ndarray:
-        """The force [N] (3,) the tissue pushed tool ``tool`` with at the end of the last
-        step of ``dt`` [s] (:func:`~taichi_lap.kernels.tool_reaction.measure_tool_reaction`)."""
+    def tool_contact(
+        self, state: State, control: Control, tool: int, dt: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(force, touching)`` at the end of the last step of ``dt`` [s]: the force [N]
+        (3,) the tissue pushed tool ``tool`` with, and per organ of the model the
+        particles touching it (:func:`~taichi_lap.kernels.tool_reaction.measure_tool_contact`)."""
         h = dt / self.settings.substeps
-        measure_tool_reaction(self.model, state, control, tool, h)
-        return control.tool_reaction.to_numpy()[tool].astype(np.float64)
+        measure_tool_contact(self.model, state, control, tool, h)
+        force = control.tool_reaction.to_numpy()[tool].astype(np.float64)
+        return force, control.tool_contacts.to_numpy()[tool, : len(self.model.data.organs)]
 
     def reset(self, *, pairs: bool = False):
         """Forget what the collision pipelines carry from frame to frame (after the

@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from taichi_lap.replay import Recording
+from taichi_lap.training.task import judge_task, recorded_task
 
 IDLE_SPEED = 0.005  # [m/s]: an instrument tip slower than this is idle
 STOP_TIME = 0.25  # [s]: idle this long, the instrument stopped at a waypoint
@@ -59,6 +60,7 @@ class InstrumentMetrics:
     peak_force: float  # [N]
     contact_time: float  # [s] force above CONTACT_FORCE
     cautery_time: float  # [s] energised
+    touched: dict[str, dict[str, float]]  # per organ: "time" [s] touching, "contacts" begun
 
 
 @dataclass
@@ -83,6 +85,7 @@ class SessionMetrics:
     timeline: list[dict] = field(repr=False)  # the counted events in order
     stats_time: np.ndarray = field(repr=False)  # [s] end of each frame with statistics
     stage_series: dict[str, np.ndarray] = field(repr=False)  # per stage, ms per frame
+    task: dict | None = None  # the task's result (training.task.judge_task), if any
 
     def numbers(self) -> dict:
         """The metrics as JSON data (no series)."""
@@ -97,6 +100,7 @@ class SessionMetrics:
             "instruments": {name: asdict(m) for name, m in self.instruments.items()},
             "events": self.events,
             "stages": self.stages,
+            "task": self.task,
         }
 
 
@@ -175,6 +179,21 @@ def tool_forces(recording: Recording, tool: str, session_time) -> ForceSeries:
     return ForceSeries("none", np.zeros(0), np.zeros(0))
 
 
+def organ_contacts(recording: Recording, tool: str) -> dict[str, dict[str, float]]:
+    """Per organ that touched ``tool`` (statistics records): the time [s] it touched
+    it (each record stands for its frame's dt) and how many contacts began (frames
+    touching after one that did not; a session that starts touching counts one)."""
+    dt = float(recording.start.get("dt", 0.0))
+    touching = [s["contacts"].get(tool, {}) for s in recording.stats]
+    organs = sorted({organ for frame in touching for organ in frame})
+    found = {}
+    for organ in organs:
+        touched = np.array([frame.get(organ, 0) > 0 for frame in touching])
+        began = int(touched[0]) + int((touched[1:] & ~touched[:-1]).sum())
+        found[organ] = {"time": float(touched.sum() * dt), "contacts": began}
+    return found
+
+
 def cautery_time(events: list[dict], tool: str, end: float) -> float:
     """Seconds ``tool`` was energised: from each ``cautery_on`` to its
     ``cautery_off``, or to ``end`` [s] when the session ended energised."""
@@ -230,6 +249,7 @@ def session_metrics(recording: Recording) -> SessionMetrics:
             force_source=forces[tool].source,
             **force_metrics(forces[tool]),
             cautery_time=cautery_time(recording.events, tool, end_time),
+            touched=organ_contacts(recording, tool),
         )
     timeline = [e for e in recording.events if e["kind"] in COUNTED_EVENTS]
     events = {kind: sum(e["kind"] == kind for e in timeline) for kind in COUNTED_EVENTS}
@@ -247,7 +267,7 @@ def session_metrics(recording: Recording) -> SessionMetrics:
         for name, series in stage_series.items()
     }
     status, complete = session_status(recording)
-    return SessionMetrics(
+    metrics = SessionMetrics(
         path=recording.path,
         scene=str(start.get("scene", start["source"])),
         started=str(start.get("started", "")),
@@ -265,3 +285,7 @@ def session_metrics(recording: Recording) -> SessionMetrics:
         stats_time=np.array([s["time"] for s in recording.stats]),
         stage_series=stage_series,
     )
+    task = recorded_task(recording)
+    if task is not None:
+        metrics.task = judge_task(task, metrics)
+    return metrics

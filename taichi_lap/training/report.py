@@ -117,13 +117,55 @@ def _session_section(number: int, m: SessionMetrics) -> list[str]:
         ("duration [s]", f"{m.duration:.2f}"),
     ]
     parts = [f"<h2>Session {number}: {html.escape(m.scene)}</h2>", _table(None, rows)]
+    parts += _task_section(m.task)
     parts += ["<h3>Instruments</h3>", _instrument_table(m)]
+    parts += ["<h3>Organs touched</h3>", _touched_table(m)]
     parts += ["<h3>Events</h3>", _table(("event", "count"), list(m.events.items()))]
     parts += ["<h3>Force on each tool</h3>", _image(_force_plot(m), "force over time")]
     parts += ["<h3>Instrument paths</h3>", _image(_path_plot(m), "instrument paths")]
     parts += ["<h3>Event timeline</h3>", _image(_timeline_plot(m), "event timeline")]
     parts += ["<h3>Cost per frame by stage</h3>", _image(_stage_plot(m), "stage cost")]
     return parts
+
+
+def _task_section(task: dict | None) -> list[str]:
+    """The task's verdict and its checks, or a line saying the scene has no task."""
+    if task is None:
+        return ["<h3>Task</h3>", "<p>The scene has no task: nothing is judged.</p>"]
+    verdict = "passed" if task["passed"] else "<span class='incomplete'>failed</span>"
+    rows = [
+        (
+            html.escape(check["metric"]),
+            "—" if check["value"] is None else f"{check['value']:.4g}",
+            f"at most {check['bound']:.4g}",
+            check["unit"],
+            "yes" if check["passed"] else "<span class='incomplete'>no</span>",
+        )
+        for check in task["checks"]
+    ]
+    forbidden = ", ".join(task["forbidden"]) or "none"
+    return [
+        f"<h3>Task: {html.escape(task['name'] or 'unnamed')} ({verdict})</h3>",
+        f"<p>{html.escape(task['instructions'])}</p>",
+        f"<p>Forbidden organs: {html.escape(forbidden)}; contacts with them: "
+        f"{task['forbidden_contacts']}.</p>",
+        _table(("metric", "value", "bound", "unit", "passed"), rows),
+    ]
+
+
+def _touched_table(m: SessionMetrics) -> str:
+    forbidden = set(m.task["forbidden"]) if m.task else set()
+    rows = [
+        (
+            html.escape(name),
+            html.escape(organ) + (" (forbidden)" if organ in forbidden else ""),
+            f"{touch['time']:.2f}",
+            str(touch["contacts"]),
+        )
+        for name, metrics in m.instruments.items()
+        for organ, touch in metrics.touched.items()
+    ]
+    return _table(("instrument", "organ", "touching [s]", "contacts"), rows)
 
 
 def _instrument_table(m: SessionMetrics) -> str:
