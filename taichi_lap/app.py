@@ -13,8 +13,11 @@ from tqdm import tqdm
 
 from taichi_lap.recording import SessionRecorder, maybe_recording
 from taichi_lap.render.renderer import Renderer
+from taichi_lap.replay import read_recording
 from taichi_lap.scene import Scene
 from taichi_lap.session import Session, scene_script
+from taichi_lap.training.live import LiveScore, verdict_lines
+from taichi_lap.training.metrics import session_metrics
 from taichi_lap.video import FrameWriter, write_png
 
 
@@ -24,17 +27,26 @@ def _render(session: Session, renderer: Renderer):
     session.timings["render"] = (time.perf_counter() - start) * 1e3
 
 
-def _record_stats(session: Session, recorder: SessionRecorder | None):
-    """After a frame was stepped and drawn: its stage times, the force the tissue
-    pushed each tool with and the organs touching each go to the recording."""
+def _measure(session: Session, recorder: SessionRecorder | None, live: LiveScore):
+    """After a frame was stepped and drawn: the force the tissue pushed each tool with
+    and the organs touching each go, with the stage times, to the recording and the
+    live score."""
+    tools = [tool["name"] for tool in session.scene.tools]
+    contact = [session.tool_contact(k) for k in range(len(tools))]
+    forces = {name: force for name, (force, _) in zip(tools, contact)}
+    touching = {name: organs for name, (_, organs) in zip(tools, contact)}
+    if recorder is not None:
+        recorder.record_stats(session.timings, forces, touching)
+    live.update(dict(zip(tools, session.control.tips)), forces, touching)
+
+
+def _verdict(recorder: SessionRecorder | None) -> list[str]:
+    """Close the recording and judge the scene's task on it (the report's verdict),
+    as summary lines; none without a recording or a task."""
     if recorder is None:
-        return
-    contact = {tool["name"]: session.tool_contact(k) for k, tool in enumerate(session.scene.tools)}
-    recorder.record_stats(
-        session.timings,
-        {name: force for name, (force, _) in contact.items()},
-        {name: touching for name, (_, touching) in contact.items()},
-    )
+        return []
+    recorder.close()
+    return verdict_lines(session_metrics(read_recording(recorder.path)).task)
 
 
 def _advance(
@@ -95,11 +107,15 @@ def run_headless(
         maybe_recording(record, session, device) as recorder,
         FrameWriter(out, fps=1.0 / session.dt) as writer,
     ):
+        live = LiveScore(scene.task, [tool["name"] for tool in scene.tools], session.dt)
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
             _advance(session, device, recorder, check_topology)
             _render(session, renderer)
-            _record_stats(session, recorder)
+            if recorder is not None or scene.task is not None:
+                _measure(session, recorder, live)
             writer.write(renderer.image())
+        for line in _verdict(recorder):
+            print(line)
     return session
 
 
@@ -124,6 +140,8 @@ def run_window(
     viewer = Viewer(session, Renderer.for_scene(scene, session.model, size=size), show_window=True)
     window, camera = viewer.window, viewer.renderer.camera
     session.camera = camera  # a piece lifted out of this view is excised
+    live = LiveScore(scene.task, [tool["name"] for tool in scene.tools], session.dt)
+    verdict = None  # the summary once the task is over
     with _connected(device, session), maybe_recording(record, session, device) as recorder:
         last = time.perf_counter()
         while window.running and (frames is None or session.state.frame < frames):
@@ -131,15 +149,18 @@ def run_window(
             viewer.handle_input(now - last)
             if hasattr(device, "update"):
                 device.update(window, camera.eye, camera.target, camera.fov, now - last)
-            if not viewer.paused:
+            stepping = not viewer.paused and verdict is None
+            if stepping:
                 _advance(session, device, recorder, check_topology)
             session.timings["frame"] = (now - last) * 1e3
             last = now
             start = time.perf_counter()
-            viewer.draw()
+            viewer.draw(live.lines() + (verdict or []))
             session.timings["render"] = (time.perf_counter() - start) * 1e3
-            if not viewer.paused:
-                _record_stats(session, recorder)
+            if stepping:
+                _measure(session, recorder, live)
+            if verdict is None and (live.over_time or viewer.finish_requested):
+                verdict = _verdict(recorder) or ["finished"]
             window.show()
     return session
 

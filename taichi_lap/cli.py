@@ -61,8 +61,17 @@ def _parser() -> argparse.ArgumentParser:
         "--record",
         default=None,
         metavar="PATH",
-        help="append every frame's device input and every event to a new session file (.tlap)",
+        help="append every frame's device input and every event to a new session file (.tlap); "
+        "a window records to a new file in --sessions unless told --no-record",
     )
+    run.add_argument(
+        "--sessions",
+        default=None,
+        metavar="DIR",
+        help="where a window's sessions are recorded (default: $TAICHI_LAP_SESSIONS, "
+        "else ~/taichi-lap-sessions), one timestamped file each",
+    )
+    run.add_argument("--no-record", action="store_true", help="a window records nothing")
     run.add_argument("--size", default="1280x720", help="image size WxH")
     run.add_argument("--threads", type=int, default=None, help="CPU threads (reproducible runs)")
     run.add_argument(
@@ -292,6 +301,22 @@ def _headless_frames(device, scene) -> int:
     return max(HEADLESS_FRAMES, math.ceil((device.duration() + SCRIPT_TAIL) / scene.settings["dt"]))
 
 
+def new_session_path(folder: str | None, scene: str) -> str:
+    """A new file for a window's session: ``<scene>-<local date and time>.tlap`` in
+    ``folder`` (default ``$TAICHI_LAP_SESSIONS``, else ``~/taichi-lap-sessions``),
+    numbered when that name is taken."""
+    import datetime
+    from pathlib import Path
+
+    folder = Path(folder or os.environ.get("TAICHI_LAP_SESSIONS") or "~/taichi-lap-sessions")
+    stem = f"{scene}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
+    path, number = folder.expanduser() / f"{stem}.tlap", 1
+    while path.exists():
+        number += 1
+        path = path.with_name(f"{stem}-{number}.tlap")
+    return str(path)
+
+
 def cmd_run(args) -> int:
     from taichi_lap import app, runtime
     from taichi_lap.recording import existing_file_error
@@ -308,6 +333,9 @@ def cmd_run(args) -> int:
     scene = _load_scene(args)
     size = _size(args.size)
     device = _device(args, scene, headless)
+    if not headless and args.record is None and not args.no_record:
+        args.record = new_session_path(args.sessions, scene.settings["name"])
+        print(f"recording to {args.record}", file=sys.stderr)
     replay = device.recording if isinstance(device, ReplayDevice) else None
     if replay is not None:
         _replay_settings(args, replay)

@@ -340,6 +340,7 @@ class SessionRecorder:
             started=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         )
         self.stream = RecordStream.create(path, start, tools)
+        self.closed = False
         self.record_device(device)
 
     def record_event(self, kind: str, **fields):
@@ -377,13 +378,22 @@ class SessionRecorder:
         state = self.session.state
         self.stream.append(encode_stats(state.time, state.frame, timings, forces, contacts))
 
+    @property
+    def path(self) -> str:
+        return self.stream.path
+
     def close(self, status: str = "complete"):
-        """Append ``session_end`` (status, frames, checksum) and close the file."""
+        """Append ``session_end`` (status, frames, checksum) and close the file; once
+        closed, closing again does nothing (a window that ended its task closes the
+        recording before the window)."""
+        if self.closed:
+            return
         state = self.session.state
         self.record_event(
             "session_end", status=status, frames=state.frame, checksum=state_checksum(state)
         )
         self.stream.close()
+        self.closed = True
 
     def __enter__(self) -> "SessionRecorder":
         return self

@@ -1,6 +1,7 @@
 """The GGUI training window: the deferred image (``canvas.set_image``), an
-endoscope camera moved by keys and mouse, and a panel with frame rate, ms per
-stage, the instruments' state, lighting toggles and G-buffer debug views.
+endoscope camera moved by keys and mouse, a panel with frame rate, ms per
+stage, the instruments' state, lighting toggles and G-buffer debug views, and the
+trainee's task panel (task, timer, running values, verdict).
 
 ``show_window=False`` renders offscreen (GGUI on Vulkan; Mesa's software driver
 where there is no GPU)."""
@@ -39,6 +40,7 @@ class Viewer:
         )
         self.canvas = self.window.get_canvas()
         self.paused = False
+        self.finish_requested = False  # the trainee ended the task (panel button)
         self.show_panel = show_window
         self._cursor = None
         mesh = renderer.mesh
@@ -58,9 +60,10 @@ class Viewer:
             self.window, dt, drag_button=ti.ui.RMB, last_cursor=self._cursor
         )
 
-    def draw(self):
-        """Render the session's state and show it with the panel. The tubes'
-        tessellation follows the last frame time (seed 001 §5.3)."""
+    def draw(self, task_lines: list[str] = ()):
+        """Render the session's state and show it with the panel, and the task panel
+        with ``task_lines`` (:class:`~taichi_lap.training.live.LiveScore`) when given.
+        The tubes' tessellation follows the last frame time (seed 001 §5.3)."""
         if self.tessellation is not None and "frame" in self.session.timings:
             mesh = self.renderer.mesh
             mesh.tube_epsilon, mesh.tube_level = self.tessellation.update(
@@ -72,6 +75,18 @@ class Viewer:
         self.canvas.set_image(self.renderer.frame)
         if self.show_panel:
             self._panel()
+            if task_lines:
+                self._task_panel(task_lines)
+
+    def _task_panel(self, lines: list[str]):
+        """The trainee's panel: the task, timer, running values, and once the task is
+        over its verdict; a button ends the task early."""
+        gui = self.window.get_gui()
+        with gui.sub_window("task", 0.70, 0.01, 0.29, 0.36):
+            for line in lines:
+                gui.text(line)
+            if not self.finish_requested and gui.button("finish the task"):
+                self.finish_requested = True
 
     def _panel(self):
         session, renderer = self.session, self.renderer

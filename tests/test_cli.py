@@ -12,6 +12,7 @@ import pytest
 
 from taichi_lap import scene as scene_mod
 from taichi_lap.cli import main
+from taichi_lap.replay import read_recording
 from taichi_lap.runtime import available_backends
 
 SMALL = ["--set", "scene.detail=0.03"]
@@ -156,8 +157,9 @@ def test_headless_run_and_still_need_no_vulkan(tmp_path):
 
 @pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="needs xvfb-run (apt: xvfb xauth)")
 @needs_vulkan
-def test_interactive_window_runs_on_a_virtual_display():
-    """The GGUI window loop (camera, mouse device, panel) on Xvfb."""
+def test_interactive_window_runs_on_a_virtual_display(tmp_path):
+    """The GGUI window loop (camera, mouse device, panel) on Xvfb; the session is
+    recorded to a new file in the sessions folder."""
     proc = subprocess.run(
         [
             "xvfb-run",
@@ -178,9 +180,14 @@ def test_interactive_window_runs_on_a_virtual_display():
         capture_output=True,
         text=True,
         timeout=600,
+        env=dict(os.environ, TAICHI_LAP_SESSIONS=str(tmp_path / "sessions")),
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "running headless" not in proc.stderr
+    (recorded,) = (tmp_path / "sessions").glob("rectum-*.tlap")
+    recording = read_recording(recorded)
+    assert len(recording.frames) == len(recording.stats) == 6
+    assert recording.end["status"] == "complete"
 
 
 def test_simulation_fault_is_reported_not_raised(tmp_path, capsys):

@@ -27,6 +27,7 @@ from taichi_lap.recording import (
 )
 from taichi_lap.replay import ReplayDevice, read_recording
 from taichi_lap.session import Session, scene_script
+from taichi_lap.training.metrics import session_metrics
 
 SMALL = ["--set", "scene.detail=0.03"]
 RUN = ["run", "intestine", "--headless", "--size", "64x48", *SMALL]
@@ -88,6 +89,35 @@ def test_each_recorded_frame_has_its_stage_times_and_tool_force(recorded):
     touching = np.array([s["contacts"]["probe"].get("intestine", 0) for s in stats])
     assert all(set(s["contacts"]["probe"]) <= {"intestine"} for s in stats)
     np.testing.assert_array_equal(touching > 0, force > 0.0)
+
+
+def test_a_recorded_run_of_a_task_prints_the_verdict_of_its_report(tmp_path, capsys):
+    """The intestine's probe script as a task that forbids touching the intestine: the
+    run prints the failed bound, as the report judges it from the file."""
+    path = tmp_path / "task.tlap"
+    task = [
+        *("--set", 'task.name="Hands off"'),
+        *("--set", 'task.forbidden=["intestine"]'),
+        *("--set", "task.pass.forbidden_contacts=0"),
+        *("--set", "task.time_limit=5.0"),
+    ]
+    status, out, err = run_cli(
+        capsys,
+        *RUN,
+        *task,
+        "--frames",
+        str(FRAMES),
+        "--out",
+        str(tmp_path / "f"),
+        "--record",
+        str(path),
+    )
+    assert status == 0, err
+    judged = session_metrics(read_recording(path)).task
+    assert not judged["passed"] and judged["forbidden_contacts"] >= 1
+    assert [c["metric"] for c in judged["checks"] if not c["passed"]] == ["forbidden_contacts"]
+    assert "task Hands off: FAILED" in out
+    assert f"  forbidden_contacts: {judged['forbidden_contacts']}, at most 0" in out
 
 
 def test_replayed_state_arrays_equal_a_scripted_run(recorded, scene):

@@ -23,8 +23,10 @@ from taichi_lap.recording import (
 )
 from taichi_lap.replay import read_recording
 from taichi_lap.scene import validate
+from taichi_lap.training.live import LiveScore, verdict_lines
 from taichi_lap.training.metrics import IDLE_SPEED, session_metrics
 from taichi_lap.training.report import report_html
+from taichi_lap.training.task import recorded_task
 
 DT = 0.01  # [s]
 UP = np.array([0.0, 1.0, 0.0])
@@ -379,3 +381,49 @@ def test_a_bad_task_table_names_its_key(task, key, message):
     with pytest.raises(InputError) as error:
         validate({"scene": {"name": "t"}, "organs": organs, "task": task}, "t.toml", Path("."))
     assert error.value.key == key and message in error.value.message
+
+
+def test_the_live_score_agrees_with_the_metrics_of_the_recorded_frames(tmp_path):
+    rng = np.random.default_rng(3)
+    frames = 60
+    tips = {
+        "probe": np.cumsum(rng.normal(0.0, 0.002, (frames, 3)), axis=0),
+        "grasper": np.cumsum(rng.normal(0.0, 0.001, (frames, 3)), axis=0),
+    }
+    forces = {name: rng.normal(0.0, 0.5, (frames, 3)) for name in tips}
+    vessel = rng.random((frames, 2)) < 0.3  # per tool, touching the forbidden vessel
+    contacts = [
+        {
+            name: {"colon": 2, **({"vessel": 1} if vessel[k, column] else {})}
+            for column, name in enumerate(tips)
+        }
+        for k in range(frames)
+    ]
+    stats = [
+        (k, {"physics": 1.0}, {name: forces[name][k] for name in tips}, contacts[k])
+        for k in range(frames)
+    ]
+    path = write_session(tmp_path / "l.tlap", tips, stats=stats, raw_scene=TASK_SCENE)
+    metrics = session_metrics(read_recording(path))
+    task = recorded_task(read_recording(path))
+    live = LiveScore(task, list(tips), DT)
+    for k in range(frames):
+        live.update(
+            {name: tips[name][k] for name in tips},
+            {name: forces[name][k] for name in tips},
+            contacts[k],
+        )
+    assert live.elapsed == pytest.approx(metrics.duration)
+    for name in tips:
+        assert live.path_length[name] == pytest.approx(metrics.instruments[name].path_length)
+        assert live.peak_force[name] == pytest.approx(metrics.instruments[name].peak_force)
+    assert live.forbidden_contacts == metrics.task["forbidden_contacts"] > 0
+    assert live.lines()[0] == "task: Expose the colon"
+    assert f"contacts with vessel: {live.forbidden_contacts}" in live.lines()
+    assert not live.over_time  # 0.6 s of a 1.5 s limit
+    for _ in range(90):
+        live.update({}, {}, {})
+    assert live.over_time and "TIME UP" in live.lines()[3]
+    verdict = verdict_lines(metrics.task)
+    assert verdict[0] == "task Expose the colon: FAILED"
+    assert f"  forbidden_contacts: {live.forbidden_contacts}, at most 0" in verdict

@@ -1,0 +1,101 @@
+"""Running values of a session for the window's task panel: elapsed time against the
+task's limit, each instrument's path length and peak force, and the contacts begun
+with the task's forbidden organs, updated frame by frame from what the simulation
+gives (the report's metrics, :mod:`taichi_lap.training.metrics`, are computed from
+the session file at the end; these agree with them for the same frames, the force
+being the simulation's, not the haptic ticks')."""
+
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+
+
+class LiveScore:
+    """Accumulates a session's running values; ``task`` is the scene's checked
+    ``[task]`` or None, ``tools`` the tool names, ``dt`` [s] the frame time step."""
+
+    def __init__(self, task: dict | None, tools: list[str], dt: float):
+        self.task = task
+        self.dt = dt
+        self.frames = 0
+        self.path_length = dict.fromkeys(tools, 0.0)  # [m]
+        self.peak_force = dict.fromkeys(tools, 0.0)  # [N]
+        self.forbidden_contacts = 0
+        self._tips: dict[str, np.ndarray] = {}
+        self._touching: set[tuple[str, str]] = set()  # (tool, forbidden organ) in contact
+
+    @property
+    def elapsed(self) -> float:
+        """Simulated time [s] of the frames so far (the metrics' duration)."""
+        return self.frames * self.dt
+
+    @property
+    def time_limit(self) -> float:
+        return self.task["time_limit"] if self.task else 0.0
+
+    @property
+    def over_time(self) -> bool:
+        """Whether the task's time limit has passed."""
+        return self.time_limit > 0.0 and self.elapsed >= self.time_limit
+
+    def update(
+        self,
+        tips: dict[str, np.ndarray],
+        forces: dict[str, np.ndarray],
+        contacts: dict[str, dict[str, int]],
+    ):
+        """One frame: the tips [m] applied before its step, and after it the force
+        [N] on each tool and the particles of each organ touching it."""
+        self.frames += 1
+        for tool, tip in tips.items():
+            if tool in self._tips:
+                self.path_length[tool] += float(np.linalg.norm(tip - self._tips[tool]))
+            self._tips[tool] = np.array(tip, dtype=np.float64)
+        for tool, force in forces.items():
+            self.peak_force[tool] = max(self.peak_force[tool], float(np.linalg.norm(force)))
+        forbidden = self.task["forbidden"] if self.task else []
+        touching = {
+            (tool, organ)
+            for tool, organs in contacts.items()
+            for organ in forbidden
+            if organs.get(organ, 0) > 0
+        }
+        self.forbidden_contacts += len(touching - self._touching)
+        self._touching = touching
+
+    def lines(self) -> list[str]:
+        """The panel's text: the task, the timer and the running values."""
+        lines = []
+        if self.task:
+            lines.append(f"task: {self.task['name'] or 'unnamed'}")
+            lines += textwrap.wrap(self.task["instructions"], 48)
+        limit = f" / {self.time_limit:.0f} s" if self.time_limit > 0.0 else ""
+        lines.append(f"time {self.elapsed:.1f} s{limit}" + ("  TIME UP" if self.over_time else ""))
+        for tool in self.path_length:
+            lines.append(
+                f"{tool}: path {100 * self.path_length[tool]:.1f} cm, "
+                f"peak {self.peak_force[tool]:.2f} N"
+            )
+        if self.task and self.task["forbidden"]:
+            lines.append(
+                f"contacts with {', '.join(self.task['forbidden'])}: {self.forbidden_contacts}"
+            )
+        return lines
+
+
+def verdict_lines(task: dict | None) -> list[str]:
+    """A judged task (:func:`taichi_lap.training.task.judge_task`) as the panel's and
+    the command line's summary: passed or failed, and each bound broken."""
+    if task is None:
+        return []
+    lines = [f"task {task['name'] or 'unnamed'}: {'PASSED' if task['passed'] else 'FAILED'}"]
+    broken = [check for check in task["checks"] if not check["passed"]]
+    for check in broken:
+        value = "not measured" if check["value"] is None else f"{check['value']:.4g}"
+        bound = f"{check['bound']:.4g} {check['unit']}".rstrip()
+        lines.append(f"  {check['metric']}: {value}, at most {bound}")
+    if not task["passed"] and not broken:
+        lines.append("  the session did not end normally")
+    return lines
