@@ -314,14 +314,21 @@ def test_organ_contacts_count_the_contacts_begun_and_their_time(tmp_path):
 
 def test_a_task_passes_within_its_bounds_and_fails_naming_the_bound_it_broke(tmp_path):
     frames = 100  # 1 s, within the time limit
+
+    def judged(name: str, pattern: dict, length: int = frames, **kwargs) -> dict:
+        """The task's result for the probe moving 0.1 m in ``length`` frames, touching
+        the organs as ``pattern`` says in the first ``frames``."""
+        path = write_session(
+            tmp_path / f"{name}.tlap",
+            {"probe": line([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], length)},
+            stats=touching(frames, pattern),
+            raw_scene=TASK_SCENE,
+            **kwargs,
+        )
+        return session_metrics(read_recording(path))
+
     careful = {"colon": [1] * frames, "vessel": [0] * frames}
-    expert = write_session(
-        tmp_path / "expert.tlap",
-        {"probe": line([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], frames)},
-        stats=touching(frames, careful),
-        raw_scene=TASK_SCENE,
-    )
-    task = session_metrics(read_recording(expert)).task
+    task = judged("expert", careful).task
     assert task["passed"] and task["name"] == "Expose the colon"
     assert [c["metric"] for c in task["checks"]] == [
         "time_limit",
@@ -332,30 +339,17 @@ def test_a_task_passes_within_its_bounds_and_fails_naming_the_bound_it_broke(tmp
     assert all(c["passed"] for c in task["checks"])
 
     careless = {"colon": [1] * frames, "vessel": [0] * 40 + [2] * 5 + [0] * 30 + [1] * 25}
-    slow = 2 * frames  # 2 s, past the time limit
-    careless_path = write_session(
-        tmp_path / "careless.tlap",
-        {"probe": line([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], slow)},
-        stats=touching(frames, careless),
-        raw_scene=TASK_SCENE,
-    )
-    task = session_metrics(read_recording(careless_path)).task
+    metrics = judged("careless", careless, 2 * frames)  # 2 s, past the time limit
+    task = metrics.task
     failed = {c["metric"]: c["value"] for c in task["checks"] if not c["passed"]}
     assert not task["passed"]
     assert failed == {"time_limit": pytest.approx(2.0), "forbidden_contacts": 2}
     assert task["forbidden_contacts"] == 2
-    page = report_html([session_metrics(read_recording(careless_path))])
+    page = report_html([metrics])
     assert "Task: Expose the colon (<span class='incomplete'>failed</span>)" in page
     assert "vessel (forbidden)" in page
 
-    unfinished = write_session(
-        tmp_path / "unfinished.tlap",
-        {"probe": line([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], frames)},
-        stats=touching(frames, careful),
-        raw_scene=TASK_SCENE,
-        end=False,
-    )
-    task = session_metrics(read_recording(unfinished)).task
+    task = judged("unfinished", careful, end=False).task
     assert all(c["passed"] for c in task["checks"]) and not task["passed"]
 
 
