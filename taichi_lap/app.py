@@ -40,12 +40,14 @@ def _measure(session: Session, recorder: SessionRecorder | None, live: LiveScore
     live.update(dict(zip(tools, session.control.tips)), forces, touching)
 
 
-def _verdict(recorder: SessionRecorder | None) -> list[str]:
+def _verdict(session: Session, recorder: SessionRecorder | None) -> list[str]:
     """Close the recording and judge the scene's task on it (the report's verdict),
     as summary lines; none without a recording or a task."""
     if recorder is None:
         return []
     recorder.close()
+    if session.scene.task is None:
+        return []
     return verdict_lines(session_metrics(read_recording(recorder.path)).task)
 
 
@@ -114,7 +116,7 @@ def run_headless(
             if recorder is not None or scene.task is not None:
                 _measure(session, recorder, live)
             writer.write(renderer.image())
-        for line in _verdict(recorder):
+        for line in _verdict(session, recorder):
             print(line)
     return session
 
@@ -160,7 +162,7 @@ def run_window(
             if stepping:
                 _measure(session, recorder, live)
             if verdict is None and (live.over_time or viewer.finish_requested):
-                verdict = _verdict(recorder) or ["finished"]
+                verdict = _verdict(session, recorder) or ["finished"]
             window.show()
     return session
 

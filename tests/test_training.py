@@ -211,6 +211,14 @@ def test_a_session_without_its_end_or_cut_short_is_reported_incomplete(tmp_path,
     page = report_html([metrics])
     assert "class='incomplete'" in page and "the report covers what the file holds" in page
 
+    # killed before its first frame: a report of nothing, still a report
+    empty = write_session(tmp_path / "empty.tlap", {"probe": np.zeros((0, 3))}, end=False)
+    metrics = session_metrics(read_recording(empty))
+    assert metrics.frames == 0 and metrics.duration == 0.0 and not metrics.complete
+    assert metrics.instruments["probe"].path_length == 0.0
+    assert metrics.instruments["probe"].economy is None
+    assert "no session_end" in report_html([metrics])
+
 
 def test_the_report_of_two_sessions_holds_every_section_and_the_learning_curve(tmp_path, capsys):
     stats = [(k, {"physics": 4.0, "render": 3.0}, {"probe": [0.0, 0.2, 0.0]}) for k in range(30)]
