@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         metavar="PATH",
         help="append every frame's device input and every event to a new session file (.tlap); "
-        "a window records to a new file in --sessions unless told --no-record",
+        "a window records to a new file in --sessions unless told --no-record or replaying",
     )
     run.add_argument(
         "--sessions",
@@ -333,10 +333,10 @@ def cmd_run(args) -> int:
     scene = _load_scene(args)
     size = _size(args.size)
     device = _device(args, scene, headless)
-    if not headless and args.record is None and not args.no_record:
+    replay = device.recording if isinstance(device, ReplayDevice) else None
+    if not headless and replay is None and args.record is None and not args.no_record:
         args.record = new_session_path(args.sessions, scene.settings["name"])
         print(f"recording to {args.record}", file=sys.stderr)
-    replay = device.recording if isinstance(device, ReplayDevice) else None
     if replay is not None:
         _replay_settings(args, replay)
     if headless and args.frames is None:
