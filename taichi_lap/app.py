@@ -35,8 +35,9 @@ def _measure(session: Session, recorder: SessionRecorder | None, live: LiveScore
     contact = [session.tool_contact(k) for k in range(len(tools))]
     forces = {name: force for name, (force, _) in zip(tools, contact)}
     touching = {name: organs for name, (_, organs) in zip(tools, contact)}
-    if recorder is not None:
-        recorder.record_stats(session.timings, forces, touching)
+    if recorder is not None:  # the stages of the frame, not the window's frame interval
+        stages = {stage: ms for stage, ms in session.timings.items() if stage != "frame"}
+        recorder.record_stats(stages, forces, touching)
     live.update(dict(zip(tools, session.control.tips)), forces, touching)
 
 
@@ -57,13 +58,15 @@ def _advance(
     """One frame: read the device (poses first: a replay advances on them), record
     what it gave, step, record the step's events; with ``check_topology`` run the
     topology validator when the step removed tissue."""
-    time = session.state.time
-    poses = device.poses(time) if device else None
-    buttons = device.buttons(time) if hasattr(device, "buttons") else None
+    start = time.perf_counter()
+    now = session.state.time
+    poses = device.poses(now) if device else None
+    buttons = device.buttons(now) if hasattr(device, "buttons") else None
     if recorder is not None:
         if hasattr(device, "drain_ticks"):
             recorder.record_ticks(device.drain_ticks())
         recorder.record_frame(poses, buttons)
+    session.timings["devices"] = (time.perf_counter() - start) * 1e3
     session.step(poses, buttons)
     if recorder is not None:
         for event in session.events:
@@ -110,6 +113,7 @@ def run_headless(
         FrameWriter(out, fps=1.0 / session.dt) as writer,
     ):
         live = LiveScore(scene.task, [tool["name"] for tool in scene.tools], session.dt)
+        session.solver.time_stages = recorder is not None
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
             _advance(session, device, recorder, check_topology)
             _render(session, renderer)
@@ -145,6 +149,7 @@ def run_window(
     live = LiveScore(scene.task, [tool["name"] for tool in scene.tools], session.dt)
     verdict = None  # the summary once the task is over
     with _connected(device, session), maybe_recording(record, session, device) as recorder:
+        session.solver.time_stages = recorder is not None
         last = time.perf_counter()
         while window.running and (frames is None or session.state.frame < frames):
             now = time.perf_counter()

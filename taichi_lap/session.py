@@ -136,9 +136,10 @@ def release_parked(key: str | None = None):
 
 class Session:
     """Owns everything one running scene needs. ``timings`` holds the last frame's
-    milliseconds per stage (``physics``; ``topology`` when it removed tissue, the
-    host topology and the rows written to the device; ``heat`` while the cautery's
-    heat runs; renderers add theirs); ``events`` the last
+    milliseconds per stage (``physics``, of which ``collision`` the collision
+    pipelines; ``topology`` when it removed tissue, the host topology and the rows
+    written to the device; ``heat`` while the cautery's heat runs; the run loop adds
+    ``devices``, renderers theirs); ``events`` the last
     step's simulation events (grasp, release), each with the tool's name.
 
     A scene with ``settle_time`` starts settled: once, at construction, the solver runs
@@ -595,6 +596,7 @@ class Session:
         ti.sync()
         spent = (time.perf_counter() - start) * 1e3
         self.timings["physics"] = spent - self.timings.get("topology", 0.0)
+        self.timings["collision"] = self.solver.collision_ms  # a part of physics
         names = [tool["name"] for tool in self.scene.tools]
         self.events += [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
         self._energise(buttons or {})

@@ -24,7 +24,7 @@ from taichi_lap.recording import (
 from taichi_lap.replay import read_recording
 from taichi_lap.scene import validate
 from taichi_lap.training.live import LiveScore, verdict_lines
-from taichi_lap.training.metrics import IDLE_SPEED, session_metrics
+from taichi_lap.training.metrics import IDLE_SPEED, session_metrics, stacked_stages
 from taichi_lap.training.report import report_html
 from taichi_lap.training.task import recorded_task
 
@@ -429,3 +429,18 @@ def test_the_live_score_agrees_with_the_metrics_of_the_recorded_frames(tmp_path)
     verdict = verdict_lines(metrics.task)
     assert verdict[0] == "task Expose the colon: FAILED"
     assert f"  forbidden_contacts: {live.forbidden_contacts}, at most 0" in verdict
+
+
+def test_stacked_stages_split_the_physics_into_deformation_and_collision():
+    series = {
+        "render": np.array([3.0, 4.0]),
+        "physics": np.array([10.0, 12.0]),
+        "collision": np.array([4.0, 5.0]),
+        "devices": np.array([0.5, 0.5]),
+        "upload": np.array([1.0, 1.0]),
+    }
+    parts = stacked_stages(series)
+    assert list(parts) == ["deformation", "collision", "devices", "render", "upload"]
+    np.testing.assert_array_equal(parts["deformation"], [6.0, 7.0])
+    total = np.sum(list(parts.values()), axis=0)
+    np.testing.assert_array_equal(total, [14.5, 17.5])  # physics + devices + render + upload

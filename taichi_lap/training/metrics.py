@@ -104,6 +104,19 @@ class SessionMetrics:
         }
 
 
+def stacked_stages(stage_series: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The stages of a frame as parts that add up to its time (seed 000 Fig. 17's
+    split): ``physics`` without its ``collision`` as ``deformation``, then
+    ``collision``, ``topology``, ``heat``, ``devices``, ``render`` and any other."""
+    parts = dict(stage_series)
+    if "physics" in parts:
+        physics = parts.pop("physics")
+        parts = {"deformation": physics - parts.get("collision", 0.0), **parts}
+    order = ("deformation", "collision", "topology", "heat", "devices", "render")
+    rank = {name: (order.index(name) if name in order else len(order), name) for name in parts}
+    return {name: parts[name] for name in sorted(parts, key=rank.get)}
+
+
 def path_metrics(time: np.ndarray, tips: np.ndarray) -> dict:
     """Path length, waypoints, straight length, economy and idle time of a tip moving
     through ``tips`` (n, 3) [m] at ``time`` (n,) [s]. A segment slower than

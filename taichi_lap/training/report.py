@@ -20,7 +20,12 @@ import numpy as np
 from taichi_lap import plots
 from taichi_lap.core.files import write_atomically
 from taichi_lap.replay import read_recording
-from taichi_lap.training.metrics import COUNTED_EVENTS, SessionMetrics, session_metrics
+from taichi_lap.training.metrics import (
+    COUNTED_EVENTS,
+    SessionMetrics,
+    session_metrics,
+    stacked_stages,
+)
 
 CURVE_METRICS = {  # learning-curve panels: title -> value of a session
     "duration [s]": lambda m: m.duration,
@@ -239,8 +244,9 @@ def _stage_plot(m: SessionMetrics) -> bytes:
     fig, axes = plots.figure(size=(9.0, 2.8))
     ax = axes[0, 0]
     if m.stage_series:
-        ax.stackplot(m.stats_time, *m.stage_series.values(), labels=list(m.stage_series))
-        total = np.sum(list(m.stage_series.values()), axis=0)
+        parts = stacked_stages(m.stage_series)
+        ax.stackplot(m.stats_time, *parts.values(), labels=list(parts))
+        total = np.sum(list(parts.values()), axis=0)
         top = 1.5 * np.percentile(total, 95)
         above = int((total > top).sum())
         ax.set_ylim(0.0, top)
