@@ -105,10 +105,12 @@ def test_run_without_display_falls_back_to_headless_and_writes_frames(
 
 
 def test_run_headless_writes_an_mp4(tmp_path, capsys):
+    """(The scene and size of the test before: its closed session serves this run.)"""
     pytest.importorskip("imageio_ffmpeg")
     out = tmp_path / "clip.mp4"
     status = main(
-        ["run", "intestine", "--headless", "--frames", "4", "--size", "160x120", "--out", str(out)]
+        ["run", "rectum", "--headless", "--frames", "4", "--size", "160x120", "--out", str(out)]
+        + SMALL
     )
     assert status == 0, capsys.readouterr().err
     frames = imageio.mimread(out, format="FFMPEG")
