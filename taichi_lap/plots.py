@@ -4,13 +4,14 @@ on the Agg backend, written atomically to a PNG file or returned as PNG bytes.""
 from __future__ import annotations
 
 import io
-import os
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # after the backend is chosen
+
+from taichi_lap.core.files import write_atomically
 
 
 def figure(rows: int = 1, columns: int = 1, *, size: tuple[float, float] = (8.0, 3.0)):
@@ -20,12 +21,7 @@ def figure(rows: int = 1, columns: int = 1, *, size: tuple[float, float] = (8.0,
 
 def save_png(fig, path: Path, *, dpi: int = 100):
     """Write ``fig`` to the PNG ``path`` atomically and close it."""
-    path = Path(path)
-    fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=dpi)
-    plt.close(fig)
-    os.replace(tmp, path)
+    write_atomically(path, png_bytes(fig, dpi=dpi))
 
 
 def png_bytes(fig, *, dpi: int = 90) -> bytes:

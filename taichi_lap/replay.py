@@ -225,11 +225,16 @@ def _decode_tick(payload: bytes, tools: list[str]) -> Tick:
     return tick
 
 
-def _decode_event(payload: bytes) -> dict:
+def _decode_json(payload: bytes, expected: str):
+    """A JSON payload, or ValueError saying ``expected`` and what was wrong."""
     try:
-        event = json.loads(payload.decode("utf-8"))
+        return json.loads(payload.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"an event as UTF-8 JSON was expected, found {exc}") from None
+        raise ValueError(f"{expected}, found {exc}") from None
+
+
+def _decode_event(payload: bytes) -> dict:
+    event = _decode_json(payload, "an event as UTF-8 JSON was expected")
     if not isinstance(event, dict) or not isinstance(event.get("kind"), str):
         raise ValueError(f"an event object with a kind was expected, found {payload[:60]!r}")
     missing = [name for name in REQUIRED_FIELDS.get(event["kind"], ()) if name not in event]
@@ -242,10 +247,7 @@ def _decode_event(payload: bytes) -> dict:
 
 
 def _decode_stats(payload: bytes, tools: list[str]) -> dict:
-    try:
-        stats = json.loads(payload.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"statistics as UTF-8 JSON were expected, found {exc}") from None
+    stats = _decode_json(payload, "statistics as UTF-8 JSON were expected")
     if not isinstance(stats, dict) or not set(STATS_FIELDS) <= set(stats):
         raise ValueError(
             f"statistics with {', '.join(STATS_FIELDS)} were expected, found {payload[:60]!r}"

@@ -15,7 +15,7 @@ import imageio.v2 as imageio
 import numpy as np
 
 from taichi_lap.core.errors import InputError
-from taichi_lap.core.files import give_ordinary_mode
+from taichi_lap.core.files import give_ordinary_mode, write_atomically
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -29,16 +29,7 @@ def _publish(tmp: str, path: Path):
 
 def write_png(path: str | Path, image: np.ndarray):
     """Write one PNG atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".png.tmp")
-    os.close(fd)
-    try:
-        imageio.imwrite(tmp, image, format="png")
-        _publish(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomically(path, imageio.imwrite("<bytes>", image, format="png"))
 
 
 class FrameWriter:
