@@ -52,6 +52,27 @@ def clear_stale_cache_lock() -> Path | None:
     return lock
 
 
+def _source_line_position(self, node) -> str:
+    """Where ``node`` of a kernel being compiled is: file, line, function and the
+    source line (Taichi's own text adds a caret line wrapped to 80 columns)."""
+    line = node.lineno + self.lineno_offset
+    return (
+        f'File "{self.file}", line {line}, in {self.func.func.__name__}:\n'
+        f"{self.src[node.lineno - 1]}\n"
+    )
+
+
+def _shorten_source_positions():
+    """Taichi's front end formats the position of every statement and expression it
+    compiles (for a compile error's message) with ``textwrap`` and a caret line,
+    eagerly: a quarter of the front end's time. Outside ``debug`` it gets the file,
+    line and source line alone (the rectum's volume-cut test: 48.2 s to 44.5 s with an
+    empty kernel cache, 35.5 s to 33.4 s with a full one)."""
+    from taichi.lang.ast import ast_transformer_utils
+
+    ast_transformer_utils.ASTTransformerContext.get_pos_info = _source_line_position
+
+
 def _is_supported(arch_name: str) -> bool:
     arch = getattr(ti, arch_name, None)
     return arch is not None and bool(ti.lang.misc.is_arch_supported(arch))
@@ -99,6 +120,8 @@ def init(
     # the CPU's on an H100; without it both agreed with the CPU. Its cost is unmeasured.
     if name == "cuda":
         kwargs["fast_math"] = False
+    if not debug:
+        _shorten_source_positions()
     clear_stale_cache_lock()
     with contextlib.redirect_stdout(io.StringIO()):  # "[Taichi] Starting on arch=..."
         ti.init(arch=getattr(ti, name), **kwargs)

@@ -2,7 +2,12 @@
 
 import logging
 import os
+import re
 import time
+
+import pytest
+import taichi as ti
+from taichi.lang.exception import TaichiCompilationError
 
 from taichi_lap import runtime
 
@@ -20,3 +25,18 @@ def test_a_stale_cache_lock_is_removed_and_a_fresh_one_kept(tmp_path, monkeypatc
     assert not lock.exists()
     assert any("stale Taichi cache lock" in r.getMessage() for r in caplog.records)
     assert runtime.clear_stale_cache_lock() is None  # no lock: nothing to do
+
+
+def test_a_compile_error_still_names_the_file_line_and_source():
+    """The shortened source positions (runtime._shorten_source_positions) keep what a
+    user needs to find a kernel's mistake."""
+
+    @ti.kernel
+    def broken() -> ti.i32:
+        return undefined_name  # noqa: F821
+
+    with pytest.raises(TaichiCompilationError) as error:
+        broken()
+    message = str(error.value)
+    assert __file__ in message and re.search(r"line \d+, in broken", message)
+    assert "return undefined_name" in message

@@ -124,17 +124,22 @@ def haptic_rows(presses, model: str = "tet_clusters") -> dict[tuple, dict]:
     return out
 
 
-def assert_indents_and_grows(rows: dict[tuple, dict], force: str):
+def assert_indents_and_grows(rows: dict[tuple, dict]):
     """The 2 and 6 mm presses of ``rows`` (:func:`haptic_rows`) indent the tissue at
-    least 70 % of the stylus depth, and their ``force`` metric's median grows with the
-    depth, above zero and below the device's maximum."""
+    least 70 % of the stylus depth; the force the coupling asks for grows with the
+    depth, above zero and below the device's maximum, and the force sent to the device
+    never passes that maximum. (What the device got is not compared between depths:
+    the safety filter's watchdog fades it out when a frame stalls past 100 ms, as it
+    may on a loaded test machine; tests/test_force_safety.py tests the fade.)"""
     from taichi_lap.haptics.servo import ScriptedHapticDevice
 
+    limit = ScriptedHapticDevice().max_force
     for depth in (0.002, 0.006):
         measured = rows[depth, False]["faults"]
         assert measured["indent_mm"] >= 0.7 * measured["stylus_depth_mm"]
-    forces = [rows[d, False][force]["median"] for d in (0.002, 0.006)]
-    assert 0.0 < forces[0] < forces[1] < ScriptedHapticDevice().max_force
+    forces = [rows[d, False]["contact_force_n"]["median"] for d in (0.002, 0.006)]
+    assert 0.0 < forces[0] < forces[1] < limit
+    assert all(row["force_n"]["max"] <= limit + 1e-6 for row in rows.values())
 
 
 def test_a_haptic_stylus_indents_the_tissue_and_feels_it_grow_with_depth():
@@ -144,9 +149,7 @@ def test_a_haptic_stylus_indents_the_tissue_and_feels_it_grow_with_depth():
     stylus held still settles, and one that starts 4 mm inside the tissue is felt
     (before: no force at all)."""
     rows = haptic_rows([(0.002, False), (0.006, False), (0.020, False), (0.004, True)])
-    assert_indents_and_grows(rows, "force_n")
-    # What the coupling asks for, before the safety filter (whose watchdog fades the
-    # force out when a frame stalls past 100 ms, as it may on a loaded test machine).
+    assert_indents_and_grows(rows)
     held = rows[0.006, False]["contact_force_n"]
     assert held["max"] - held["min"] < 0.05 * held["median"]  # settles: no energy gain
     assert rows[0.020, False]["contact_force_n"]["min"] > 0.0
@@ -158,6 +161,4 @@ def test_a_haptic_stylus_indents_a_membrane_and_a_truss_and_feels_them(model):
     """The coupling of seed 002 §3.4 for the tissues without shape matching: their
     distance constraints and long-range attachments push the tool back (before: no
     reaction, and the stylus met a wall)."""
-    assert_indents_and_grows(
-        haptic_rows([(0.002, False), (0.006, False)], model), "contact_force_n"
-    )
+    assert_indents_and_grows(haptic_rows([(0.002, False), (0.006, False)], model))
