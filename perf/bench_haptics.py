@@ -9,12 +9,17 @@ Cases
   lifting it again (contact, QP, safety filter every tick). 30 s (``--quick``: 5 s).
 * ``idle``: the same servo while this process only republishes the snapshot at
   60 Hz, without stepping (10 s; ``--quick``: 2 s).
+* ``<load case>-alone``: the same scene stepped for as long without a servo, its probe
+  at the scripted stylus's pose (the servo's graphical tool is the proxy's, held on
+  the surface; this one goes 8 mm in, which the contact resists).
 
 Metrics: ``period_ms`` (tick-start to tick-start; the row also carries ``p99`` and
 ``p999``), ``missed_2ms_per_10s`` (periods over 2 ms, per 10 s window),
 ``tick_compute_us`` (work inside a tick), ``qp_us`` (QP solver time of the ticks in
-contact). Params say whether SCHED_FIFO was granted, the simulation's ms per frame
-and the publish cost. Targets: median 1.000 ms, p99 ≤ 1.05 ms, p99.9 ≤ 1.6 ms, at
+contact); ``ms_per_step`` (:meth:`Session.step` wall time) of the load case and of
+the same case alone, the load's row carrying ``slowdown`` (its median over the alone
+one's; target ≤ 1.2). Params say whether SCHED_FIFO was granted, the simulation's ms
+per frame and the publish cost. Targets: median 1.000 ms, p99 ≤ 1.05 ms, p99.9 ≤ 1.6 ms, at
 most 5 ticks over 2 ms per 10 s, QP ≤ 50 µs median.
 
 Usage: python perf/bench_haptics.py [--quick] [--arch cpu] [--json OUT]
@@ -87,7 +92,6 @@ def rows(case: str, params: dict, samples: dict) -> list[dict]:
 
 def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     from taichi_lap.core.instruments import tool_geometry
-    from taichi_lap.devices import Pose
     from taichi_lap.haptics import (
         ProxySettings,
         SceneSnapshot,
@@ -108,7 +112,7 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     rotation = rotation_towards(direction)
     device = scripted_device(press_path(x[surface.particles]), rotation=rotation, loop=True)
     settings = ServoSettings(ticks=int(duration * 1000 * 1.5) + 10_000)
-    frame_ms, publish_ms, contact_ticks = [], [], 0
+    frame_ms, step_ms, publish_ms, contact_ticks = [], [], [], 0
     try:
         with ServoProcess(
             snapshot.name, device, ProxySettings(tool_geometry(tool)), settings
@@ -119,8 +123,7 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
                 begin = time.perf_counter()
                 feedback = servo.feedback.read()
                 if step:
-                    pose = feedback.graphic_pose
-                    session.step({tool["name"]: Pose(pose[:3, 3], pose[:3, :3] @ [0, 0, 1])})
+                    step_ms.append(step_with_pose(session, tool, feedback.graphic_pose))
                 else:
                     time.sleep(1.0 / 60.0)
                 published = time.perf_counter()
@@ -155,7 +158,38 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
         f"max {samples['period'].max():.3f} ms; missed > 2 ms per 10 s {samples['missed']}",
         flush=True,
     )
-    return rows(case, params, samples)
+    out = rows(case, params, samples)
+    if step_ms:
+        out.append(result(case, params, "ms_per_step", step_ms))
+    return out
+
+
+def step_with_pose(session, tool: dict, pose: np.ndarray) -> float:
+    """Step ``session`` with ``tool`` at the 4×4 ``pose``; the step's wall time [ms]."""
+    from taichi_lap.devices import Pose
+
+    begin = time.perf_counter()
+    session.step({tool["name"]: Pose(pose[:3, 3], pose[:3, :3] @ [0, 0, 1])})
+    return (time.perf_counter() - begin) * 1e3
+
+
+def run_alone(case: str, session, duration: float) -> list[dict]:
+    """``ms_per_step`` of ``session`` stepped for ``duration`` [s] without a servo, its
+    first tool at the pose of the load case's scripted stylus."""
+    from taichi_lap.haptics import SurfaceClusters
+    from taichi_lap.haptics.servo import ScriptedHapticDevice
+
+    tool = session.scene.tools[0]
+    x = session.state.x.to_numpy()
+    rotation = rotation_towards(np.asarray(tool["direction"], dtype=np.float64))
+    path = press_path(x[SurfaceClusters(session.data).particles])
+    device = ScriptedHapticDevice(path, rotation=rotation, loop=True)
+    step_ms = []
+    end = time.monotonic() + duration
+    while time.monotonic() < end:
+        step_ms.append(step_with_pose(session, tool, device.pose()))
+    params = {"duration_s": duration, "particles": session.model.particle_count}
+    return [result(case, params, "ms_per_step", step_ms)]
 
 
 def main():
@@ -170,7 +204,18 @@ def main():
     for _ in range(WARMUP_FRAMES):  # compile the kernels
         session.step()
     load_case = "liver-small-load" if args.quick else "liver-full-load"
-    results = run_case(load_case, session, 5.0 if args.quick else 30.0, step=True)
+    duration = 5.0 if args.quick else 30.0
+    session.reset()
+    results = run_alone(f"{load_case}-alone", session, duration)
+    session.reset()
+    results += run_case(load_case, session, duration, step=True)
+    alone, loaded = results[0]["median"], results[-1]["median"]
+    results[-1]["slowdown"] = loaded / alone
+    print(
+        f"{load_case}: {loaded:.1f} ms per step beside the servo, {alone:.1f} ms alone "
+        f"({loaded / alone:.2f}x)",
+        flush=True,
+    )
     results += run_case("idle", session, 2.0 if args.quick else 10.0, step=False)
     report("haptics", args.arch, results, args.json)
     for r in results:
