@@ -99,7 +99,6 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
         ServoSettings,
         SurfaceClusters,
     )
-    from taichi_lap.haptics.servo import scripted_device
 
     tool = session.scene.tools[0]
     surface = SurfaceClusters(session.data)
@@ -108,9 +107,7 @@ def run_case(case: str, session, duration: float, step: bool) -> list[dict]:
     )
     x = session.state.x.to_numpy()
     surface.publish(snapshot, x)
-    direction = np.asarray(tool["direction"], dtype=np.float64)
-    rotation = rotation_towards(direction)
-    device = scripted_device(press_path(x[surface.particles]), rotation=rotation, loop=True)
+    device = pressing_stylus(session, surface, x)
     settings = ServoSettings(ticks=int(duration * 1000 * 1.5) + 10_000)
     frame_ms, step_ms, publish_ms, contact_ticks = [], [], [], 0
     try:
@@ -173,17 +170,25 @@ def step_with_pose(session, tool: dict, pose: np.ndarray) -> float:
     return (time.perf_counter() - begin) * 1e3
 
 
+def pressing_stylus(session, surface, x: np.ndarray):
+    """A factory of the scripted stylus both load cases use: :func:`press_path` over
+    the ``surface`` particles at positions ``x``, held along the first tool's axis,
+    looping."""
+    from taichi_lap.haptics.servo import scripted_device
+
+    direction = np.asarray(session.scene.tools[0]["direction"], dtype=np.float64)
+    return scripted_device(
+        press_path(x[surface.particles]), rotation=rotation_towards(direction), loop=True
+    )
+
+
 def run_alone(case: str, session, duration: float) -> list[dict]:
     """``ms_per_step`` of ``session`` stepped for ``duration`` [s] without a servo, its
     first tool at the pose of the load case's scripted stylus."""
     from taichi_lap.haptics import SurfaceClusters
-    from taichi_lap.haptics.servo import ScriptedHapticDevice
 
     tool = session.scene.tools[0]
-    x = session.state.x.to_numpy()
-    rotation = rotation_towards(np.asarray(tool["direction"], dtype=np.float64))
-    path = press_path(x[SurfaceClusters(session.data).particles])
-    device = ScriptedHapticDevice(path, rotation=rotation, loop=True)
+    device = pressing_stylus(session, SurfaceClusters(session.data), session.state.x.to_numpy())()
     step_ms = []
     end = time.monotonic() + duration
     while time.monotonic() < end:
@@ -206,11 +211,13 @@ def main():
     load_case = "liver-small-load" if args.quick else "liver-full-load"
     duration = 5.0 if args.quick else 30.0
     session.reset()
-    results = run_alone(f"{load_case}-alone", session, duration)
+    (alone_row,) = run_alone(f"{load_case}-alone", session, duration)
     session.reset()
-    results += run_case(load_case, session, duration, step=True)
-    alone, loaded = results[0]["median"], results[-1]["median"]
-    results[-1]["slowdown"] = loaded / alone
+    load_rows = run_case(load_case, session, duration, step=True)
+    step_row = next(row for row in load_rows if row["metric"] == "ms_per_step")
+    alone, loaded = alone_row["median"], step_row["median"]
+    step_row["slowdown"] = loaded / alone
+    results = [alone_row, *load_rows]
     print(
         f"{load_case}: {loaded:.1f} ms per step beside the servo, {alone:.1f} ms alone "
         f"({loaded / alone:.2f}x)",

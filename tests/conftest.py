@@ -32,10 +32,11 @@ def model_cache(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session", autouse=True)
 def taichi_backend(tmp_path_factory):
     """Initialise Taichi once, on :data:`TEST_ARCH` (the CPU with one thread: the
-    workers already share out the cores, and three of them with two threads each on
-    two cores ran three heavy test files in 305 s instead of 276 s); built models and settled starts are cached in a temporary folder, not the
-    user's cache, one folder that the run's workers share (each built the same scenes
-    and settled them again; cache files are written atomically)."""
+    workers already share out the cores; three workers with two threads each ran three
+    heavy test files in 305 s, with one thread 276 s); built models and settled starts
+    are cached in a temporary folder, not the user's cache, one folder that the run's
+    workers share (each built the same scenes and settled them again; cache files are
+    written atomically)."""
     os.environ["TAICHI_LAP_CACHE"] = str(model_cache(tmp_path_factory))
     runtime.init(TEST_ARCH, threads=1 if TEST_ARCH == "cpu" else None)
     session_mod.keep_closed_sessions(KEPT_SESSIONS)
