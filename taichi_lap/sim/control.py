@@ -32,20 +32,31 @@ from taichi_lap.kernels.collision.tool_shapes import ToolPose, interpolate_tools
 
 def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
     """``frame`` (3×3, columns) turned by the smallest rotation that takes its third
-    column onto the unit ``direction``, so a tool's roll does not jump as it turns."""
+    column onto the unit ``direction``, so a tool's roll does not jump as it turns;
+    the result is made orthonormal again (a tool turned every frame would otherwise
+    gather rounding errors that grow with each turn)."""
     d = np.asarray(direction, dtype=np.float64)
     d = d / np.linalg.norm(d)
-    z = frame[:, 2]
+    z = frame[:, 2] / np.linalg.norm(frame[:, 2])
     axis = np.cross(z, d)
     s, c = np.linalg.norm(axis), float(np.dot(z, d))
     if s < 1e-12:
         if c > 0.0:
-            return frame.copy()
-        return frame @ np.diag([1.0, -1.0, -1.0])  # half turn about the frame's x
+            return orthonormal(frame)
+        return orthonormal(frame @ np.diag([1.0, -1.0, -1.0]))  # half turn about x
     k = axis / s
     cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
     rotation = np.eye(3) + s * cross + (1.0 - c) * cross @ cross
-    return rotation @ frame
+    return orthonormal(rotation @ frame)
+
+
+def orthonormal(frame: np.ndarray) -> np.ndarray:
+    """The right-handed orthonormal frame nearest ``frame``'s third column and, in the
+    plane across it, its first (Gram-Schmidt from the third column)."""
+    z = frame[:, 2] / np.linalg.norm(frame[:, 2])
+    x = frame[:, 0] - np.dot(frame[:, 0], z) * z
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
 
 
 def shape_rows(shapes) -> tuple[np.ndarray, ...]:
