@@ -22,6 +22,7 @@ from taichi_lap.core.instruments import (
     cutting_geometry,
     tool_geometry,
 )
+from taichi_lap.core.mesh import tet_volumes
 from taichi_lap.core.topology import Topology, TopologyError
 from taichi_lap.core.topology import check_topology as topology_problems
 from taichi_lap.devices import Pose, ScriptedDevice, apply_poses
@@ -252,19 +253,52 @@ class Session:
         apply_poses(self.control, self.scene.tools, {})
         skin_surface(self.model, self.state)
 
-    def remove_particles(self, particles):
+    def remove_particles(self, particles, event: dict | None = None):
         """Dissection between frames (seed 002 §3.3): remove ``particles`` (indices)
         and what goes with them; returns the
         :class:`~taichi_lap.dissection.removal.TopologyChange`. A fragment cut off is
-        reported in :attr:`events` (``fragment``, with its particle count)."""
+        reported in :attr:`events` (``fragment``, with its particle count); so is the
+        removal when ``event`` (its kind and fields) is given: with ``particles`` (how
+        many were removed), ``volume`` [m^3] (their tets' rest volume) and ``removed``
+        (:meth:`_removed_tissue`)."""
         start = time.perf_counter()
+        positions = self.state.x.to_numpy() if event is not None else None
         change = self._dissected().topology.remove(particles)
         if not change.empty:
             self._dissection.apply(change, self.state)
             self._follow(change)
+            if event is not None:
+                self.events.append(
+                    {
+                        **event,
+                        "particles": len(change.removed_particles),
+                        "volume": change.removed_volume,
+                        "removed": self._removed_tissue(change, positions),
+                    }
+                )
         spent = (time.perf_counter() - start) * 1e3
         self.timings["topology"] = self.timings.get("topology", 0.0) + spent
         return change
+
+    def _removed_tissue(self, change, positions: np.ndarray) -> dict[str, dict]:
+        """Per organ (name) a removal ``change`` took tissue of: ``positions``, where
+        its removed particles were [m] (``positions``: all particles before the
+        removal), rounded to 0.1 mm, and ``volume``, the rest volume [m^3] of its dead
+        tets; what a task's goal is judged on (``docs/training.md``)."""
+        topology = self._dissection.topology
+        removed = change.removed_particles
+        organ_of_particle = topology.organ_of[removed]
+        dead = topology.tets[change.dead_tets]
+        organ_of_tet = topology.organ_of[dead[:, 0]]
+        volumes = tet_volumes(topology.rest, dead)
+        tissue = {}
+        for k in np.unique(organ_of_particle):
+            where = np.round(positions[removed[organ_of_particle == k]].astype(np.float64), 4)
+            tissue[self.data.organs[k].name] = {
+                "positions": where.tolist(),
+                "volume": float(volumes[organ_of_tet == k].sum()),
+            }
+        return tissue
 
     def _follow(self, change):
         """After a topology ``change`` was written to the model: the heat, the tissue
@@ -347,8 +381,7 @@ class Session:
             self._loose = self._volume_cutter.loose_pieces()
             chips = [piece for _, piece in self._loose if len(piece) <= FRAGMENT_PARTICLES]
             for piece in chips:
-                self.remove_particles(piece)
-                self.events.append({"kind": "fragment", "particles": len(piece)})
+                self.remove_particles(piece, {"kind": "fragment"})
             if chips:
                 self._loose = self._volume_cutter.loose_pieces()
 
@@ -362,16 +395,7 @@ class Session:
         x = self.state.x.to_numpy().astype(np.float64)
         gone = [(k, piece) for k, piece in self._loose if not self.camera.sees(x[piece]).any()]
         for k, piece in gone:
-            before = self._dissection.topology.removed_volume
-            self.remove_particles(piece)
-            self.events.append(
-                {
-                    "kind": "excised",
-                    "organ": self.data.organs[k].name,
-                    "particles": len(piece),
-                    "volume": self._dissection.topology.removed_volume - before,
-                }
-            )
+            self.remove_particles(piece, {"kind": "excised", "organ": self.data.organs[k].name})
         if gone:
             self._loose = self._volume_cutter.loose_pieces()
 
@@ -422,9 +446,7 @@ class Session:
             near = np.flatnonzero(((x - tips[k]) ** 2).sum(axis=1) < reach * reach)
             near = near[self._dissectable(near)]
             if len(near):
-                change = self.remove_particles(near)
-                count = len(change.removed_particles)
-                self.events.append({"kind": "dissect", "tool": tool["name"], "particles": count})
+                self.remove_particles(near, {"kind": "dissect", "tool": tool["name"]})
 
     def _energise(self, buttons: dict[str, int]):
         """The hooks whose CAUTERY_BUTTON is held are energised; events
@@ -455,14 +477,7 @@ class Session:
         self.timings["heat"] = (time.perf_counter() - start) * 1e3
         self.events += damage
         if len(ablated):
-            change = self.remove_particles(ablated)
-            self.events.append(
-                {
-                    "kind": "cautery",
-                    "tools": sorted(self._energised),
-                    "particles": len(change.removed_particles),
-                }
-            )
+            self.remove_particles(ablated, {"kind": "cautery", "tools": sorted(self._energised)})
 
     def surface_particles(self) -> np.ndarray:
         """Sorted particles the drawn organ surfaces follow now (as built, or after
@@ -597,13 +612,28 @@ class Session:
         spent = (time.perf_counter() - start) * 1e3
         self.timings["physics"] = spent - self.timings.get("topology", 0.0)
         self.timings["collision"] = self.solver.collision_ms  # a part of physics
-        names = [tool["name"] for tool in self.scene.tools]
-        self.events += [dict(event, tool=names[event["tool"]]) for event in self.solver.events]
+        self.events += self._grasp_events()
         self._energise(buttons or {})
         self._tear()
         self._excise()
         self._dissect()
         self._cauterize()
+
+    def _grasp_events(self) -> list[dict]:
+        """The solver's grasp and release events with the tool's name; a grasp also
+        with ``organs``: the particles of each organ the jaws took (by name)."""
+        names = [tool["name"] for tool in self.scene.tools]
+        events = []
+        for event in self.solver.events:
+            named = dict(event, tool=names[event["tool"]])
+            if event["kind"] == "grasp":
+                held = self.data.organ[self.state.grasp_tool.to_numpy() == event["tool"]]
+                organs = np.bincount(held, minlength=len(self.data.organs))
+                named["organs"] = {
+                    organ.name: int(n) for organ, n in zip(self.data.organs, organs) if n
+                }
+            events.append(named)
+        return events
 
     def tool_reaction(self, tool: int) -> np.ndarray:
         """The force [N] (3,) the tissue pushed scene tool ``tool`` (an index) with at

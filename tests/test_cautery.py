@@ -118,6 +118,14 @@ def test_an_energised_hook_cuts_a_groove_along_its_path(burnt):
     cell = 0.5 * 0.002  # the particles' cell radius: half the lattice spacing
     reach = (HOOK_WIRE + HOOK_HEAT_GAP) * RADIUS + cell
     x0 = HOOK["tip"][0]
+    # each removal says where its tissue was (rounded to 0.1 mm) and its tets' volume
+    burns = [e for e in events if e["kind"] == "cautery"]
+    where = np.concatenate([e["removed"]["block"]["positions"] for e in burns])
+    assert len(where) == len(removed)
+    assert np.abs(where[:, 2]).max() < reach + 0.003 and where[:, 0].min() > x0 - reach
+    volume = sum(e["removed"]["block"]["volume"] for e in burns)
+    assert volume > 0.0 and volume == pytest.approx(session._dissection.topology.removed_volume)
+    assert volume == pytest.approx(sum(e["volume"] for e in burns))
     assert (
         rest[:, 0].min() > x0 - reach and rest[:, 0].max() < x0 + 0.02 + HOOK_FOOT * RADIUS + reach
     )

@@ -76,6 +76,7 @@ def test_grasped_particles_follow_the_jaws_rigidly_and_stretch_the_tissue():
     assert [e["kind"] for _, e in events] == ["grasp", "release"]
     (grasp_frame, grasp), (release_frame, release) = events
     assert grasp["tool"] == "forceps" and grasp["particles"] >= 3
+    assert grasp["organs"] == {session.data.organs[0].name: grasp["particles"]}
     assert release["particles"] == grasp["particles"]
     held = np.flatnonzero(history[grasp_frame]["grasp_tool"] == 0)
     assert len(held) == grasp["particles"]
@@ -104,7 +105,7 @@ def test_grasped_particles_follow_the_jaws_rigidly_and_stretch_the_tissue():
 def test_jaws_closed_in_the_air_take_nothing_even_when_pushed_into_tissue():
     script = keyframes((0.0, [0, 0.02, 0], {"grasp": True}), (0.3, [0, -0.004, 0], {}))
     _, history = run(HELD_BLOCK, script, 0.5)
-    assert [e["particles"] for e in history[0]["events"]] == [0]
+    assert [(e["particles"], e["organs"]) for e in history[0]["events"]] == [(0, {})]
     assert all(not frame["events"] for frame in history[1:])
     assert all(np.all(frame["grasp_tool"] == FREE) for frame in history)
 
