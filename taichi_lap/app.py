@@ -38,7 +38,7 @@ def _measure(session: Session, recorder: SessionRecorder | None, live: LiveScore
     if recorder is not None:  # the stages of the frame, not the window's frame interval
         stages = {stage: ms for stage, ms in session.timings.items() if stage != "frame"}
         recorder.record_stats(stages, forces, touching)
-    live.update(dict(zip(tools, session.control.tips)), forces, touching)
+    live.update(dict(zip(tools, session.control.tips)), forces, touching, session.events)
 
 
 def _verdict(session: Session, recorder: SessionRecorder | None) -> list[str]:
@@ -166,7 +166,7 @@ def run_window(
             session.timings["render"] = (time.perf_counter() - start) * 1e3
             if stepping:
                 _measure(session, recorder, live)
-            if verdict is None and (live.over_time or viewer.finish_requested):
+            if verdict is None and (live.over_time or live.goal_reached or viewer.finish_requested):
                 verdict = _verdict(session, recorder) or ["finished"]
             window.show()
     return session

@@ -20,6 +20,8 @@ TABLES = {
     "attachments": scene_mod.ATTACHMENT_PARAMS,
     "task": scene_mod.TASK_PARAMS,
     "task pass": scene_mod.TASK_PASS_PARAMS,
+    "task plane": scene_mod.TASK_PLANE_PARAMS,
+    "task phases": scene_mod.TASK_PHASE_PARAMS,
     **{f"material {m}": p for m, p in scene_mod.MATERIAL_PARAMS.items()},
     **{f"generator {g.name}": g.params for g in GENERATORS.values()},
 }

@@ -15,6 +15,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from taichi_lap.core.errors import InputError
 from taichi_lap.core.instruments import MAX_TOOLS
 from taichi_lap.core.params import REQUIRED, Param, check_table, check_value, describe
@@ -32,6 +34,8 @@ from taichi_lap.scene.schema import (
     SCENE_PARAMS,
     TASK_PARAMS,
     TASK_PASS_PARAMS,
+    TASK_PHASE_PARAMS,
+    TASK_PLANE_PARAMS,
     TOOL_PARAMS,
     UNITS,
 )
@@ -101,6 +105,23 @@ def builtin_names() -> list[str]:
         for p in resources.files("taichi_lap.scenes").iterdir()
         if p.name.endswith(".toml")
     )
+
+
+def builtin_scripts() -> list[str]:
+    """Names of the tool scripts shipped with the scenes (``scenes/scripts``): the
+    careless references of the built-in tasks, ``<scene>-careless``."""
+    return sorted(
+        p.name[:-5]
+        for p in (resources.files("taichi_lap.scenes") / "scripts").iterdir()
+        if p.name.endswith(".toml")
+    )
+
+
+def resolve_script(name_or_path: str) -> Path:
+    """The file of a built-in script name (:func:`builtin_scripts`) or of a path."""
+    if name_or_path in builtin_scripts() and not Path(name_or_path).exists():
+        return Path(str(resources.files("taichi_lap.scenes") / "scripts" / f"{name_or_path}.toml"))
+    return Path(name_or_path)
 
 
 def resolve(name_or_path: str) -> Path:
@@ -233,7 +254,11 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     organs = [_organ(source, directory, f"organs[{k}]", t) for k, t in enumerate(organ_tables)]
     _check_names(source, organs, tools)
     task = (
-        check_task(source, "task", raw["task"], [o.name for o in organs]) if "task" in raw else None
+        check_task(
+            source, "task", raw["task"], [o.name for o in organs], [t["name"] for t in tools]
+        )
+        if "task" in raw
+        else None
     )
     return Scene(
         source=source,
@@ -248,17 +273,56 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     )
 
 
-def check_task(source: str, key: str, table: Any, organ_names: list[str]) -> dict[str, Any]:
+def check_task(
+    source: str, key: str, table: Any, organ_names: list[str], tool_names: list[str]
+) -> dict[str, Any]:
     """A ``[task]`` table (:data:`TASK_PARAMS`, its ``pass`` thresholds
-    :data:`TASK_PASS_PARAMS`) with defaults filled in; its ``forbidden`` organs must
-    be organs of the scene (``organ_names``)."""
-    task = check_table(source, key, table, TASK_PARAMS, ignore=("pass",))
+    :data:`TASK_PASS_PARAMS`, its goal: a planned transection ``plane``
+    :data:`TASK_PLANE_PARAMS` and ``phases`` :data:`TASK_PHASE_PARAMS`, each
+    optional) with defaults filled in; the organs and tools it names must be the
+    scene's (``organ_names``, ``tool_names``)."""
+    task = check_table(source, key, table, TASK_PARAMS, ignore=("pass", "plane", "phases"))
     task["pass"] = check_table(source, f"{key}.pass", table.get("pass", {}), TASK_PASS_PARAMS)
-    for k, name in enumerate(task["forbidden"]):
+    named = [
+        (f"{key}.{group}[{k}]", name)
+        for group in ("forbidden", "removable")
+        for k, name in enumerate(task[group])
+    ]
+    task["plane"] = None
+    if "plane" in table:
+        plane = task["plane"] = check_table(
+            source, f"{key}.plane", table["plane"], TASK_PLANE_PARAMS
+        )
+        named.append((f"{key}.plane.organ", plane["organ"]))
+        normal = np.asarray(plane["normal"])
+        if normal @ normal < 1e-12:
+            raise InputError(source, f"{key}.plane.normal", "a non-zero vector was expected")
+        line = np.subtract(plane["end"], plane["start"])
+        if np.linalg.norm(line - (line @ normal) / (normal @ normal) * normal) < 1e-4:
+            raise InputError(
+                source,
+                f"{key}.plane.end",
+                "a point at least 0.1 mm from start along the plane was expected",
+            )
+    phases = _list_of_tables(source, f"{key}.phases", table.get("phases", []))
+    task["phases"] = []
+    for k, phase in enumerate(phases):
+        phase = check_table(source, f"{key}.phases[{k}]", phase, TASK_PHASE_PARAMS)
+        if phase["organ"] is not None:
+            named.append((f"{key}.phases[{k}].organ", phase["organ"]))
+        if phase["tool"] is not None and phase["tool"] not in tool_names:
+            raise InputError(
+                source,
+                f"{key}.phases[{k}].tool",
+                f"the name of a tool in this scene ({', '.join(tool_names)}) was expected, "
+                f"found {phase['tool']!r}",
+            )
+        task["phases"].append(phase)
+    for where, name in named:
         if name not in organ_names:
             raise InputError(
                 source,
-                f"{key}.forbidden[{k}]",
+                where,
                 f"the name of an organ in this scene ({', '.join(organ_names)}) was expected, "
                 f"found {name!r}",
             )

@@ -321,7 +321,7 @@ TASK_PARAMS = {
     "time_limit": Param(
         "float",
         0.0,
-        "the task is failed past this time (0: no limit)",
+        "the goal (without one, the session's end) must come within this time (0: no limit)",
         lo=0.0,
         hi=86400.0,
         unit="s",
@@ -329,6 +329,53 @@ TASK_PARAMS = {
     "forbidden": Param(
         "strlist", [], "organs the instruments must not touch (instrument contacts counted)"
     ),
+    "removable": Param(
+        "strlist", [], "organs whose removal is the goal (not counted as tissue removed outside it)"
+    ),
+}
+TASK_PLANE_PARAMS = {
+    "organ": Param("str", REQUIRED, "the organ transected: its removed tissue is the wound"),
+    "point": Param("vec3", REQUIRED, "a point of the planned plane", lo=-100, hi=100, unit="m"),
+    "normal": Param("vec3", REQUIRED, "the plane's normal", lo=-1000, hi=1000),
+    "start": Param(
+        "vec3",
+        REQUIRED,
+        "the planned line's first end (projected into the plane)",
+        lo=-100,
+        hi=100,
+        unit="m",
+    ),
+    "end": Param(
+        "vec3",
+        REQUIRED,
+        "the planned line's last end (projected into the plane)",
+        lo=-100,
+        hi=100,
+        unit="m",
+    ),
+    "tolerance": Param(
+        "float",
+        0.003,
+        "tissue removed this close to the plane is in the goal",
+        lo=1e-4,
+        hi=1.0,
+        unit="m",
+    ),
+    "coverage": Param(
+        "float",
+        0.8,
+        "fraction of the line the wound must reach to complete the goal",
+        lo=0.0,
+        hi=1.0,
+    ),
+}
+PHASE_EVENTS = ("grasp", "cut", "tear", "dissect", "cautery", "excised", "vessel_damage")
+TASK_PHASE_PARAMS = {
+    "name": Param("str", REQUIRED, "what the phase is, as the trainee reads it"),
+    "event": Param("str", REQUIRED, "the event that completes it", choices=PHASE_EVENTS),
+    "organ": Param("str", None, "only events on this organ (grasped, cut, torn, removed)"),
+    "tool": Param("str", None, "only events of this tool"),
+    "count": Param("int", 1, "events needed after the phase before it completed", lo=1, hi=100000),
 }
 TASK_PASS_PARAMS = {  # upper bounds; a metric without one is reported, not judged
     "path_length": Param(
@@ -352,4 +399,18 @@ TASK_PASS_PARAMS = {  # upper bounds; a metric without one is reported, not judg
     ),
     "vessel_damage": Param("int", None, "vessel damage events", lo=0, hi=1_000_000),
     "tears": Param("int", None, "tear events", lo=0, hi=1_000_000),
+    "removed_outside": Param(
+        "float", None, "tissue removed outside the goal", lo=0.0, hi=1e6, unit="ml"
+    ),
+    "wound_distance_mean": Param(
+        "float", None, "mean distance of the wound from the planned plane", lo=0.0, hi=1.0, unit="m"
+    ),
+    "wound_distance_max": Param(
+        "float",
+        None,
+        "largest distance of the wound from the planned plane",
+        lo=0.0,
+        hi=1.0,
+        unit="m",
+    ),
 }

@@ -1,6 +1,6 @@
 """Running values of a session for the window's task panel: elapsed time against the
-task's limit, each instrument's path length and peak force, and the contacts begun
-with the task's forbidden organs, updated frame by frame from what the simulation
+task's limit, each instrument's path length and peak force, the contacts begun with
+the task's forbidden organs and the goal's progress, updated frame by frame from what the simulation
 gives (the report's metrics, :mod:`taichi_lap.training.metrics`, are computed from
 the session file at the end; these agree with them for the same frames, the force
 being the simulation's, not the haptic ticks')."""
@@ -10,6 +10,8 @@ from __future__ import annotations
 import textwrap
 
 import numpy as np
+
+from taichi_lap.training.goal import REMOVAL_EVENTS, goal_result
 
 
 class LiveScore:
@@ -25,6 +27,8 @@ class LiveScore:
         self.forbidden_contacts = 0
         self._tips: dict[str, np.ndarray] = {}
         self._touching: set[tuple[str, str]] = set()  # (tool, forbidden organ) in contact
+        self.events: list[dict] = []  # with a task, the session's events stamped [s]
+        self.goal = goal_result(task, [], 0.0) if task else None
 
     @property
     def elapsed(self) -> float:
@@ -45,10 +49,18 @@ class LiveScore:
         tips: dict[str, np.ndarray],
         forces: dict[str, np.ndarray],
         contacts: dict[str, dict[str, int]],
+        events: list[dict] = (),
     ):
         """One frame: the tips [m] applied before its step, and after it the force
-        [N] on each tool and the particles of each organ touching it."""
+        [N] on each tool, the particles of each organ touching it and the step's
+        ``events`` (:attr:`Session.events`; the goal follows them)."""
         self.frames += 1
+        if self.task:
+            stamped = [{**event, "time": self.elapsed} for event in events]
+            self.events += stamped
+            goal_events = {phase["event"] for phase in self.task["phases"]}
+            if any(e["kind"] in goal_events or e["kind"] in REMOVAL_EVENTS for e in stamped):
+                self.goal = goal_result(self.task, self.events, 0.0)
         for tool, tip in tips.items():
             if tool in self._tips:
                 self.path_length[tool] += float(np.linalg.norm(tip - self._tips[tool]))
@@ -82,6 +94,38 @@ class LiveScore:
             lines.append(
                 f"contacts with {', '.join(self.task['forbidden'])}: {self.forbidden_contacts}"
             )
+        if self.goal is not None:
+            lines += self._goal_lines()
+        return lines
+
+    @property
+    def goal_reached(self) -> bool:
+        """Whether the task has a goal and it was reached (the task is over)."""
+        return self.goal is not None and self.goal["reached"]
+
+    def _goal_lines(self) -> list[str]:
+        """Each phase, done (with its time) or to do; the planned line reached and the
+        wound's distance from the plane; tissue removed outside the goal."""
+        lines = [
+            f"[{'x' if p['completed_at'] is not None else ' '}] {p['name']}"
+            + (f" ({p['completed_at']:.1f} s)" if p["completed_at"] is not None else "")
+            for p in self.goal["phases"]
+        ]
+        plane = self.goal["plane"]
+        if plane is not None:
+            lines.append(
+                f"planned line reached {100 * plane['coverage']:.0f} % "
+                f"(of {100 * plane['coverage_needed']:.0f} %)"
+            )
+            if plane["distance_max"] is not None:
+                lines.append(
+                    f"wound from the plane: mean {1e3 * plane['distance_mean']:.1f} mm, "
+                    f"max {1e3 * plane['distance_max']:.1f} mm"
+                )
+        if self.goal["removed"] > 0.0:
+            lines.append(f"removed outside the goal: {self.goal['removed_outside']:.2f} ml")
+        if self.goal["reached"]:
+            lines.append(f"GOAL REACHED in {self.goal['time_to_completion']:.1f} s")
         return lines
 
 
@@ -95,7 +139,8 @@ def verdict_lines(task: dict | None) -> list[str]:
     for check in broken:
         value = "not measured" if check["value"] is None else f"{check['value']:.4g}"
         bound = f"{check['bound']:.4g} {check['unit']}".rstrip()
-        lines.append(f"  {check['metric']}: {value}, at most {bound}")
+        relation = "at least" if check["at_least"] else "at most"
+        lines.append(f"  {check['metric']}: {value}, {relation} {bound}")
     if not task["passed"] and not broken:
         lines.append("  the session did not end normally")
     return lines

@@ -300,5 +300,5 @@ def session_metrics(recording: Recording) -> SessionMetrics:
     )
     task = recorded_task(recording)
     if task is not None:
-        metrics.task = judge_task(task, metrics)
+        metrics.task = judge_task(task, metrics, recording.events)
     return metrics

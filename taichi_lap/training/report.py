@@ -134,15 +134,16 @@ def _session_section(number: int, m: SessionMetrics) -> list[str]:
 
 
 def _task_section(task: dict | None) -> list[str]:
-    """The task's verdict and its checks, or a line saying the scene has no task."""
+    """The task's verdict, its goal and its checks, or a line saying the scene has no
+    task."""
     if task is None:
         return ["<h3>Task</h3>", "<p>The scene has no task: nothing is judged.</p>"]
     verdict = "passed" if task["passed"] else "<span class='incomplete'>failed</span>"
     rows = [
         (
             html.escape(check["metric"]),
-            "—" if check["value"] is None else f"{check['value']:.4g}",
-            f"at most {check['bound']:.4g}",
+            _number(check["value"]),
+            f"{'at least' if check['at_least'] else 'at most'} {check['bound']:.4g}",
             check["unit"],
             "yes" if check["passed"] else "<span class='incomplete'>no</span>",
         )
@@ -154,8 +155,49 @@ def _task_section(task: dict | None) -> list[str]:
         f"<p>{html.escape(task['instructions'])}</p>",
         f"<p>Forbidden organs: {html.escape(forbidden)}; contacts with them: "
         f"{task['forbidden_contacts']}.</p>",
-        _table(("metric", "value", "bound", "unit", "passed"), rows),
+        *_goal_section(task["goal"]),
+        _table(("requirement", "value", "bound", "unit", "passed"), rows),
     ]
+
+
+def _goal_section(goal: dict) -> list[str]:
+    """The goal's phases with the time each completed, the wound against the planned
+    plane, and the tissue removed in all and outside the goal."""
+    rows = [
+        (f"phase {k}: {html.escape(phase['name'])}", _seconds(phase["completed_at"]))
+        for k, phase in enumerate(goal["phases"], 1)
+    ]
+    plane = goal["plane"]
+    if plane is not None:
+        rows += [
+            (
+                f"planned plane through the {html.escape(plane['organ'])}: line reached",
+                f"{100 * plane['coverage']:.0f} % (needed {100 * plane['coverage_needed']:.0f} %)",
+            ),
+            (
+                "wound distance from the plane, mean / largest [mm]",
+                f"{_number(plane['distance_mean'], 1e3)} / {_number(plane['distance_max'], 1e3)}",
+            ),
+            ("line reached at", _seconds(plane["reached_at"])),
+        ]
+    rows += [
+        (
+            "tissue removed, outside the goal [ml]",
+            f"{goal['removed']:.3f}, {goal['removed_outside']:.3f}",
+        ),
+        ("time to completion", _seconds(goal["time_to_completion"])),
+    ]
+    if not goal["has_goal"]:
+        rows = rows[-2:-1]
+    return ["<h4>Goal</h4>", _table(("", ""), rows)]
+
+
+def _number(value, scale: float = 1.0) -> str:
+    return "—" if value is None else f"{value * scale:.4g}"
+
+
+def _seconds(value) -> str:
+    return "not reached" if value is None else f"{value:.2f} s"
 
 
 def _touched_table(m: SessionMetrics) -> str:
