@@ -114,3 +114,35 @@ def shade(
             else:
                 colour = ti.Vector([c, c, c])
         frame[x, y] = colour
+
+
+MARK_COLOUR = (0.1, 0.8, 0.45)  # the planned line's green, as a surgical marker's
+MARK_HALF_WIDTH = 0.0006  # [m]
+MARK_DASH = 0.004  # [m] one dash and its gap along the line
+
+
+@ti.kernel
+def mark_plane(
+    gbuffer: ti.template(),
+    materials: ti.template(),
+    frame: ti.template(),
+    organ: ti.i32,
+    point: ti.types.vector(3, ti.f32),
+    normal: ti.types.vector(3, ti.f32),
+    start: ti.types.vector(3, ti.f32),
+    along: ti.types.vector(3, ti.f32),
+    length: ti.f32,
+):
+    """Draw a task's planned transection on the tissue (``[task.plane]``): the pixels
+    of ``organ`` (object index) whose surface point lies within MARK_HALF_WIDTH [m] of
+    the plane through ``point`` with unit ``normal``, beside the planned line (from
+    ``start`` along unit ``along``, ``length`` [m]), dashed every MARK_DASH, are
+    blended towards MARK_COLOUR. It follows the tissue as it deforms and is cut."""
+    for x, y in frame:
+        triangle = gbuffer.triangle[x, y]
+        if triangle >= 0 and materials.triangle_object[triangle] == organ:
+            p = gbuffer.position[x, y]
+            s = (p - start).dot(along)
+            on_plane = ti.abs((p - point).dot(normal)) < MARK_HALF_WIDTH
+            if on_plane and 0.0 <= s <= length and ti.math.mod(s, MARK_DASH) < 0.6 * MARK_DASH:
+                frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75)

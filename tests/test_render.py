@@ -169,6 +169,30 @@ def test_intestine_is_drawn_as_a_generalized_cylinder():
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-3)
 
 
+def test_the_planned_plane_of_the_task_is_marked_dashed_on_its_organ_only():
+    """The liver task's planned line: the pixels the mark changed show the liver within
+    the mark's half width of the plane, beside the line, on the dashes only."""
+    from taichi_lap.kernels.shading import MARK_DASH, MARK_HALF_WIDTH
+
+    session = small_session("liver")
+    renderer = Renderer.for_scene(session.scene, session.model, size=(320, 240))
+    renderer.render(session.state, session.control)
+    marked = renderer.image()
+    organ, plane = renderer.planned
+    renderer.planned = None
+    renderer.render(session.state, session.control)
+    changed = np.any(marked != renderer.image(), axis=2)
+    at = np.flipud(changed).T  # image rows, top first -> G-buffer [x, y]
+    assert at.sum() > 30
+    triangles = renderer.gbuffer.triangle.to_numpy()[at]
+    assert (renderer.mesh.triangle_object.to_numpy()[triangles] == organ).all()
+    points = renderer.gbuffer.position.to_numpy()[at].astype(np.float64)
+    assert plane.distance(points).max() < MARK_HALF_WIDTH + 1e-6
+    along = (points - plane.start) @ plane.along
+    assert along.min() >= -1e-6 and along.max() <= plane.length + 1e-6
+    assert (np.mod(along, MARK_DASH) < 0.6 * MARK_DASH + 1e-6).all()
+
+
 def window_screenshot() -> dict[str, np.ndarray]:
     """A scene drawn into an offscreen GGUI window: its screenshot and the
     renderer's own image."""

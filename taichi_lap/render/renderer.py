@@ -15,9 +15,10 @@ import taichi as ti
 from taichi_lap.core.fields import FieldGroup
 from taichi_lap.kernels.ibl import ImageLighting
 from taichi_lap.kernels.raster import GBuffer, camera_matrices
-from taichi_lap.kernels.shading import shade
+from taichi_lap.kernels.shading import mark_plane, shade
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
+from taichi_lap.scene.planned_plane import PlannedPlane
 
 BACKGROUND = (0.02, 0.008, 0.006)
 
@@ -72,13 +73,19 @@ class Renderer:
         builder.dense(ti.ij, (self.width, self.height)).place(self.frame)
         self._frame_tree = builder.finalize()
         self.view = 0
+        self.planned: tuple[int, PlannedPlane] | None = None  # (organ, plane) to mark
         self.timings: dict[str, float] = {}
 
     @classmethod
     def for_scene(cls, scene, model, *, size=(640, 480)) -> "Renderer":
         """The renderer of a scene: the organs of its ``model``, tubes and instruments
-        seen from its camera."""
-        return cls(SceneMesh(scene, model), EndoscopeCamera.from_scene(scene.camera), size=size)
+        seen from its camera, with its task's planned transection marked."""
+        renderer = cls(SceneMesh(scene, model), EndoscopeCamera.from_scene(scene.camera), size=size)
+        plane = scene.task["plane"] if scene.task else None
+        if plane is not None:
+            organ = [organ.name for organ in scene.organs].index(plane["organ"])
+            renderer.planned = (organ, PlannedPlane(plane))
+        return renderer
 
     def render(self, state, control, peak=None):
         """Draw ``state`` (deformed surfaces) and ``control`` (instruments); with
@@ -110,6 +117,19 @@ class Renderer:
         self.params.forward[None] = cam.axes()[0]
         self.params.far[None] = cam.far
         shade(self.gbuffer, self.mesh, self.lighting, self.params, self.frame, self.view)
+        if self.planned is not None and self.view == 0:
+            organ, plane = self.planned
+            mark_plane(
+                self.gbuffer,
+                self.mesh,
+                self.frame,
+                organ,
+                plane.point,
+                plane.normal,
+                plane.start,
+                plane.along,
+                plane.length,
+            )
         ti.sync()
         marks.append(time.perf_counter())
         for name, a, b in zip(("vertex", "visibility", "shading"), marks, marks[1:]):
