@@ -52,7 +52,8 @@ def _parser() -> argparse.ArgumentParser:
         "--device",
         action="append",
         default=None,
-        help="mouse, none, openhaptics[:NAME], script:PATH, replay:RECORDING "
+        help="mouse, none, openhaptics[:NAME], script:PATH (or a built-in script's name, "
+        "see `taichi-lap list`), replay:RECORDING "
         "(default: mouse in a window, the scene's tool scripts headless); "
         "repeat for several at once: each mouse or openhaptics device "
         "drives the next tool of the scene",
@@ -149,6 +150,8 @@ def cmd_list(args) -> int:
     for name in scene_mod.builtin_names():
         description = scene_mod.load(name).settings["description"]
         print(f"{name:<12} {description}")
+    scripts = ", ".join(scene_mod.builtin_scripts())
+    print(f"built-in scripts (--device script:NAME): {scripts}")
     return 0
 
 
@@ -210,12 +213,13 @@ def _one_device(choice: str, scene, headless: bool, taken: set[int]):
     """One device; a mouse or haptic device drives a tool not in ``taken`` (then added)."""
     from taichi_lap.devices import MouseDevice, ScriptedDevice
     from taichi_lap.replay import ReplayDevice, read_recording
+    from taichi_lap.scene import resolve_script
     from taichi_lap.session import scene_script
 
     if choice == "auto":
         choice = "scene" if headless else "mouse"
     if choice.startswith("script:"):
-        return ScriptedDevice.from_file(choice[len("script:") :], scene.tools)
+        return ScriptedDevice.from_file(resolve_script(choice[len("script:") :]), scene.tools)
     if choice.startswith("replay:"):
         recording = read_recording(choice[len("replay:") :], ticks=False)
         recording.check_scene(scene)

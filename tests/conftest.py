@@ -83,7 +83,9 @@ def pytest_runtest_call(item):
 
 LONGEST_FILES_FIRST = (
     "test_recording.py",
+    "test_task_liver.py",
     "test_tool_contact.py",
+    "test_task_rectum.py",
     "test_trajectories.py",
     "test_dissection_device.py",
     "test_circumsphere.py",

@@ -26,6 +26,7 @@ def test_list_names_the_three_builtin_scenes(capsys):
     out = capsys.readouterr().out
     for name in ("liver", "rectum", "intestine"):
         assert name in out
+    assert "built-in scripts (--device script:NAME): liver-careless, rectum-careless" in out
 
 
 def test_info_reports_versions_and_backends(capsys):
@@ -214,5 +215,5 @@ def test_a_headless_run_without_frames_plays_the_scene_script_to_its_end():
     scene = scene_mod.load("liver", dict(scene_mod.parse_override(t) for t in SMALL[1::2]))
     device = scene_script(scene)
     expected = math.ceil((device.duration() + SCRIPT_TAIL) / scene.settings["dt"])
-    assert device.duration() == 20.4 and _headless_frames(device, scene) == expected
+    assert device.duration() == 7.4 and _headless_frames(device, scene) == expected
     assert _headless_frames(None, scene) == HEADLESS_FRAMES
