@@ -189,7 +189,7 @@ def _goal_section(goal: dict) -> list[str]:
     ]
     if not goal["has_goal"]:
         rows = rows[-2:-1]
-    return ["<h4>Goal</h4>", _table(("", ""), rows)]
+    return ["<h4>Goal</h4>", _table(None, rows)]
 
 
 def _number(value, scale: float = 1.0) -> str:
