@@ -1,8 +1,20 @@
 """The rectum scene's task (seed 000 §7), run headless by its scripts at the scene's
-own settings (see ``tests/test_task_liver.py``)."""
+own settings (see ``tests/test_task_liver.py``); the expert's run is also the
+check that the scene's script performs the whole procedure: the polyp's stalk cut
+through, its head excised, the vessel divided, with a valid topology and no
+recompiling."""
 
-from tests.test_task_liver import failed, judged
+import numpy as np
+
+from taichi_lap import app
+from taichi_lap import scene as scene_mod
+from taichi_lap.core.mesh import element_pieces
+from taichi_lap.replay import read_recording
+from taichi_lap.session import scene_script
 from taichi_lap.training.live import verdict_lines
+from taichi_lap.training.metrics import session_metrics
+from tests.test_task_liver import failed, judged
+from tests.test_volume_cut import STALK_CUT, polyp
 
 
 def test_the_rectum_expert_does_every_phase_and_the_careless_scissors_close_on_the_gland(
@@ -10,12 +22,44 @@ def test_the_rectum_expert_does_every_phase_and_the_careless_scissors_close_on_t
 ):
     """Seed 000 §7's operation: the scene's script grasps the wall, cuts the fascia
     along its attachment, excises the polyp and divides the vessel, in order, without
-    touching the gland; the careless scissors press on the gland and close on it, and
-    leave the fascia, the polyp and the vessel."""
-    expert = judged(tmp_path, "expert", "rectum", 630)  # the last phase ends by 10.5 s
+    touching the gland. Its scissors cut the stalk's tets, the piece lifted out of
+    the view is the polyp's head (nearly all of it above the stalk: a few chips the
+    blade cut off went as fragments) and the spare rows held every cut (no
+    recompiling); the vessel is in two pieces, each hanging from a fixed end. The
+    careless scissors press on the gland and close on it, and leave the fascia, the
+    polyp and the vessel."""
+    scene = scene_mod.load("rectum")
+    path = tmp_path / "expert.tlap"
+    session = app.run_headless(
+        scene,
+        scene_script(scene),
+        frames=660,
+        out=str(tmp_path / "f"),
+        size=(64, 48),
+        record=str(path),
+    )  # the vessel is divided by 10.7 s
+    metrics = session_metrics(read_recording(path))
+    expert = metrics.task
     assert expert["passed"], verdict_lines(expert)
     times = [phase["completed_at"] for phase in expert["goal"]["phases"]]
     assert all(t is not None for t in times) and times == sorted(times)
+
+    events = metrics.timeline
+    assert sum(e.get("tets", 0) for e in events if e["kind"] == "cut" and e["organ"] == "polyp")
+    (excised,) = [e for e in events if e["kind"] == "excised"]
+    k, built = polyp(session.data)
+    head = built[session.data.rest_position[built, 1] > STALK_CUT + 0.004]
+    alive = session._dissection.topology.particle_alive
+    assert not alive[head].any() and excised["particles"] > 0.95 * len(head)
+    assert excised["volume"] > 0.8 * (4 / 3) * np.pi * 0.008**3
+    assert session.model.layout_version == 0
+    session.check_topology()
+    vessel = [organ.name for organ in session.data.organs].index("vessel")
+    triangles = session.live_triangles(vessel)
+    pieces = element_pieces(triangles)
+    assert pieces.max() == 1
+    for piece in range(2):
+        assert session.data.pinned[np.unique(triangles[pieces == piece])].any()
 
     careless = judged(tmp_path, "careless", "rectum", 180, "--device", "script:rectum-careless")
     assert not careless["passed"] and careless["forbidden_contacts"] > 0
