@@ -1,9 +1,10 @@
 """Topology benchmark (issue: Dissection I, seed 002 §3.3).
 
 Cases
-* ``liver-cautery``: the liver scene's own script (settled start, tissue collision):
-  the electrocautery hook, energised, transects the parenchyma along a 3 cm line at
-  5 mm/s in three passes, each deeper, down to a branch of the hepatic vein (20.4 s). Metrics ``ms_per_update`` (the topology
+* ``liver-cautery``: the liver scene (settled start, tissue collision) driven by the
+  built-in script ``liver-deep-transection``: the electrocautery hook, energised,
+  transects the parenchyma along a 3 cm line at 5 mm/s in three passes, each deeper,
+  down to a branch of the hepatic vein (20.4 s). Metrics ``ms_per_update`` (the topology
   update alone of each frame that removed tissue: host topology and the rows written
   to the device; median, p95, max; the first update, which compiles the row writes,
   is the parameter ``first_update_ms``) and ``ms_per_frame`` (a whole simulation
@@ -76,10 +77,12 @@ from taichi_lap.perf.common import arguments, report, result
 def cautery_cases(detail: float) -> list[dict]:
     """``liver-cautery`` at ``detail`` (module docstring)."""
     from taichi_lap import scene as scene_mod
-    from taichi_lap.session import Session, scene_script
+    from taichi_lap.devices import ScriptedDevice
+    from taichi_lap.session import Session
 
     session = Session(scene_mod.load("liver", {"scene.detail": detail}), progress=False)
-    device = scene_script(session.scene)
+    script = scene_mod.resolve_script("liver-deep-transection")
+    device = ScriptedDevice.from_file(script, session.scene.tools)
     frames = int(round(device.duration() / session.dt))
     session.step()  # compile
     updates, cutting, plain, removed, alive = [], [], [], 0, 0

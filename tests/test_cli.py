@@ -26,7 +26,8 @@ def test_list_names_the_three_builtin_scenes(capsys):
     out = capsys.readouterr().out
     for name in ("liver", "rectum", "intestine"):
         assert name in out
-    assert "built-in scripts (--device script:NAME): liver-careless, rectum-careless" in out
+    scripts = "liver-careless, liver-deep-transection, rectum-careless"
+    assert f"built-in scripts (--device script:NAME): {scripts}" in out
 
 
 def test_info_reports_versions_and_backends(capsys):

@@ -109,10 +109,11 @@ def builtin_names() -> list[str]:
 
 def builtin_scripts() -> list[str]:
     """Names of the tool scripts shipped with the scenes (``scenes/scripts``): the
-    careless references of the built-in tasks, ``<scene>-careless``."""
+    careless references of the built-in tasks, ``<scene>-careless``, and the liver's
+    deep transection (the topology benchmark's workload)."""
     return sorted(
         p.name[:-5]
-        for p in (resources.files("taichi_lap.scenes") / "scripts").iterdir()
+        for p in resources.files("taichi_lap.scenes.scripts").iterdir()
         if p.name.endswith(".toml")
     )
 
@@ -120,7 +121,7 @@ def builtin_scripts() -> list[str]:
 def resolve_script(name_or_path: str) -> Path:
     """The file of a built-in script name (:func:`builtin_scripts`) or of a path."""
     if name_or_path in builtin_scripts() and not Path(name_or_path).exists():
-        return Path(str(resources.files("taichi_lap.scenes") / "scripts" / f"{name_or_path}.toml"))
+        return Path(str(resources.files("taichi_lap.scenes.scripts") / f"{name_or_path}.toml"))
     return Path(name_or_path)
 
 
