@@ -4,6 +4,8 @@ so a smaller scene would be another task): the expert reference, the scene's own
 script, passes; the careless reference (a built-in script) fails for the reason it
 is careless."""
 
+import pytest
+
 from taichi_lap.cli import main
 from taichi_lap.replay import read_recording
 from taichi_lap.training.live import verdict_lines
@@ -23,6 +25,7 @@ def failed(task: dict) -> set[str]:
     return {check["metric"] for check in task["checks"] if not check["passed"]}
 
 
+@pytest.mark.scene_task
 def test_the_liver_expert_scores_the_line_and_the_careless_hook_burns_the_vein(tmp_path):
     """Seed 002's transection task: the scene's script scores 80 % of the planned
     line within 3 mm of its plane without damaging a vessel; the careless hook burns

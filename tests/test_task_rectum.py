@@ -6,6 +6,8 @@ recompiling."""
 
 import numpy as np
 
+import pytest
+
 from taichi_lap import app
 from taichi_lap import scene as scene_mod
 from taichi_lap.core.mesh import element_pieces
@@ -17,6 +19,7 @@ from tests.test_task_liver import failed, judged
 from tests.test_volume_cut import STALK_CUT, polyp
 
 
+@pytest.mark.scene_task
 def test_the_rectum_expert_does_every_phase_and_the_careless_scissors_close_on_the_gland(
     tmp_path,
 ):

@@ -1,9 +1,8 @@
 """Volumetric cutting in a session (seed 000 §5.3 with its physics following:
 :mod:`taichi_lap.dissection.volume_cut`): a cut through the polyp's stalk splits its
 tets into two closed pieces of the volume as built, its clusters part so the head no
-longer hangs from the stalk, and scissors cut a block in a session (the rectum
-scene's procedure, its stalk cut and its head excised, is run by
-``tests/test_task_rectum.py``)."""
+longer hangs from the stalk, the scissors cut it in a session, and the head lifted
+out of the endoscope's view is excised."""
 
 from __future__ import annotations
 
@@ -145,6 +144,81 @@ def test_the_camera_sees_what_lies_in_its_view():
     points = np.array([[0.0, 0.0, -1.0], [0.0, 0.6, -1.0], [1.0, 0.0, -1.0], [0, 0, 1.0]])
     assert camera.sees(points, aspect=16 / 9).tolist() == [True, False, True, False]
     assert camera.sees(points, aspect=1.0).tolist() == [True, False, False, False]
+
+
+def stalk_height(session: Session) -> float:
+    """Where the stalk's particles at STALK_CUT at rest are now (the rectum sags)."""
+    x = session.state.x.to_numpy()
+    rest = session.data.rest_position
+    _, built = polyp(session.data)
+    near = built[np.abs(rest[built, 1] - STALK_CUT) < 0.001]
+    return float(x[near, 1].mean())
+
+
+def test_scissors_cut_the_stalk_the_head_is_excised_and_they_cut_through_the_vessel():
+    """Scissors swept through the stalk with closed jaws: event ``cut`` of the polyp,
+    a valid topology, the head loose: it falls (uncut, the head stays within 0.1 mm
+    over these frames; no cluster holds it to the stalk now). With the view turned
+    away from it, it is excised: event ``excised`` with its rest volume, its
+    particles gone. Then, as the scene's script goes on (one session for both: the
+    rectum's kernels compile once), the level jaws press the vessel beside the gland
+    to the floor and cut through it (a truss, :mod:`tests.test_truss_cut`): two
+    pieces, each holding a fixed end."""
+    session = Session(scene.load("rectum"), progress=False)
+    k, built = polyp(session.data)
+    height = stalk_height(session)
+    direction = np.array([0.0, 0.0, 1.0])
+    events = []
+    for sx in np.linspace(-0.016, 0.016, 34):
+        session.step(
+            {"scissors": Pose(np.array([sx, height, 0.005]), direction)}, {"scissors": GRASP_BUTTON}
+        )
+        events += session.events
+    session.step({"scissors": Pose(np.array([0.03, 0.04, 0.005]), direction)}, {})
+    cuts = [e for e in events if e["kind"] == "cut" and e.get("organ") == "polyp"]
+    assert cuts and sum(e["tets"] for e in cuts) > 0
+    assert session.model.layout_version == 0  # the spare rows held the cuts: no recompiling
+    session.check_topology()
+    loose = [piece for organ, piece in session._loose if organ == k]
+    assert len(loose) >= 1
+    head = max(loose, key=len)
+    top = built[session.data.rest_position[built, 1] > STALK_CUT + 0.004]
+    alive = session._dissection.topology.particle_alive[top]
+    assert alive.mean() > 0.95  # a few chips the blade cut off went as fragments
+    assert np.isin(top[alive], head).all()
+
+    start = session.state.x.to_numpy()[head].mean(axis=0)
+    for _ in range(5):
+        session.step()
+    drop = start[1] - session.state.x.to_numpy()[head].mean(axis=0)[1]
+    assert drop > 0.5 * 0.5 * 9.81 * (5 * session.dt) ** 2  # half a free fall (34 mm)
+    for _ in range(15):  # the stalk's foot, crushed by the jaws, takes its shape again
+        session.step()
+
+    session.camera.target = session.camera.eye + (session.camera.eye - session.camera.target)
+    session.step()
+    excised = [e for e in session.events if e["kind"] == "excised"]
+    assert [e["organ"] for e in excised] == ["polyp"] * len(excised) and excised
+    assert max(e["particles"] for e in excised) == len(head)
+    assert not session._dissection.topology.particle_alive[head].any()
+    assert sum(e["volume"] for e in excised) > 0.8 * (4 / 3) * np.pi * 0.008**3
+    session.check_topology()
+
+    for z in np.linspace(0.045, -0.0245, 15):  # the script's way round under the rectum
+        session.step({"scissors": Pose(np.array([0.045, -0.024, z]), direction)}, {})
+    events = []
+    for y in np.linspace(-0.024, -0.044, 24):
+        pose = Pose(np.array([0.045, y, -0.0245]), direction)
+        session.step({"scissors": pose}, {"scissors": GRASP_BUTTON})
+        events += session.events
+    assert any(e["kind"] == "cut" and e["organ"] == "vessel" for e in events)
+    session.check_topology()
+    vessel = [organ.name for organ in session.data.organs].index("vessel")
+    triangles = session.live_triangles(vessel)
+    pieces = element_pieces(triangles)
+    assert pieces.max() == 1
+    for piece in range(2):
+        assert session.data.pinned[np.unique(triangles[pieces == piece])].any()
 
 
 def quick_volume_cut(frames: int = 20) -> dict[str, np.ndarray]:
