@@ -10,13 +10,12 @@ import pytest
 
 from taichi_lap import app
 from taichi_lap import scene as scene_mod
-from taichi_lap.core.mesh import element_pieces
 from taichi_lap.replay import read_recording
 from taichi_lap.session import scene_script
 from taichi_lap.training.live import verdict_lines
 from taichi_lap.training.metrics import session_metrics
 from tests.test_task_liver import failed, judged
-from tests.test_volume_cut import STALK_CUT, polyp
+from tests.test_volume_cut import STALK_CUT, assert_vessel_in_two_hanging_pieces, polyp
 
 
 @pytest.mark.scene_task
@@ -57,12 +56,7 @@ def test_the_rectum_expert_does_every_phase_and_the_careless_scissors_close_on_t
     assert excised["volume"] > 0.8 * (4 / 3) * np.pi * 0.008**3
     assert session.model.layout_version == 0
     session.check_topology()
-    vessel = [organ.name for organ in session.data.organs].index("vessel")
-    triangles = session.live_triangles(vessel)
-    pieces = element_pieces(triangles)
-    assert pieces.max() == 1
-    for piece in range(2):
-        assert session.data.pinned[np.unique(triangles[pieces == piece])].any()
+    assert_vessel_in_two_hanging_pieces(session)
 
     careless = judged(tmp_path, "careless", "rectum", 150, "--device", "script:rectum-careless")
     assert not careless["passed"] and careless["forbidden_contacts"] > 0

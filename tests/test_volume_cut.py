@@ -146,6 +146,16 @@ def test_the_camera_sees_what_lies_in_its_view():
     assert camera.sees(points, aspect=1.0).tolist() == [True, False, False, False]
 
 
+def assert_vessel_in_two_hanging_pieces(session: Session):
+    """The rectum scene's vessel, cut through, is two pieces, each holding a fixed end."""
+    vessel = [organ.name for organ in session.data.organs].index("vessel")
+    triangles = session.live_triangles(vessel)
+    pieces = element_pieces(triangles)
+    assert pieces.max() == 1
+    for piece in range(2):
+        assert session.data.pinned[np.unique(triangles[pieces == piece])].any()
+
+
 def stalk_height(session: Session) -> float:
     """Where the stalk's particles at STALK_CUT at rest are now (the rectum sags)."""
     x = session.state.x.to_numpy()
@@ -213,12 +223,7 @@ def test_scissors_cut_the_stalk_the_head_is_excised_and_they_cut_through_the_ves
         events += session.events
     assert any(e["kind"] == "cut" and e["organ"] == "vessel" for e in events)
     session.check_topology()
-    vessel = [organ.name for organ in session.data.organs].index("vessel")
-    triangles = session.live_triangles(vessel)
-    pieces = element_pieces(triangles)
-    assert pieces.max() == 1
-    for piece in range(2):
-        assert session.data.pinned[np.unique(triangles[pieces == piece])].any()
+    assert_vessel_in_two_hanging_pieces(session)
 
 
 def quick_volume_cut(frames: int = 20) -> dict[str, np.ndarray]:
