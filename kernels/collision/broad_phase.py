@@ -18,7 +18,8 @@ scanning one drifted at most margin / 3 and the other at most twice that (from i
 listing to then, and on to now), so the gap cannot have closed. The hash holds the
 spheres of its last build and is rebuilt once a sphere drifted more than
 ``hash_slack`` from there (scans widen by that slack). Scans collect hits in a tight
-loop (up to :data:`NEAR`, scanning again if more) and test them after it. Pairs never
+loop (up to :data:`NEAR`; when more, the scan goes on from the hit that did not fit)
+and test them after it. Pairs never
 listed: triangles sharing a vertex, and pairs close at rest that are of one body or do
 not face each other then (rest exclusion, below). Listed pairs whose broad spheres
 overlap, and triangles whose broad sphere reaches a tool's bounding capsule, are
@@ -66,7 +67,7 @@ from taichi_lap.kernels.scatter import serial_on_cpu
 from taichi_lap.core.instruments import FAR, MAX_TOOLS
 
 NEAR = 32
-"""Hash hits a scanning triangle keeps before testing them (it scans again for more):
+"""Hash hits a scanning triangle keeps before testing them (then it scans on from there):
 the exact tests run outside the tight candidate loop."""
 ROW_BLOCK = 256
 """Triangles per block of the pair rows' prefix sum."""
@@ -239,30 +240,33 @@ def scan_pairs(
     query = ti.min(widen + coll.reach_bound, grid.cell_size)
     buckets, n_buckets = grid.neighbour_buckets(center, query)
     near = ti.Vector([0] * NEAR, ti.i32)
-    count, seen, resume, scanning = 0, 0, 0, True
-    while scanning:  # scan, keep up to NEAR hits, test them; repeat if full
+    count, seen, scanning = 0, 0, True
+    resume_bucket, resume_entry = 0, -1  # where a full buffer stopped the scan
+    while scanning:  # scan on, keep up to NEAR hits, test them; go on if it was full
         n_near, scanning = 0, False
-        seen = 0
-        for k in range(n_buckets):
+        for k in range(resume_bucket, n_buckets):
             start, end = grid.bucket_range(buckets[k])
+            if k == resume_bucket and resume_entry >= 0:
+                start = resume_entry
             for s in range(start, end):  # held spheres in hash order: contiguous reads
-                if seen >= resume and not scanning:
-                    held = coll.sorted_sphere[s]
-                    reach = ti.min(widen + held[3], query)
-                    d = xyz(held) - center
-                    hit = d.dot(d) <= reach * reach
-                    if hit:  # and not of one body and close at rest (rest exclusion)
-                        r = coll.sorted_rest[s]
-                        e = xyz(r) - xyz(rest)
-                        close = coll.rest_exclusion * (r[3] + rest[3])
-                        hit = coll.sorted_body[s] != body or e.dot(e) >= close * close
-                    if hit:
-                        if n_near < NEAR:
-                            near[n_near] = s
-                            n_near += 1
-                        else:
-                            resume, scanning = seen, True
+                held = coll.sorted_sphere[s]
+                reach = ti.min(widen + held[3], query)
+                d = xyz(held) - center
+                hit = d.dot(d) <= reach * reach
+                if hit:  # and not of one body and close at rest (rest exclusion)
+                    r = coll.sorted_rest[s]
+                    e = xyz(r) - xyz(rest)
+                    close = coll.rest_exclusion * (r[3] + rest[3])
+                    hit = coll.sorted_body[s] != body or e.dot(e) >= close * close
+                if hit and n_near == NEAR:  # full: test these, then go on from s
+                    resume_bucket, resume_entry, scanning = k, s, True
+                    break
+                if hit:
+                    near[n_near] = s
+                    n_near += 1
                 seen += 1
+            if scanning:
+                break
         for m in range(n_near):
             u = grid.sorted_index[near[m]]
             if (
