@@ -29,6 +29,16 @@ def model_cache(tmp_path_factory) -> Path:
     return folder
 
 
+MAX_WORKERS = 4
+"""Most test processes ``-n auto`` starts (pyproject's addopts): one per core the run
+may use, up to this many (each holds its scenes' models and compiled kernels, 1-3 GB)."""
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: a worker per usable core, at most :data:`MAX_WORKERS`."""
+    return max(1, min(len(os.sched_getaffinity(0)), MAX_WORKERS))
+
+
 @pytest.fixture(scope="session", autouse=True)
 def taichi_backend(tmp_path_factory):
     """Initialise Taichi once, on :data:`TEST_ARCH` (the CPU with one thread: the
