@@ -518,3 +518,39 @@ class GBuffer:
             self.char,
             self.triangle,
         )
+
+
+@ti.kernel
+def gather_object_triangles(
+    triangles: ti.template(),
+    triangle_object: ti.template(),
+    triangle_count: ti.i32,
+    target: ti.i32,
+    out: ti.template(),
+    out_count: ti.template(),
+):
+    """The triangles (vertex ids, 3 each) of object ``target`` among the first
+    ``triangle_count`` into ``out``, their number into ``out_count[None]`` (in no fixed
+    order: only the pixels they cover are used)."""
+    out_count[None] = 0
+    for t in range(triangle_count):
+        if triangle_object[t] == target:
+            slot = ti.atomic_add(out_count[None], 1)
+            for c in ti.static(range(3)):
+                out[3 * slot + c] = triangles[3 * t + c]
+
+
+@ti.kernel
+def count_object_pixels(
+    triangle: ti.template(), triangle_object: ti.template(), target: ti.i32
+) -> ti.math.ivec2:
+    """Pixels of a resolved G-buffer's ``triangle`` image: (those showing object
+    ``target``, those showing any triangle); ``target`` < 0 counts no object."""
+    shown, covered = 0, 0
+    for x, y in triangle:
+        t = triangle[x, y]
+        if t >= 0:
+            covered += 1
+            if target >= 0 and triangle_object[t] == target:
+                shown += 1
+    return ti.math.ivec2(shown, covered)

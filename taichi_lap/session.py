@@ -43,6 +43,7 @@ from taichi_lap.preprocess.cache import (
     scene_digest,
 )
 from taichi_lap.scene import Scene
+from taichi_lap.scenes.anatomy.tubes import environment_centreline
 from taichi_lap.sim import Control, Model, Solver, SolverSettings, State
 
 log = logging.getLogger("taichi_lap")
@@ -51,9 +52,11 @@ log = logging.getLogger("taichi_lap")
 def model_for(scene: Scene, data) -> Model:
     """Upload a built model with the scene's environment and solver choices."""
     planes = [(p["point"], p["normal"], p["friction"]) for p in scene.planes]
+    tubes = [(environment_centreline(t["points"]), t["radius"], t["friction"]) for t in scene.tubes]
     return Model(
         data,
         planes=planes,
+        tubes=tubes,
         iterations=scene.settings["iterations"],
         constraint_solver=scene.settings["constraint_solver"],
     )
@@ -73,6 +76,7 @@ def session_key(scene: Scene) -> str:
         "model": scene_digest(scene),
         "settings": scene.settings,
         "planes": scene.planes,
+        "tubes": scene.tubes,
         "tools": scene.tools,
     }
     return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()

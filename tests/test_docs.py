@@ -13,6 +13,7 @@ TABLES = {
     "scene": scene_mod.SCENE_PARAMS,
     "camera": scene_mod.CAMERA_PARAMS,
     "planes": scene_mod.PLANE_PARAMS,
+    "environment tubes": scene_mod.ENVIRONMENT_TUBE_PARAMS,
     "tools": scene_mod.TOOL_PARAMS,
     "organs": scene_mod.ORGAN_PARAMS,
     "geometry": scene_mod.GEOMETRY_COMMON,

@@ -164,7 +164,10 @@ def test_intestine_is_drawn_as_a_generalized_cylinder():
     mesh = renderer.mesh
     first_tube_triangle = mesh.tube_offsets[0][1] // 3
     triangles = renderer.gbuffer.triangle.to_numpy()
-    assert (triangles >= first_tube_triangle).sum() > 500
+    objects = mesh.triangle_object.to_numpy()
+    intestine = mesh.object_names.index("intestine")
+    tube_pixels = (triangles >= first_tube_triangle) & (objects[triangles] == intestine)
+    assert tube_pixels.sum() > 500
     normals = renderer.gbuffer.normal.to_numpy()[triangles >= 0]
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-3)
 

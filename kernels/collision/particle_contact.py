@@ -1,4 +1,4 @@
-"""Particle contact with kinematic tools and environment planes.
+"""Particle contact with kinematic tools, environment planes and fixed tubes.
 
 Position-level projection in the PBD manner (Müller et al. 2007, §3.4): a particle
 closer to one of a tool's shapes (:mod:`.tool_shapes`) than its contact radius (the
@@ -9,7 +9,8 @@ the table) push particles out with Coulomb friction on the displacement of the
 substep (Macklin et al. 2014, §6.1); they do not flag collisions, so tissue resting
 on them keeps recovering its shape. A particle a
 grasper holds (:mod:`taichi_lap.kernels.grasp`) is put at its place in the tool
-frame last, whatever pushed it.
+frame last, whatever pushed it. The environment's fixed tubes (a colon beneath the
+intestine's loops) are capsule chains that push particles out as the planes do.
 
 The intestine of seed 001 is drawn as a tube around its row of masses, which lie
 several tube radii apart: :func:`push_tubes_out_of_tools` keeps every segment of the
@@ -18,7 +19,7 @@ between two masses.
 """
 
 import taichi as ti
-from taichi_lap.kernels.collision.closest_points import segment_segment
+from taichi_lap.kernels.collision.closest_points import point_segment, segment_segment
 from taichi_lap.kernels.collision.tool_shapes import (
     control_pose,
     coulomb_friction,
@@ -48,6 +49,23 @@ def push_out_of_planes(model: ti.template(), p, x, r):
 
 
 @ti.func
+def push_out_of_environment_tubes(model: ti.template(), p, x, r):
+    """Keep a particle of radius ``r`` [m] outside every segment capsule of the
+    environment's fixed tubes (pushed along the line from the segment's closest point,
+    Ericson 2004 §5.1.2), with Coulomb friction as on the planes."""
+    for k in range(model.environment_count):
+        d = p - point_segment(model.environment_a[k], model.environment_b[k], p)
+        gap = d.norm()
+        depth = model.environment_radius[k] + r - gap
+        if depth > 0 and gap > 1e-9:
+            n = d / gap
+            p += depth * n
+            still = ti.Vector([0.0, 0.0, 0.0])
+            p = coulomb_friction(p, x, still, n, model.environment_friction[k] * depth)
+    return p
+
+
+@ti.func
 def hold_grasped(state: ti.template(), control: ti.template(), i, p):
     """Particle ``i`` at ``p``: where its tool holds it (tip + R local, seed 002 §3.4)
     and 1, or ``p`` and 0 when no tool holds it."""
@@ -62,10 +80,11 @@ def hold_grasped(state: ti.template(), control: ti.template(), i, p):
 @ti.func
 def resolve_contacts(model: ti.template(), state: ti.template(), control: ti.template(), i, p, x):
     """All contacts of particle ``i`` at predicted ``p`` (previous position ``x``):
-    tools, planes, then the grasp. Returns the projected position and the collided
+    tools, planes, fixed tubes, then the grasp. Returns the projected position and the collided
     flag."""
     p, hit = push_out_of_tools(control, p, x, model.contact_radius[i])
     p = push_out_of_planes(model, p, x, model.radius[i])
+    p = push_out_of_environment_tubes(model, p, x, model.radius[i])
     p, held = hold_grasped(state, control, i, p)
     return p, hit | held
 

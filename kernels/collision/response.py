@@ -68,6 +68,14 @@ from taichi_lap.kernels.collision.tool_shapes import (
 
 from taichi_lap.core.instruments import MAX_TOOL_SHAPES, MAX_TOOLS, SHAPE_BOX
 
+CORNER_PUSH_LIMIT = 3.0
+"""Most a corner moves in one tool push, in units of the push's depth. A triangle of
+free corners of equal mass moves each by at most 1.2 depths (λ w b with b the contact's
+barycentric weights); a corner beside fixed ones (a mesentery triangle at its root)
+would take depth / b, unbounded as the contact nears the fixed edge: a tool shaft swept
+through the intestine's root threw such corners out faster each substep until the
+simulation faulted. Capped, the tool sinks into what cannot move instead."""
+
 
 @ti.func
 def exchange_impulse(v_t, v_u, normal, w_t, w_u):
@@ -267,7 +275,8 @@ def surface_tool(
     past the surface within the substep pushes it ahead instead of through), spread
     over the corners as a PBD projection (Müller et al. 2007 §3.4): corner j moves by
     λ w_j b_j n with b the barycentric weights, w the corners' inverse masses and
-    λ = depth / Σ w_j b_j². Boxes push the corners out of their nearest surface.
+    λ = depth / Σ w_j b_j², each corner's move at most :data:`CORNER_PUSH_LIMIT`
+    depths. Boxes push the corners out of their nearest surface.
     The shapes act one after the other on a local copy of the corners (Gauss-Seidel,
     two passes: a push out of one shape may end in an overlapping one), and each moved
     corner gets the sum as one contact, so where shapes meet the pushes add up instead
@@ -318,8 +327,9 @@ def surface_tool(
                         lam = -dist / denom
                         for j in ti.static(range(3)):
                             if bary[j] > 1e-6 and w[j] > 0.0:
+                                push = ti.min(lam * w[j] * bary[j], -CORNER_PUSH_LIMIT * dist)
                                 for m in ti.static(range(3)):
-                                    c[j, m] += lam * w[j] * bary[j] * n[m]
+                                    c[j, m] += push * n[m]
                                 moved[j] = 1
                                 if on_axis:
                                     appeared[j] = 1

@@ -49,6 +49,18 @@ def catmull_rom(points, samples_per_segment: int = 16, alpha: float = 0.5) -> np
     return np.vstack(out)
 
 
+ENVIRONMENT_TUBE_SAMPLES = 6
+"""Segments per span of an environment tube's spline: what collides and what is drawn."""
+
+
+def environment_centreline(points) -> np.ndarray:
+    """The centre line of a scene's environment tube (``[[environment.tubes]]``): the
+    Catmull-Rom spline through its ``points``, sampled :data:`ENVIRONMENT_TUBE_SAMPLES`
+    times per span; particles collide with the capsules of its segments and the
+    renderer draws the tube around it."""
+    return catmull_rom(points, ENVIRONMENT_TUBE_SAMPLES)
+
+
 def resample(points, radii, spacing_factor: float = 1.0, min_spacing: float = 1e-4):
     """Resample a dense polyline so consecutive points are about
     ``spacing_factor`` x the local radius apart (at least ``min_spacing``) [m].

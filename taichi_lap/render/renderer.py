@@ -14,7 +14,12 @@ import taichi as ti
 
 from taichi_lap.core.fields import FieldGroup
 from taichi_lap.kernels.ibl import ImageLighting
-from taichi_lap.kernels.raster import GBuffer, camera_matrices
+from taichi_lap.kernels.raster import (
+    GBuffer,
+    camera_matrices,
+    count_object_pixels,
+    gather_object_triangles,
+)
 from taichi_lap.kernels.shading import mark_plane, shade
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
@@ -75,6 +80,8 @@ class Renderer:
         self.view = 0
         self.planned: tuple[int, PlannedPlane] | None = None  # (organ, plane) to mark
         self.timings: dict[str, float] = {}
+        self._alone = None  # view_of's G-buffer and triangle list, made at its first call
+        self._matrix = None  # the last frame's view-projection
 
     @classmethod
     def for_scene(cls, scene, model, *, size=(640, 480)) -> "Renderer":
@@ -101,6 +108,7 @@ class Renderer:
         view, projection = camera_matrices(
             cam.eye, cam.target, cam.up, cam.fov, self.width / self.height, cam.near, cam.far
         )
+        self._matrix = projection @ view
         self.gbuffer.render(
             self.mesh.positions,
             self.mesh.normals,
@@ -108,7 +116,7 @@ class Renderer:
             self.mesh.triangles,
             self.mesh.triangle_count,
             cam.eye,
-            projection @ view,
+            self._matrix,
             cam.near,
         )
         ti.sync()
@@ -134,6 +142,40 @@ class Renderer:
         marks.append(time.perf_counter())
         for name, a, b in zip(("vertex", "visibility", "shading"), marks, marks[1:]):
             self.timings[name] = (b - a) * 1e3
+
+    def view_of(self, name: str) -> tuple[float, float]:
+        """How the last frame shows object ``name`` (an organ, tool or environment
+        tube), from the object-id image: ``(visible, share)``, the fraction of the pixels
+        it would cover if nothing hid it that show it (its triangles drawn alone, same
+        camera), and the fraction of the image it fills; ``(0, 0)`` out of view."""
+        target = self.mesh.object_names.index(name)
+        capacity = 3 * self.mesh.triangle_count
+        if self._alone is None or self._alone[1].shape[0] < capacity:
+            group = FieldGroup()
+            triangles, count = group.field(ti.i32, capacity), group.field(ti.i32, None)
+            group.finalize()
+            self._alone = (GBuffer(self.width, self.height), triangles, count, group)
+        alone, triangles, count, _ = self._alone
+        mesh = self.mesh
+        gather_object_triangles(
+            mesh.triangles, mesh.triangle_object, mesh.triangle_count, target, triangles, count
+        )
+        cam = self.camera
+        alone.render(
+            mesh.positions,
+            mesh.normals,
+            mesh.char,
+            triangles,
+            int(count[None]),
+            cam.eye,
+            self._matrix,
+            cam.near,
+        )
+        shown = int(count_object_pixels(self.gbuffer.triangle, mesh.triangle_object, target)[0])
+        unhidden = int(count_object_pixels(alone.triangle, mesh.triangle_object, -1)[1])
+        if unhidden == 0:
+            return 0.0, 0.0
+        return min(shown / unhidden, 1.0), shown / (self.width * self.height)
 
     def image(self) -> np.ndarray:
         """The last frame as ``(height, width, 3)`` uint8 RGB, top row first."""

@@ -1,9 +1,10 @@
 """Everything drawn, as one triangle mesh on the device: organ surfaces (skinned
-to the particles), generalized-cylinder tubes (the intestine, seed 001 §5) and the
-instruments. Each triangle carries a material and an object index.
+to the particles), generalized-cylinder tubes (the intestine, seed 001 §5), the
+instruments and the environment's fixed tubes. Each triangle carries a material and
+an object index (organs, then tools, then environment tubes: ``object_names``).
 
-Layout of the vertex fields: ``[surfaces | instruments | tubes]``; triangles in
-the same order. The surfaces are the model's rows, spare ones included, copied again
+Layout of the vertex fields: ``[surfaces | instruments | tubes | environment]``;
+triangles in the same order; the environment's vertices are written once. The surfaces are the model's rows, spare ones included, copied again
 after each dissection (a dead triangle is degenerate); tubes are re-tessellated every
 frame into a fixed capacity, their unused triangles degenerate.
 """
@@ -14,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 import taichi as ti
+import trimesh
 
 from taichi_lap.core.fields import FieldGroup
 from taichi_lap.core.mesh import incident_table
@@ -28,12 +30,41 @@ from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.tubes import TubeMesh
 from taichi_lap.scene.materials import INSTRUMENT, PRESETS, Material, material_table
+from taichi_lap.scenes.anatomy.tubes import environment_centreline, tube_mesh
+
+
+def appearance_material(appearance: str, color) -> Material:
+    """An appearance preset, with ``color`` as albedo when given."""
+    preset = PRESETS[appearance]
+    return replace(preset, albedo=tuple(color)) if color is not None else preset
 
 
 def organ_material(organ) -> Material:
     """The organ's appearance preset, with its ``color`` as albedo when given."""
-    preset = PRESETS[organ.appearance]
-    return replace(preset, albedo=tuple(organ.color)) if organ.color is not None else preset
+    return appearance_material(organ.appearance, organ.color)
+
+
+def environment_arrays(tubes: list[dict]) -> dict[str, np.ndarray]:
+    """The environment's fixed tubes as one mesh: ``position``, ``normal`` (V, 3),
+    ``triangles`` (F, 3, from 0) and the ``tube`` of each triangle, each tube drawn
+    round its :func:`~taichi_lap.scenes.anatomy.tubes.environment_centreline` with
+    rounded ends, as it collides."""
+    positions, normals, triangles, owner, base = [], [], [], [], 0
+    for k, tube in enumerate(tubes):
+        mesh = tube_mesh(environment_centreline(tube["points"]), tube["radius"], 16)
+        vertices = np.asarray(mesh.vertices, np.float64)
+        faces = np.asarray(mesh.triangles, np.int32)
+        positions.append(vertices)
+        normals.append(trimesh.Trimesh(vertices, faces, process=False).vertex_normals)
+        triangles.append(faces + base)
+        owner.append(np.full(len(faces), k, np.int32))
+        base += len(vertices)
+    return {
+        "position": np.concatenate(positions or [np.zeros((0, 3))]).astype(np.float32),
+        "normal": np.concatenate(normals or [np.zeros((0, 3))]).astype(np.float32),
+        "triangles": np.concatenate(triangles or [np.zeros((0, 3), np.int32)]),
+        "tube": np.concatenate(owner or [np.zeros(0, np.int32)]),
+    }
 
 
 @ti.data_oriented
@@ -127,6 +158,7 @@ class SceneMesh(ArrayMesh):
         self._layout = model.layout_version
         specs = {organ.name: organ for organ in scene.organs}
         materials = [organ_material(specs[o.name]) for o in data.organs] + [PRESETS[INSTRUMENT]]
+        materials += [appearance_material(t["appearance"], t["color"]) for t in scene.tubes]
         self.model, self._version = model, model.topology_version
         self._charred = False  # whether the surfaces' char may be non-zero
         self.surface_count = model.surface_vertex_count
@@ -137,6 +169,8 @@ class SceneMesh(ArrayMesh):
         instrument_material = np.full(len(tools["triangles"]), len(data.organs), np.int32)
         instrument_object = tools["tool"][tools["triangles"][:, 0]] + len(data.organs)
         self.object_names = [o.name for o in data.organs] + [t["name"] for t in scene.tools]
+        self.object_names += [t["name"] for t in scene.tubes]
+        environment = environment_arrays(scene.tubes)
 
         tubes = [(index, o) for index, o in enumerate(data.organs) if o.row_length]
         self.tubes = [
@@ -157,21 +191,37 @@ class SceneMesh(ArrayMesh):
             ]
             or [np.zeros(0, np.int32)]
         )
+        environment_object = environment["tube"] + len(data.organs) + len(scene.tools)
         super().__init__(
             np.concatenate(
                 [
                     surface_triangles,
                     tools["triangles"] + self.surface_count,
                     np.zeros((len(tube_material), 3), np.int32),
+                    environment["triangles"] + base,
                 ]
             ),
-            np.concatenate([surface_material, instrument_material, tube_material]),
+            np.concatenate(
+                [
+                    surface_material,
+                    instrument_material,
+                    tube_material,
+                    environment["tube"] + len(data.organs) + 1,
+                ]
+            ),
             materials,
-            triangle_object=np.concatenate([surface_material, instrument_object, tube_material]),
-            vertex_count=base,
+            triangle_object=np.concatenate(
+                [surface_material, instrument_object, tube_material, environment_object]
+            ),
+            vertex_count=base + len(environment["position"]),
             smooth_count=self.surface_count,
             incident=model.surface_incident,
         )
+        if len(environment["position"]):  # written once: nothing else writes these rows
+            for target, values in ((self.positions, "position"), (self.normals, "normal")):
+                rows = target.to_numpy()
+                rows[base:] = environment[values]
+                target.from_numpy(rows)
 
         group = FieldGroup()
         self.tool_position = group.field(

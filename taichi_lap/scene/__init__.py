@@ -30,12 +30,14 @@ from taichi_lap.scene.schema import (
     MATERIAL_PARAMS,
     MESH_PARAMS,
     ORGAN_PARAMS,
+    ENVIRONMENT_TUBE_PARAMS,
     PLANE_PARAMS,
     SCENE_PARAMS,
     TASK_PARAMS,
     TASK_PASS_PARAMS,
     TASK_PHASE_PARAMS,
     TASK_PLANE_PARAMS,
+    TASK_VIEW_PARAMS,
     TOOL_PARAMS,
     UNITS,
 )
@@ -96,6 +98,7 @@ class Scene:
     organs: list[OrganSpec]
     raw: dict[str, Any]
     task: dict[str, Any] | None = None  # the [task] table, if the scene has one
+    tubes: list[dict[str, Any]] = field(default_factory=list)  # [[environment.tubes]]
 
 
 def builtin_names() -> list[str]:
@@ -229,7 +232,7 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     settings = check_table(source, "scene", raw["scene"], SCENE_PARAMS)
     camera = check_table(source, "camera", raw.get("camera", {}), CAMERA_PARAMS)
     environment = raw.get("environment", {})
-    check_table(source, "environment", environment, {}, ignore=("planes",))
+    check_table(source, "environment", environment, {}, ignore=("planes", "tubes"))
     planes = []
     for k, table in enumerate(
         _list_of_tables(source, "environment.planes", environment.get("planes", []))
@@ -242,6 +245,18 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
                 "a non-zero vector was expected, found [0, 0, 0]",
             )
         planes.append(plane)
+    tubes = []
+    for k, table in enumerate(
+        _list_of_tables(source, "environment.tubes", environment.get("tubes", []))
+    ):
+        tube = check_table(source, f"environment.tubes[{k}]", table, ENVIRONMENT_TUBE_PARAMS)
+        if len(tube["points"]) < 2:
+            raise InputError(
+                source,
+                f"environment.tubes[{k}].points",
+                f"at least 2 points were expected, found {len(tube['points'])}",
+            )
+        tubes.append(tube)
     tools = _tools(source, _list_of_tables(source, "tools", raw.get("tools", [])))
     organ_tables = _list_of_tables(source, "organs", raw.get("organs", []))
     if not organ_tables:
@@ -253,10 +268,15 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
             f"at most {MAX_ORGANS} organs were expected, found {len(organ_tables)}",
         )
     organs = [_organ(source, directory, f"organs[{k}]", t) for k, t in enumerate(organ_tables)]
-    _check_names(source, organs, tools)
+    _check_names(source, organs, tools, tubes)
     task = (
         check_task(
-            source, "task", raw["task"], [o.name for o in organs], [t["name"] for t in tools]
+            source,
+            "task",
+            raw["task"],
+            [o.name for o in organs],
+            [t["name"] for t in tools],
+            [t["name"] for t in tubes],
         )
         if "task" in raw
         else None
@@ -271,18 +291,36 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
         organs=organs,
         raw=copy.deepcopy(raw),
         task=task,
+        tubes=tubes,
     )
 
 
 def check_task(
-    source: str, key: str, table: Any, organ_names: list[str], tool_names: list[str]
+    source: str,
+    key: str,
+    table: Any,
+    organ_names: list[str],
+    tool_names: list[str],
+    tube_names: list[str] = (),
 ) -> dict[str, Any]:
     """A ``[task]`` table (:data:`TASK_PARAMS`, its ``pass`` thresholds
     :data:`TASK_PASS_PARAMS`, its goal: a planned transection ``plane``
-    :data:`TASK_PLANE_PARAMS` and ``phases`` :data:`TASK_PHASE_PARAMS`, each
-    optional) with defaults filled in; the organs and tools it names must be the
-    scene's (``organ_names``, ``tool_names``)."""
-    task = check_table(source, key, table, TASK_PARAMS, ignore=("pass", "plane", "phases"))
+    :data:`TASK_PLANE_PARAMS`, ``phases`` :data:`TASK_PHASE_PARAMS` and a ``view``
+    :data:`TASK_VIEW_PARAMS`, each optional) with defaults filled in; the organs,
+    tools and environment tubes it names must be the scene's (``organ_names``,
+    ``tool_names``, ``tube_names``)."""
+    task = check_table(source, key, table, TASK_PARAMS, ignore=("pass", "plane", "phases", "view"))
+    task["view"] = None
+    if "view" in table:
+        view = task["view"] = check_table(source, f"{key}.view", table["view"], TASK_VIEW_PARAMS)
+        targets = [*organ_names, *tube_names]
+        if view["target"] not in targets:
+            raise InputError(
+                source,
+                f"{key}.view.target",
+                f"the name of an organ or environment tube in this scene ({', '.join(targets)}) "
+                f"was expected, found {view['target']!r}",
+            )
     task["pass"] = check_table(source, f"{key}.pass", table.get("pass", {}), TASK_PASS_PARAMS)
     named = [
         (f"{key}.{group}[{k}]", name)
@@ -479,7 +517,10 @@ def _attachment(source: str, key: str, table: dict, model: str) -> AttachmentSpe
     return AttachmentSpec(kind=kind, region=region)
 
 
-def _check_names(source: str, organs: list[OrganSpec], tools: list[dict]):
+def _check_names(source: str, organs: list[OrganSpec], tools: list[dict], tubes: list[dict]):
+    """Organ names unique, joins naming other cluster organs, tool names unique, and
+    environment tubes named apart from every organ, tool and other tube (they are
+    objects of the drawn scene alike)."""
     seen: dict[str, str] = {}
     for organ in organs:
         if organ.name in seen:
@@ -512,3 +553,12 @@ def _check_names(source: str, organs: list[OrganSpec], tools: list[dict]):
     names = [t["name"] for t in tools]
     if len(set(names)) != len(names):
         raise InputError(source, "tools", "unique tool names were expected")
+    taken = set(seen) | set(names)
+    for k, tube in enumerate(tubes):
+        if tube["name"] in taken:
+            raise InputError(
+                source,
+                f"environment.tubes[{k}].name",
+                f"a name no organ, tool or other tube has was expected, found {tube['name']!r}",
+            )
+        taken.add(tube["name"])

@@ -91,6 +91,25 @@ PLANE_PARAMS = {
     "normal": Param("vec3", REQUIRED, "normal pointing to the free side", lo=-1e3, hi=1e3),
     "friction": Param("float", 0.5, "Coulomb friction coefficient", lo=0.0, hi=10.0),
 }
+ENVIRONMENT_TUBE_PARAMS = {
+    "name": Param("str", REQUIRED, "its name, apart from every organ's and tool's"),
+    "points": Param(
+        "vec3list",
+        REQUIRED,
+        "centre line (a spline through these points, at least 2)",
+        lo=-100,
+        hi=100,
+        unit="m",
+    ),
+    "radius": Param("float", REQUIRED, "tube radius", lo=1e-4, hi=1.0, unit="m"),
+    "appearance": Param(
+        "str", "serosa", "render material preset (seed 000 §6.1)", choices=tuple(PRESETS)
+    ),
+    "color": Param(
+        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
+    ),
+    "friction": Param("float", 0.5, "Coulomb friction coefficient", lo=0.0, hi=10.0),
+}
 TOOL_PARAMS = {
     "name": Param("str", REQUIRED, "tool name"),
     "kind": Param("str", "probe", "instrument", choices=TOOL_KINDS),
@@ -367,6 +386,29 @@ TASK_PLANE_PARAMS = {
         "fraction of the line the wound must reach to complete the goal",
         lo=0.0,
         hi=1.0,
+    ),
+}
+TASK_VIEW_PARAMS = {
+    "target": Param(
+        "str", REQUIRED, "the organ or environment tube to expose in the endoscope's view"
+    ),
+    "visible": Param(
+        "float",
+        0.6,
+        "fraction of the target's image (as if nothing hid it) that must show",
+        lo=0.0,
+        hi=1.0,
+    ),
+    "share": Param(
+        "float", 0.02, "fraction of the whole image the target must fill", lo=0.0, hi=1.0
+    ),
+    "hold": Param(
+        "float",
+        2.0,
+        "how long the view must stay so to complete the goal",
+        lo=0.0,
+        hi=3600.0,
+        unit="s",
     ),
 }
 PHASE_EVENTS = ("grasp", "cut", "tear", "dissect", "cautery", "excised", "vessel_damage")

@@ -207,13 +207,20 @@ def member_chunks(start: np.ndarray, first_row: int = 0) -> dict:
 class Model(FieldOwner):
     """Device copy of a :class:`ModelData` plus the environment planes.
 
-    ``planes`` is a list of ``(point, normal, friction)``; ``iterations`` is the
+    ``planes`` is a list of ``(point, normal, friction)``, ``tubes`` (the environment's
+    fixed tubes) of ``(centre line (n, 3), radius, friction)``; ``iterations`` is the
     number of constraint iterations per substep (sets the per-iteration stiffness).
     Per-particle material channels are fields named as in ``PARTICLE_MATERIAL``.
     """
 
     def __init__(
-        self, data: ModelData, *, planes=(), iterations: int = 10, constraint_solver: str = "jacobi"
+        self,
+        data: ModelData,
+        *,
+        planes=(),
+        tubes=(),
+        iterations: int = 10,
+        constraint_solver: str = "jacobi",
     ):
         self.data = data
         self._group = FieldGroup()
@@ -235,6 +242,7 @@ class Model(FieldOwner):
         self._init_springs(data, n)
         self._init_tubes(data)
         self._init_planes(planes)
+        self._init_environment_tubes(tubes)
         self._group.finalize()
         self.finalize_counts()
 
@@ -655,6 +663,20 @@ class Model(FieldOwner):
         self.tube_particle = self._ints(particle)
         self.tube_prev = self._ints(prev)
         self.tube_next = self._ints(after)
+
+    def _init_environment_tubes(self, tubes):
+        """The segments of the environment's fixed tubes (a colon beneath the loops):
+        capsules ``environment_a``-``environment_b`` of ``environment_radius`` [m]."""
+        segments = [
+            (a, b, radius, friction)
+            for line, radius, friction in tubes
+            for a, b in zip(line[:-1], line[1:])
+        ]
+        self.environment_count = len(segments)
+        self.environment_a = self._floats(np.reshape([s[0] for s in segments], (-1, 3)), vector=3)
+        self.environment_b = self._floats(np.reshape([s[1] for s in segments], (-1, 3)), vector=3)
+        self.environment_radius = self._floats([s[2] for s in segments])
+        self.environment_friction = self._floats([s[3] for s in segments])
 
     def _init_planes(self, planes):
         """Environment half-spaces (abdominal wall, table) the tissue rests on."""
