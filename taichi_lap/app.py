@@ -27,18 +27,26 @@ def _render(session: Session, renderer: Renderer):
     session.timings["render"] = (time.perf_counter() - start) * 1e3
 
 
-def _measure(session: Session, recorder: SessionRecorder | None, live: LiveScore):
+def _measure(
+    session: Session, recorder: SessionRecorder | None, live: LiveScore, renderer: Renderer
+):
     """After a frame was stepped and drawn: the force the tissue pushed each tool with
-    and the organs touching each go, with the stage times, to the recording and the
-    live score."""
+    and the organs touching each go, with the stage times and how the image showed the
+    task's view target (:meth:`Renderer.view_of`), to the recording and the live
+    score."""
     tools = [tool["name"] for tool in session.scene.tools]
     contact = [session.tool_contact(k) for k in range(len(tools))]
     forces = {name: force for name, (force, _) in zip(tools, contact)}
     touching = {name: organs for name, (_, organs) in zip(tools, contact)}
+    task = session.scene.task
+    view = None
+    if task is not None and task["view"] is not None:
+        target = task["view"]["target"]
+        view = {target: renderer.view_of(target)}
     if recorder is not None:  # the stages of the frame, not the window's frame interval
         stages = {stage: ms for stage, ms in session.timings.items() if stage != "frame"}
-        recorder.record_stats(stages, forces, touching)
-    live.update(dict(zip(tools, session.control.tips)), forces, touching, session.events)
+        recorder.record_stats(stages, forces, touching, view)
+    live.update(dict(zip(tools, session.control.tips)), forces, touching, session.events, view)
 
 
 def _verdict(session: Session, recorder: SessionRecorder | None) -> list[str]:
@@ -118,7 +126,7 @@ def run_headless(
             _advance(session, device, recorder, check_topology)
             _render(session, renderer)
             if recorder is not None or scene.task is not None:
-                _measure(session, recorder, live)
+                _measure(session, recorder, live, renderer)
             writer.write(renderer.image())
         for line in _verdict(session, recorder):
             print(line)
@@ -165,7 +173,7 @@ def run_window(
             viewer.draw(live.lines() + (verdict or []))
             session.timings["render"] = (time.perf_counter() - start) * 1e3
             if stepping:
-                _measure(session, recorder, live)
+                _measure(session, recorder, live, viewer.renderer)
             if verdict is None and (live.over_time or live.goal_reached or viewer.finish_requested):
                 verdict = _verdict(session, recorder) or ["finished"]
             window.show()

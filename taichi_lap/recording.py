@@ -17,7 +17,8 @@ tag    record   payload
                 u8 tool index, f32[3] tip [m], f32[3] direction, u32 buttons, f32[3] force [N]
 ``S``  stats    UTF-8 JSON ``{"time" [s], "frame", "stages": {stage: wall time [ms]},
                 "forces": {tool: [N, N, N]}, "contacts": {tool: {organ: particles}}}``
-                of the frame that just ended (after its frame record and events)
+                of the frame that just ended (after its frame record and events);
+                with a task's view target also ``"view": {target: [visible, share]}``
 =====  =======  ==========================================================================
 
 The first record is the ``session_start`` event: scene name and source, ``digest``
@@ -174,12 +175,15 @@ def encode_stats(
     timings: dict[str, float],
     forces: dict[str, np.ndarray],
     contacts: dict[str, dict[str, int]] | None = None,
+    view: dict[str, tuple[float, float]] | None = None,
 ) -> bytes:
     """A statistics record of the frame that ended at ``time`` [s]: the wall time
     [ms] of each stage (``physics``, ``topology``, ``heat``, ``render``, ...), the
     force [N] the tissue pushed each tool with and, per tool, the particles of each
-    organ touching it (by name; organs not touching it left out). The training
-    metrics read it (:mod:`taichi_lap.training.metrics`); replay does not need it."""
+    organ touching it (by name; organs not touching it left out); with ``view``, how
+    the frame's image showed the task's target (``{name: [visible, share]}``,
+    :meth:`~taichi_lap.render.renderer.Renderer.view_of`). The training metrics read
+    it (:mod:`taichi_lap.training.metrics`); replay does not need it."""
     stats = {
         "time": float(time),
         "frame": int(frame),
@@ -190,6 +194,8 @@ def encode_stats(
             for name, touching in (contacts or {}).items()
         },
     }
+    if view:
+        stats["view"] = {name: [float(v) for v in values] for name, values in view.items()}
     return encode_record(TAG_STATS, json.dumps(stats).encode())
 
 
@@ -371,12 +377,14 @@ class SessionRecorder:
         timings: dict[str, float],
         forces: dict[str, np.ndarray],
         contacts: dict[str, dict[str, int]],
+        view: dict[str, tuple[float, float]] | None = None,
     ):
         """Append the statistics of the frame just stepped (:func:`encode_stats`):
-        ``timings`` [ms] per stage, the force [N] on each tool and the particles of
-        each organ touching it; written with the next frame."""
+        ``timings`` [ms] per stage, the force [N] on each tool, the particles of each
+        organ touching it and how the image showed the task's target; written with
+        the next frame."""
         state = self.session.state
-        self.stream.append(encode_stats(state.time, state.frame, timings, forces, contacts))
+        self.stream.append(encode_stats(state.time, state.frame, timings, forces, contacts, view))
 
     @property
     def path(self) -> str:

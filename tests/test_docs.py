@@ -23,6 +23,7 @@ TABLES = {
     "task pass": scene_mod.TASK_PASS_PARAMS,
     "task plane": scene_mod.TASK_PLANE_PARAMS,
     "task phases": scene_mod.TASK_PHASE_PARAMS,
+    "task view": scene_mod.TASK_VIEW_PARAMS,
     **{f"material {m}": p for m, p in scene_mod.MATERIAL_PARAMS.items()},
     **{f"generator {g.name}": g.params for g in GENERATORS.values()},
 }

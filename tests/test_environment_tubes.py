@@ -50,30 +50,19 @@ def tube_gaps(session: Session) -> np.ndarray:
 
 
 def test_the_loops_rest_on_the_colon_and_do_not_pass_through_it():
-    """The intestine sags onto the colon under gravity while the probe pushes the
-    loops: masses touch it (within 2 mm) and none sinks more than 1 mm into it; with
-    the tube removed the same masses fall through where it was."""
-    deepest = {}
-    for name, scene in (
-        ("colon", intestine_scene()),
-        (
-            "none",
-            scene_mod.validate(with_tube(points=[[5.0, 5.0, 5.0], [5.1, 5.0, 5.0]]), "s", "."),
-        ),
-    ):
-        with Session(scene, progress=False) as session:
-            device = scene_script(scene)
-            session.scene = intestine_scene()  # gaps against the colon's place
-            worst = np.inf
-            for _ in range(60):
-                now = session.state.time
-                session.step(device.poses(now), device.buttons(now))
-                worst = min(worst, tube_gaps(session).min())
-            deepest[name] = worst
-            if name == "colon":
-                assert (tube_gaps(session) < 2e-3).sum() >= 3
-    assert deepest["colon"] > -1e-3, deepest
-    assert deepest["none"] < -5e-3, deepest
+    """The intestine, at rest just touching the colon, sags onto it under gravity
+    while the probe sweeps the lowest loops: masses lie on it (within 2 mm) and none
+    sinks more than 1 mm into it."""
+    scene = intestine_scene()
+    with Session(scene, progress=False) as session:
+        device = scene_script(scene)
+        deepest, resting = np.inf, 0
+        for _ in range(45):
+            now = session.state.time
+            session.step(device.poses(now), device.buttons(now))
+            gaps = tube_gaps(session)
+            deepest, resting = min(deepest, gaps.min()), max(resting, (gaps < 2e-3).sum())
+    assert deepest > -1e-3 and resting >= 3, (deepest, resting)
 
 
 def test_the_colon_is_drawn_and_its_view_is_measured_from_the_object_ids():

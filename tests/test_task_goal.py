@@ -1,7 +1,8 @@
 """A task's goal judged on a session file's events (``taichi_lap.training.goal``):
 phases completed in order by their events, a planned transection plane against the
-wound (distance, the line reached), tissue removed outside the goal, time to
-completion, and the live panel following the same goal."""
+wound (distance, the line reached), a target held in the endoscope's view (from the
+frames' statistics), tissue removed outside the goal, time to completion, and the
+live panel following the same goal."""
 
 from pathlib import Path
 
@@ -228,9 +229,65 @@ def validate_task(task: dict) -> dict:
         ),
         ({"removable": ["gland"]}, "task.removable[0]", "an organ in this scene"),
         ({"phases": {"name": "x"}}, "task.phases", "an array of tables"),
+        (
+            {"view": {"target": "colon"}},
+            "task.view.target",
+            "an organ or environment tube in this scene",
+        ),
+        ({"view": {"target": "liver", "visible": 1.5}}, "task.view.visible", "a value in [0, 1]"),
     ],
 )
 def test_a_bad_goal_names_its_key(task, key, message):
     with pytest.raises(InputError) as error:
         validate_task(task)
     assert error.value.key == key and message in error.value.message
+
+
+def test_a_target_held_in_view_long_enough_completes_the_goal(tmp_path):
+    """Frames are in view when both the visible fraction and the share of the image
+    reach the task's: a frame too small in the image breaks the run, and the goal is
+    reached at the frame that makes an unbroken run as long as ``hold``; the panel fed
+    the same frames agrees with the file."""
+    visible = np.zeros(FRAMES)
+    visible[10:30] = 0.8  # 0.2 s in view ...
+    visible[40:60] = 0.9  # ... then 0.2 s, broken by a frame too small in the image
+    visible[70:] = 0.7  # 0.3 s: held from 0.71 s, reached with the frame ending at 0.95 s
+    share = np.where(np.arange(FRAMES) == 50, 0.01, 0.05)
+    stats = [(k, {}, {}, {}, {"liver": [visible[k], share[k]]}) for k in range(FRAMES)]
+    task = {"name": "Expose", "view": {"target": "liver", "visible": 0.6, "hold": 0.25}}
+    path = write_session(
+        tmp_path / "view.tlap",
+        {"grasper": line([0.0, 0.0, 0.0], [0.05, 0.0, 0.0], FRAMES)},
+        stats=stats,
+        raw_scene=scene_with(task),
+    )
+    metrics = session_metrics(read_recording(path))
+    view = metrics.task["goal"]["view"]
+    assert view["visible_best"] == pytest.approx(0.9)
+    assert view["in_view_time"] == pytest.approx(0.69)  # 20 + 19 + 30 frames
+    assert view["longest_in_view"] == pytest.approx(0.3)
+    assert view["reached_at"] == pytest.approx(0.95)  # frame 94 ends the 25th in a row
+    assert metrics.task["goal"]["time_to_completion"] == pytest.approx(0.95)
+    assert metrics.task["passed"]
+    live = LiveScore(validate_task(task), ["grasper"], DT)
+    for k in range(FRAMES):
+        live.update({}, {}, {}, [], {"liver": (visible[k], share[k])})
+        if k == 90:
+            assert not live.goal_reached
+            assert "liver in view: 70 % of it (needed 60 %), held 0.2 of 0.2 s" in live.lines()
+    assert live.goal_reached and live.goal["view"] == view
+    page = report_html([metrics])
+    assert "liver in view: best visible" in page and "view held at" in page
+
+    short = {**task, "view": {**task["view"], "hold": 0.5}}
+    path = write_session(
+        tmp_path / "short.tlap",
+        {"grasper": line([0.0, 0.0, 0.0], [0.05, 0.0, 0.0], FRAMES)},
+        stats=stats,
+        raw_scene=scene_with(short),
+    )
+    judged_short = session_metrics(read_recording(path)).task
+    assert judged_short["goal"]["view"]["reached_at"] is None and not judged_short["passed"]
+    assert {c["metric"] for c in judged_short["checks"] if not c["passed"]} == {
+        "liver held in view"
+    }

@@ -12,11 +12,12 @@ from taichi_lap.training.live import verdict_lines
 from taichi_lap.training.metrics import session_metrics
 
 
-def judged(tmp_path, name: str, scene: str, frames: int, *device: str) -> dict:
+def judged(tmp_path, name: str, scene: str, frames: int, *device: str, size: str = "64x48") -> dict:
     """The task's result of ``frames`` frames of ``scene`` driven by ``device``
-    (default: the scene's script), recorded and scored from the file."""
+    (default: the scene's script) and drawn at ``size``, recorded and scored from the
+    file."""
     path = tmp_path / f"{name}.tlap"
-    run = ["run", scene, "--headless", "--size", "64x48", "--frames", str(frames)]
+    run = ["run", scene, "--headless", "--size", size, "--frames", str(frames)]
     assert main([*run, "--out", str(tmp_path / name), "--record", str(path), *device]) == 0
     return session_metrics(read_recording(path)).task
 

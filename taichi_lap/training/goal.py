@@ -3,7 +3,9 @@ phases of an operation, each completed by its events in order (seed 000 §7: pre
 and grasp, mobilise, separate, excise), and a planned transection plane (seed 002:
 the wound, the tissue the cautery and the dissector removed from the organ, against
 the plane: its distance from it and how much of the planned line it reaches), with
-the tissue removed outside the goal."""
+the tissue removed outside the goal; and a view (seed 001's teaching goals: place
+the endoscope and move the loops so that the target shows), judged on the view
+series the session file's statistics hold."""
 
 from __future__ import annotations
 
@@ -103,16 +105,55 @@ def removed_outside(task: dict, events: list[dict]) -> tuple[float, float]:
     return total * ML_PER_M3, outside * ML_PER_M3
 
 
-def goal_result(task: dict, events: list[dict], start_time: float) -> dict:
-    """The task's goal on a session's ``events`` (session ``start_time`` [s], its
-    first frame): the phases with the time each completed, the plane's result,
-    tissue removed [ml] in all and outside the goal, whether the goal was reached
-    (every phase, and the plane's coverage) and the time to reach it [s] from the
-    start (None if not reached or the task has no goal)."""
+def view_result(view: dict, series: np.ndarray | None, dt: float) -> dict:
+    """The target's view (``[task.view]``) over ``series`` (rows of frame end time
+    [s], visible, share; None when nothing was recorded), frames of ``dt`` [s]: a frame
+    is in view when the visible fraction and the share of the image both reach the
+    task's; the best visible fraction, the time in view [s], the longest time in view
+    without a break [s], the time needed (``hold``) and the session time [s] the view
+    was first held that long (None if never)."""
+    series = np.zeros((0, 3)) if series is None else np.asarray(series, dtype=np.float64)
+    good = (series[:, 1] >= view["visible"]) & (series[:, 2] >= view["share"])
+    run = longest = 0
+    at = None
+    for k, in_view in enumerate(good):
+        run = run + 1 if in_view else 0
+        longest = max(longest, run)
+        if at is None and in_view and round(run * dt, 6) >= view["hold"]:
+            at = float(series[k, 0])
+    return {
+        "target": view["target"],
+        "visible_needed": view["visible"],
+        "share_needed": view["share"],
+        "visible_best": float(series[:, 1].max()) if len(series) else 0.0,
+        "in_view_time": round(float(good.sum() * dt), 6),
+        "longest_in_view": round(float(longest * dt), 6),  # [s], as "hold" is compared
+        "hold": view["hold"],
+        "reached_at": at,
+    }
+
+
+def goal_result(
+    task: dict,
+    events: list[dict],
+    start_time: float,
+    views: dict[str, np.ndarray] | None = None,
+    dt: float = 0.0,
+) -> dict:
+    """The task's goal on a session's ``events`` and view series ``views`` (per
+    target, :func:`view_result`; frames of ``dt`` [s]), session ``start_time`` [s]
+    (its first frame): the phases with the time each completed, the plane's and the
+    view's results, tissue removed [ml] in all and outside the goal, whether the goal
+    was reached (every phase, the plane's coverage, the view held) and the time to
+    reach it [s] from the start (None if not reached or the task has no goal)."""
     times = phase_times(task["phases"], events)
     plane = plane_result(task["plane"], events) if task["plane"] else None
+    view = None
+    if task.get("view"):
+        view = view_result(task["view"], (views or {}).get(task["view"]["target"]), dt)
     removed, outside = removed_outside(task, events)
     ends = list(times) + ([plane["reached_at"]] if plane else [])
+    ends += [view["reached_at"]] if view else []
     has_goal = bool(ends)
     reached = has_goal and all(t is not None for t in ends)
     return {
@@ -120,6 +161,7 @@ def goal_result(task: dict, events: list[dict], start_time: float) -> dict:
             {"name": phase["name"], "completed_at": t} for phase, t in zip(task["phases"], times)
         ],
         "plane": plane,
+        "view": view,
         "removed": removed,
         "removed_outside": outside,
         "has_goal": has_goal,

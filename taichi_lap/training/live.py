@@ -28,7 +28,8 @@ class LiveScore:
         self._tips: dict[str, np.ndarray] = {}
         self._touching: set[tuple[str, str]] = set()  # (tool, forbidden organ) in contact
         self.events: list[dict] = []  # with a task, the session's events stamped [s]
-        self.goal = goal_result(task, [], 0.0) if task else None
+        self.views: list[tuple[float, float, float]] = []  # the view target's, per frame
+        self.goal = goal_result(task, [], 0.0, dt=dt) if task else None
 
     @property
     def elapsed(self) -> float:
@@ -50,17 +51,25 @@ class LiveScore:
         forces: dict[str, np.ndarray],
         contacts: dict[str, dict[str, int]],
         events: list[dict] = (),
+        view: dict[str, tuple[float, float]] | None = None,
     ):
         """One frame: the tips [m] applied before its step, and after it the force
-        [N] on each tool, the particles of each organ touching it and the step's
-        ``events`` (:attr:`Session.events`; the goal follows them)."""
+        [N] on each tool, the particles of each organ touching it, the step's
+        ``events`` (:attr:`Session.events`) and how the image showed the task's view
+        target (``view``, as recorded); the goal follows them."""
         self.frames += 1
         if self.task:
             stamped = [{**event, "time": self.elapsed} for event in events]
             self.events += stamped
             goal_events = {phase["event"] for phase in self.task["phases"]}
-            if any(e["kind"] in goal_events or e["kind"] in REMOVAL_EVENTS for e in stamped):
-                self.goal = goal_result(self.task, self.events, 0.0)
+            target = self.task["view"]["target"] if self.task.get("view") else None
+            if target is not None and view and target in view:
+                self.views.append((self.elapsed, *view[target]))
+            if (target is not None and view) or any(
+                e["kind"] in goal_events or e["kind"] in REMOVAL_EVENTS for e in stamped
+            ):
+                series = {target: np.array(self.views)} if self.views else {}
+                self.goal = goal_result(self.task, self.events, 0.0, series, self.dt)
         for tool, tip in tips.items():
             if tool in self._tips:
                 self.path_length[tool] += float(np.linalg.norm(tip - self._tips[tool]))
@@ -122,6 +131,14 @@ class LiveScore:
                     f"wound from the plane: mean {1e3 * plane['distance_mean']:.1f} mm, "
                     f"max {1e3 * plane['distance_max']:.1f} mm"
                 )
+        view = self.goal["view"]
+        if view is not None:
+            now = self.views[-1][1] if self.views else 0.0
+            lines.append(
+                f"{view['target']} in view: {100 * now:.0f} % of it "
+                f"(needed {100 * view['visible_needed']:.0f} %), "
+                f"held {view['longest_in_view']:.1f} of {view['hold']:.1f} s"
+            )
         if self.goal["removed"] > 0.0:
             lines.append(f"removed outside the goal: {self.goal['removed_outside']:.2f} ml")
         if self.goal["reached"]:

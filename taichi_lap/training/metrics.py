@@ -85,6 +85,8 @@ class SessionMetrics:
     timeline: list[dict] = field(repr=False)  # the counted events in order
     stats_time: np.ndarray = field(repr=False)  # [s] end of each frame with statistics
     stage_series: dict[str, np.ndarray] = field(repr=False)  # per stage, ms per frame
+    views: dict[str, np.ndarray] = field(repr=False, default_factory=dict)  # per view target:
+    # (frames, 3) time [s], visible and share of the frames whose statistics hold it
     task: dict | None = None  # the task's result (training.task.judge_task), if any
 
     def numbers(self) -> dict:
@@ -232,6 +234,17 @@ def session_status(recording: Recording) -> tuple[str, bool]:
     return str(end["status"]), end["status"] == "complete"
 
 
+def view_series(stats: list[dict]) -> dict[str, np.ndarray]:
+    """Per view target recorded in the statistics: ``(frames, 3)`` rows of the frame's
+    end time [s], the fraction of the target's unhidden image that showed and the
+    fraction of the image it filled."""
+    rows: dict[str, list] = {}
+    for s in stats:
+        for target, (visible, share) in s.get("view", {}).items():
+            rows.setdefault(target, []).append((s["time"], visible, share))
+    return {target: np.array(values, dtype=np.float64) for target, values in rows.items()}
+
+
 def session_metrics(recording: Recording) -> SessionMetrics:
     """The metrics of ``recording`` (module docstring)."""
     start = recording.start
@@ -297,6 +310,7 @@ def session_metrics(recording: Recording) -> SessionMetrics:
         timeline=timeline,
         stats_time=np.array([s["time"] for s in recording.stats]),
         stage_series=stage_series,
+        views=view_series(recording.stats),
     )
     task = recorded_task(recording)
     if task is not None:

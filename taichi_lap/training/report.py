@@ -162,7 +162,8 @@ def _task_section(task: dict | None) -> list[str]:
 
 def _goal_section(goal: dict) -> list[str]:
     """The goal's phases with the time each completed, the wound against the planned
-    plane, and the tissue removed in all and outside the goal."""
+    plane, the tissue removed in all and outside the goal, and the view target's
+    time in view."""
     rows = [
         (f"phase {k}: {html.escape(phase['name'])}", _seconds(phase["completed_at"]))
         for k, phase in enumerate(goal["phases"], 1)
@@ -185,11 +186,31 @@ def _goal_section(goal: dict) -> list[str]:
             "tissue removed, outside the goal [ml]",
             f"{goal['removed']:.3f}, {goal['removed_outside']:.3f}",
         ),
+        *_view_rows(goal["view"]),
         ("time to completion", _seconds(goal["time_to_completion"])),
     ]
     if not goal["has_goal"]:
         rows = rows[-2:-1]
     return ["<h4>Goal</h4>", _table(None, rows)]
+
+
+def _view_rows(view: dict | None) -> list[tuple[str, str]]:
+    """The view target's rows of the goal table (none without a view goal)."""
+    if view is None:
+        return []
+    target = html.escape(view["target"])
+    return [
+        (
+            f"{target} in view: best visible",
+            f"{100 * view['visible_best']:.0f} % (needed {100 * view['visible_needed']:.0f} %"
+            f" of it, filling {100 * view['share_needed']:.0f} % of the image)",
+        ),
+        (
+            f"{target} in view: in all, longest [s]",
+            f"{view['in_view_time']:.1f}, {view['longest_in_view']:.1f} (needed {view['hold']:.1f})",
+        ),
+        ("view held at", _seconds(view["reached_at"])),
+    ]
 
 
 def _number(value, scale: float = 1.0) -> str:

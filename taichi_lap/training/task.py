@@ -49,7 +49,10 @@ def recorded_task(recording: Recording) -> dict | None:
         return None
     organs = [organ.get("name", "") for organ in raw.get("organs", [])]
     tools = [tool.get("name", "") for tool in raw.get("tools", [])]
-    return check_task(recording.path, "session_start.raw_scene.task", raw["task"], organs, tools)
+    tubes = [tube.get("name", "") for tube in raw.get("environment", {}).get("tubes", [])]
+    return check_task(
+        recording.path, "session_start.raw_scene.task", raw["task"], organs, tools, tubes
+    )
 
 
 def judge_task(task: dict, metrics, events: list[dict]) -> dict:
@@ -58,13 +61,22 @@ def judge_task(task: dict, metrics, events: list[dict]) -> dict:
     them, its goal (:func:`~taichi_lap.training.goal.goal_result`), one check per
     requirement (metric, value, bound, unit, at_least, passed) and whether it
     passed."""
-    start = float(metrics.frame_time[0]) if len(metrics.frame_time) else 0.0
-    goal = goal_result(task, events, start)
+    time = metrics.frame_time
+    start = float(time[0]) if len(time) else 0.0
+    dt = metrics.duration / len(time) if len(time) else 0.0
+    goal = goal_result(task, events, start, metrics.views, dt)
     checks = []
     if goal["plane"] is not None:
         plane = goal["plane"]
         checks.append(
             _check("plane coverage", plane["coverage"], plane["coverage_needed"], "", True)
+        )
+    if goal["view"] is not None:
+        view = goal["view"]
+        checks.append(
+            _check(
+                f"{view['target']} held in view", view["longest_in_view"], view["hold"], "s", True
+            )
         )
     if task["phases"]:
         done = sum(phase["completed_at"] is not None for phase in goal["phases"])
