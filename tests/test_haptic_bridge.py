@@ -107,6 +107,7 @@ def test_stylus_button_grasps_and_the_servo_feels_the_pull():
     assert abs(pulls[-1][1]) > np.abs(pulls[-1][[0, 2]]).max()
 
 
+@pytest.mark.long  # one device drives a tool in the default run
 def test_two_openhaptics_devices_drive_two_tools(fake_library, tmp_path, monkeypatch, capsys):
     """Two hands: the probe's `device` key binds it to the left device, so the right
     one takes the free tool (the grasper); the run completes and writes its frames, and
