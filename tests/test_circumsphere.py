@@ -1,7 +1,6 @@
 """Tissue collision (seed 000 §4): adaptive circumspheres (Eq. 4-6), the lazy update
 (§4.2.3), the impulse response (§4.3) and both baselines, as promises."""
 
-import logging
 import math
 
 import numpy as np
@@ -353,21 +352,6 @@ def test_tissue_pairs_are_separated_after_the_response(blocks, method):
     assert not np.array_equal(p[~upper], x0[~upper])  # both blocks took part
 
 
-def test_triangles_moving_beyond_the_hash_bound_in_a_substep_are_reported(blocks, caplog):
-    data, model, state, no_tools = blocks
-    collision = TissueCollision(model, tools=False)
-    state.reset(model)
-    collision.step(state, no_tools)
-    assert collision.oversize_steps == 0
-    upper = data.organ == 1
-    jump = 2.0 * collision.reach_bound
-    state.p.from_numpy((data.rest_position + np.outer(upper, [0.0, jump, 0.0])).astype(np.float32))
-    with caplog.at_level(logging.WARNING, logger="taichi_lap"):
-        collision.step(state, no_tools)
-    assert collision.oversize_steps == 1
-    assert "may be missed" in caplog.text
-
-
 UNION = [
     ToolShape("shaft"),
     ToolShape.sphere([0.0, -0.004, 0.015], 0.004),
@@ -517,6 +501,44 @@ def listed_pairs(collision) -> np.ndarray:
     return out
 
 
+def unlisted_and_meeting(collision, data, skipped, tie, x, p) -> tuple[int, int]:
+    """(overlapping pairs left unlisted, overlapping pairs) of the broad spheres from
+    x to p (``skipped`` and ``tie`` of :func:`rest_excluded`); no listed pair may be
+    one the rest exclusion skips."""
+    sphere = numpy_broad_spheres(data, x, p)
+    gap = (
+        np.linalg.norm(sphere[:, None, :3] - sphere[None, :, :3], axis=2)
+        - sphere[:, None, 3]
+        - sphere[None, :, 3]
+    )
+    meet = (gap < -1e-6) & ~skipped & ~tie
+    listed = listed_pairs(collision)
+    assert not (listed & skipped & ~tie).any()
+    return int((meet & ~listed).sum()), int(meet.sum())
+
+
+def test_triangles_stretched_far_beyond_the_hash_cells_keep_every_pair(blocks):
+    """A scan reaches as far as the largest sphere the hash holds: the upper block
+    stretched to 5 times its width within one substep (its triangles' broad spheres
+    several cells across) and lowered onto the lower one lists every pair that
+    meets."""
+    data, model, state, control = blocks
+    collision = TissueCollision(model, tools=False)
+    state.reset(model)
+    collision.step(state, control)
+    x0, upper = data.rest_position, data.organ == 1
+    stretched = x0.copy()
+    stretched[upper] *= [5.0, 1.0, 5.0]
+    stretched[upper, 1] -= 0.002
+    state.p.from_numpy(stretched.astype(np.float32))
+    collision.step(state, control)
+    radius = numpy_broad_spheres(data, x0, stretched)[:, 3]
+    assert radius.max() > 2.0 * collision.grid.cell_size
+    skipped, tie = rest_excluded(collision, data)
+    unlisted, meeting = unlisted_and_meeting(collision, data, skipped, tie, x0, stretched)
+    assert meeting > 100 and unlisted == 0
+
+
 def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
     """Broad phase (kernels.collision.broad_phase): at every step of a motion in which some
     triangles drift past the rescan threshold and others do not, the pair rows hold
@@ -548,18 +570,7 @@ def test_pair_lists_hold_every_pair_that_can_meet_as_triangles_drift():
     rng = np.random.default_rng(5)
 
     def unlisted_meeting_pairs(x, p):
-        """(overlapping pairs left unlisted, overlapping pairs) of the broad spheres from
-        x to p; no listed pair may be one the rest exclusion skips."""
-        sphere = numpy_broad_spheres(data, x, p)
-        gap = (
-            np.linalg.norm(sphere[:, None, :3] - sphere[None, :, :3], axis=2)
-            - sphere[:, None, 3]
-            - sphere[None, :, 3]
-        )
-        meet = (gap < -1e-6) & ~skipped & ~tie
-        listed = listed_pairs(collision)
-        assert not (listed & skipped & ~tie).any()
-        return (meet & ~listed).sum(), meet.sum()
+        return unlisted_and_meeting(collision, data, skipped, tie, x, p)
 
     x, rescans, found = x0, [], 0
     for step in range(16):

@@ -15,12 +15,12 @@ CELL = 0.01  # [m]
 @ti.data_oriented
 class PairQuery:
     """The pairs within a radius of a built :class:`SpatialHash`, found through its
-    query API as the broad phase scans it (neighbour buckets, bucket ranges, the
+    query API as the broad phase scans it (cell spans, bucket ranges, the
     sorted index): the tests' window on the hash."""
 
     def __init__(self, grid: SpatialHash, capacity: int | None = None):
         self.grid = grid
-        self.capacity = capacity or 8 * grid.capacity
+        self.capacity = capacity or 40 * grid.capacity
         group = FieldGroup()
         self.pairs = group.field(ti.i32, self.capacity, vector=2)
         self.count = group.field(ti.i32, None)
@@ -30,7 +30,6 @@ class PairQuery:
     def find_pairs(self, points, radius: float) -> int:
         """All pairs i < j of the last build with |x_i - x_j| <= radius [m] into ``pairs``;
         returns how many there were (more than ``capacity``: only the first written)."""
-        self._check_radius(radius)
         self._find_pairs(points, self.grid.count, radius)
         return int(self.count[None])
 
@@ -46,12 +45,7 @@ class PairQuery:
 
     def count_neighbours(self, points, radius: float) -> None:
         """``neighbour_count[i]`` = number of j != i with |x_i - x_j| <= radius [m]."""
-        self._check_radius(radius)
         self._count_neighbours(points, self.grid.count, radius)
-
-    def _check_radius(self, radius: float) -> None:
-        if not 0 <= radius <= self.grid.cell_size:
-            raise ValueError(f"radius {radius} must lie in [0, cell_size={self.grid.cell_size}]")
 
     @ti.func
     def _visit(
@@ -60,13 +54,15 @@ class PairQuery:
         """Count neighbours j of point i (only j > i if ``upper``); ``write`` pairs (i, j):
         0 no, 1 from slot ``base`` on, 2 to slots taken by one atomic per pair."""
         x = points[i]
-        buckets, n_buckets = self.grid.neighbour_buckets(x, radius)
+        lo, extent, visits = self.grid.ball_span(x, radius)
         r2, found = radius * radius, 0
-        for k in range(n_buckets):
-            start, end = self.grid.bucket_range(buckets[k])
+        for k in range(visits):
+            cell, start, end = self.grid.span_visit(lo, extent, k)
             for s in range(start, end):
                 j = self.grid.sorted_index[s]
-                near = (points[j] - x).norm_sqr() <= r2
+                near = (points[j] - x).norm_sqr() <= r2 and self.grid.in_visit(
+                    cell, extent, points[j]
+                )
                 if (j > i if ti.static(upper) else j != i) and near:
                     if ti.static(write):
                         store_pair(
@@ -163,7 +159,7 @@ def test_pairs_match_brute_force(table_size):
     grid, points = SpatialHash(len(x), table_size, CELL), make_points(x)
     grid.build(points, len(x))
     query = PairQuery(grid)
-    for radius in (0.2 * CELL, 0.6 * CELL, CELL):
+    for radius in (0.2 * CELL, 0.6 * CELL, CELL, 2.5 * CELL):  # 2.5: 6 cells across, or all
         total = query.find_pairs(points, radius)
         found = pair_set(query.pairs_numpy())
         assert total == len(found) and not query.overflowed()

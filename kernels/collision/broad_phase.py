@@ -17,7 +17,11 @@ more than the margin apart when the later of its two triangles scanned; since th
 scanning one drifted at most margin / 3 and the other at most twice that (from its own
 listing to then, and on to now), so the gap cannot have closed. The hash holds the
 spheres of its last build and is rebuilt once a sphere drifted more than
-``hash_slack`` from there (scans widen by that slack). Scans collect hits in a tight
+``hash_slack`` from there (scans widen by that slack). A scan visits the cells within
+its sphere's reach + margin + slack + the largest radius the hash holds (a partner's
+centre lies there, however stretched either triangle is), each cell only for the
+spheres hashed in it; the hash's cells are a few triangle sizes, so that a scan reads
+little more than that ball. Scans collect hits in a tight
 loop (up to :data:`NEAR`; when more, the scan goes on from the hit that did not fit)
 and test them after it. Pairs never
 listed: triangles sharing a vertex, and pairs close at rest that are of one body or do
@@ -71,11 +75,11 @@ NEAR = 32
 the exact tests run outside the tight candidate loop."""
 ROW_BLOCK = 256
 """Triangles per block of the pair rows' prefix sum."""
-BROAD = ("moved", "stale", "found", "rows", "seen", "rescanned", "listed", "oversize")
+BROAD = ("moved", "stale", "found", "rows", "seen", "rescanned", "listed", "held")
 """Slots of the broad-phase status ``broad`` (one read per step): triangles to rescan,
-hash out of date, pairs found, entries of the new rows, this rescan's counts, and
-triangles whose broad sphere outgrew ``reach_bound`` (their pairs may be missed)."""
-B_MOVED, B_STALE, B_FOUND, B_ROWS, B_SEEN, B_RESCANNED, B_LISTED, B_OVERSIZE = range(len(BROAD))
+hash out of date, pairs found, entries of the new rows, this rescan's counts, and the
+largest radius the hash holds (f32 bits: :func:`held_reach`)."""
+B_MOVED, B_STALE, B_FOUND, B_ROWS, B_SEEN, B_RESCANNED, B_LISTED, B_HELD = range(len(BROAD))
 
 
 @ti.func
@@ -132,10 +136,9 @@ def update_bounds(
     to hold all the tool's shapes, ``tool_reach``, and by its motion over the
     substep; ``tool_cull*``), and with tissue pairs flag the triangles whose
     broad sphere drifted (centre shift + reach change) more than ``rescan_drift``
-    since they were listed (``moved``, counted in ``broad[B_MOVED]``), whether some
-    drifted more than ``hash_slack`` from the hash (``broad[B_STALE]``) and how many
-    outgrew ``reach_bound`` (``broad[B_OVERSIZE]``)."""
-    coll.broad[B_MOVED], coll.broad[B_STALE], coll.broad[B_OVERSIZE] = 0, 0, 0
+    since they were listed (``moved``, counted in ``broad[B_MOVED]``) and whether some
+    drifted more than ``hash_slack`` from the hash (``broad[B_STALE]``)."""
+    coll.broad[B_MOVED], coll.broad[B_STALE] = 0, 0
     coll.active_count[None] = 0
     for k in ti.static(range(MAX_TOOLS)):  # bounding capsules: tip, axis, 1 / |axis|², reach
         axis = control.tool_b[k] - control.tool_a[k]
@@ -172,8 +175,6 @@ def update_bounds(
                     ti.atomic_add(coll.broad[B_MOVED], 1)
                 if (center - xyz(held)).norm() + ti.abs(sphere[3] - held[3]) > coll.hash_slack:
                     coll.broad[B_STALE] = 1
-                if sphere[3] > coll.reach_bound and coll.tri_live[t] != 0:
-                    ti.atomic_add(coll.broad[B_OVERSIZE], 1)
             if coll.tri_live[t] != 0 and any_tool_near(coll, sphere):
                 coll.active_list[ti.atomic_add(coll.active_count[None], 1)] = t
             else:
@@ -184,16 +185,27 @@ def update_bounds(
 def hold_spheres(coll: ti.template(), grid: ti.template()):
     """After ``grid.build(broad_sphere)``: the hash holds each triangle's broad sphere
     (hash_sphere) and, in hash order, that sphere, the rest sphere and the body
-    (sorted_sphere, sorted_rest, sorted_body: what the scan loop reads)."""
+    (sorted_sphere, sorted_rest, sorted_body: what the scan loop reads); the largest
+    radius of a live one goes to ``broad[B_HELD]``."""
+    coll.broad[B_HELD] = 0
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:
-            coll.hash_sphere[t] = coll.broad_sphere[t]
+            sphere = coll.broad_sphere[t]
+            coll.hash_sphere[t] = sphere
+            if coll.tri_live[t] != 0:  # radii >= 0 (or NaN): their bits order as they do
+                ti.atomic_max(coll.broad[B_HELD], ti.bit_cast(sphere[3], ti.i32))
     for s in range(coll.tri_vertex.shape[0]):
         if s < coll.row_count[None]:
             u = grid.sorted_index[s]
             coll.sorted_sphere[s] = coll.hash_sphere[u]
             coll.sorted_rest[s] = coll.rest_sphere[u]
             coll.sorted_body[s] = coll.tri_body[u]
+
+
+@ti.func
+def held_reach(coll: ti.template()):
+    """The largest broad radius [m] of a live triangle when the hash was built."""
+    return ti.bit_cast(coll.broad[B_HELD], ti.f32)
 
 
 @ti.func
@@ -237,29 +249,30 @@ def scan_pairs(
     sphere, rest, body = coll.broad_sphere[t], coll.rest_sphere[t], coll.tri_body[t]
     center = xyz(sphere)
     widen = sphere[3] + coll.pair_margin + coll.hash_slack
-    query = ti.min(widen + coll.reach_bound, grid.cell_size)
-    buckets, n_buckets = grid.neighbour_buckets(center, query)
+    lo, extent, visits = grid.ball_span(center, widen + held_reach(coll))
     near = ti.Vector([0] * NEAR, ti.i32)
     count, seen, scanning = 0, 0, True
-    resume_bucket, resume_entry = 0, -1  # where a full buffer stopped the scan
+    resume_visit, resume_entry = 0, -1  # where a full buffer stopped the scan
     while scanning:  # scan on, keep up to NEAR hits, test them; go on if it was full
         n_near, scanning = 0, False
-        for k in range(resume_bucket, n_buckets):
-            start, end = grid.bucket_range(buckets[k])
-            if k == resume_bucket and resume_entry >= 0:
+        for k in range(resume_visit, visits):
+            cell, start, end = grid.span_visit(lo, extent, k)
+            if k == resume_visit and resume_entry >= 0:
                 start = resume_entry
             for s in range(start, end):  # held spheres in hash order: contiguous reads
                 held = coll.sorted_sphere[s]
-                reach = ti.min(widen + held[3], query)
+                reach = widen + held[3]
                 d = xyz(held) - center
                 hit = d.dot(d) <= reach * reach
+                if hit:  # of this cell (Taichi's `and` evaluates both sides)
+                    hit = grid.in_visit(cell, extent, xyz(held))
                 if hit:  # and not of one body and close at rest (rest exclusion)
                     r = coll.sorted_rest[s]
                     e = xyz(r) - xyz(rest)
                     close = coll.rest_exclusion * (r[3] + rest[3])
                     hit = coll.sorted_body[s] != body or e.dot(e) >= close * close
                 if hit and n_near == NEAR:  # full: test these, then go on from s
-                    resume_bucket, resume_entry, scanning = k, s, True
+                    resume_visit, resume_entry, scanning = k, s, True
                     break
                 if hit:
                     near[n_near] = s
@@ -286,7 +299,7 @@ def list_pairs(coll: ti.template(), grid: ti.template(), found: ti.template()):
     = how many there were: more than the capacity means rerun with more room); its
     broad sphere becomes the reference of its drift (ref_sphere)."""
     found.count[None] = 0
-    for k in ti.static(range(B_SEEN, len(BROAD))):
+    for k in ti.static(range(B_SEEN, B_LISTED + 1)):
         coll.broad[k] = 0
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:

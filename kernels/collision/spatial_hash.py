@@ -14,20 +14,23 @@ by bucket, ascending inside each bucket, so the result does not depend on the or
 the atomics ran in). Buckets hold several cells (hash collisions): callers check
 candidates by distance. Fields are allocated once; only f32/i32/u32, no float atomics.
 
-Query from another kernel (radius <= cell_size)::
+Query from another kernel, a ball of any radius: visit the cells it may touch (or
+every bucket, when they would be more), and in each cell's bucket only the points of
+that cell (two cells of the span may share a bucket)::
 
     grid = SpatialHash(capacity=n, table_size=1 << 16, cell_size=0.004)
 
     @ti.kernel
     def touch(x: ti.template(), n: ti.i32, r: ti.f32):
         for i in range(n):
-            buckets, n_buckets = grid.neighbour_buckets(x[i], r)
-            for k in range(n_buckets):  # each bucket once, even if two cells share it
-                start, end = grid.bucket_range(buckets[k])
+            lo, extent, visits = grid.ball_span(x[i], r)
+            for k in range(visits):
+                cell, start, end = grid.span_visit(lo, extent, k)
                 for s in range(start, end):
                     j = grid.sorted_index[s]
-                    if j != i and (x[i] - x[j]).norm_sqr() <= r * r:
-                        ...  # neighbour pair (i, j)
+                    if j != i and grid.in_visit(cell, extent, x[j]):
+                        if (x[i] - x[j]).norm_sqr() <= r * r:
+                            ...  # neighbour pair (i, j)
 
 On Vulkan (seen with Mesa lavapipe 22.3) an atomic inside such candidate loops, even
 one never executed, corrupts results: count first, then reserve slots per point.
@@ -97,7 +100,7 @@ class SpatialHash(FieldOwner):
     """Counting-sort spatial hash over at most ``capacity`` points.
 
     ``table_size`` buckets, cells of ``cell_size`` [m]; kernels query it with
-    :meth:`neighbour_buckets` and :meth:`bucket_range` (module docstring).
+    :meth:`ball_span`, :meth:`span_visit` and :meth:`in_visit` (module docstring).
     """
 
     def __init__(self, capacity: int, table_size: int, cell_size: float):
@@ -138,29 +141,41 @@ class SpatialHash(FieldOwner):
         return self.bucket_start[bucket], self.bucket_start[bucket + 1]
 
     @ti.func
-    def neighbour_buckets(self, x, radius):
-        """Distinct non-empty buckets of the cells (among the 27 around ``x``) that a ball
-        of ``radius`` [m] <= cell_size may touch: (vector of 27 i32, how many are valid)."""
+    def ball_span(self, x, radius):
+        """What to visit for the points within ``radius`` [m] of ``x``, any radius:
+        (lo, extent, n), visits 0 to n - 1 of :meth:`span_visit`. The box of cells the
+        ball may touch (lowest cell ``lo`` and ``extent``, ivec3s), or every bucket
+        (extent 0) when that box would have more cells than the table has buckets or
+        the radius is not finite."""
         y = x * self.inv_cell
-        c = ti.cast(ti.floor(y), ti.i32)
-        t = y - ti.cast(c, ti.f32)  # position inside the cell, in cell units
         reach = radius * self.inv_cell + 1e-3  # margin covers f32 rounding up to ~1e4 cells
-        lo = ti.select(t < reach, -1, 0)
-        hi = ti.select(t > 1.0 - reach, 1, 0)
-        out = ti.Vector([0] * 27, ti.i32)
-        n_out = 0
-        for n in range(27):
-            d = ti.Vector([n % 3 - 1, n // 3 % 3 - 1, n // 9 - 1])
-            if (d >= lo).all() and (d <= hi).all():
-                b = self.bucket_of_cell(c + d)
-                if self.bucket_start[b] < self.bucket_start[b + 1]:
-                    for m in range(n_out):
-                        if out[m] == b:
-                            b = -1
-                    if b >= 0:
-                        out[n_out] = b
-                        n_out += 1
-        return out, n_out
+        side = 2.0 * reach + 2.0  # at least the box's cells along each axis
+        lo, extent, n = ti.Vector([0, 0, 0]), ti.Vector([0, 0, 0]), self.table_size
+        if side * side * side <= self.table_size:  # false for NaN
+            lo = ti.cast(ti.floor(y - reach), ti.i32)
+            extent = ti.cast(ti.floor(y + reach), ti.i32) - lo + 1
+            n = extent[0] * extent[1] * extent[2]
+        return lo, extent, n
+
+    @ti.func
+    def span_visit(self, lo, extent, k):
+        """Visit ``k`` of :meth:`ball_span`: (cell, start, end), the cell (ivec3, x
+        fastest) and the slice of ``sorted_index`` to read; only its points that
+        :meth:`in_visit` accepts belong to the visit (other cells may share the bucket)."""
+        cell, bucket = lo, k
+        if extent[0] > 0:
+            cell = lo + ti.Vector(
+                [k % extent[0], k // extent[0] % extent[1], k // (extent[0] * extent[1])]
+            )
+            bucket = self.bucket_of_cell(cell)
+        start, end = self.bucket_range(bucket)
+        return cell, start, end
+
+    @ti.func
+    def in_visit(self, cell, extent, x):
+        """A point at ``x`` [m] read in the visit of ``cell`` belongs to it (each point
+        is visited once)."""
+        return extent[0] == 0 or (self.cell_of(x) == cell).all()
 
     # ---- build -----------------------------------------------------------------
     def build(self, points, count: int | None = None):

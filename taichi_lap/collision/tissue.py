@@ -21,7 +21,6 @@ compares the methods on a tool).
 
 from __future__ import annotations
 
-import logging
 import math
 import time
 
@@ -46,7 +45,6 @@ from taichi_lap.kernels.collision import broad_phase, response, spheres
 from taichi_lap.kernels.collision.spatial_hash import SpatialHash
 from taichi_lap.kernels.scatter import scatter
 
-log = logging.getLogger("taichi_lap")
 
 METHODS = {
     "circumsphere": spheres.CIRCUMSPHERE,
@@ -56,10 +54,12 @@ METHODS = {
 PHASES = ("bounds", "hash", "pairs", "spheres", "detect")
 """Phases of :meth:`TissueCollision.step` timed with ``timing``."""
 
-REACH_FACTOR = 1.5
-"""How much larger than the largest rest broad radius a triangle's broad sphere (its
-radius plus its motion in a substep) may grow before its pairs may be missed; the
-settled rectum stretches its largest triangles by up to 38 %."""
+CELL_REACHES = 1.0
+"""Default edge of the hash's cells, in reaches of a scan from the smallest triangle
+(the largest rest broad radius + margin + slack). Measured on the liver at detail 0.1
+(32k triangles), a full rescan on the CPU: 0.5 reaches 300 ms (many cells to visit),
+1 reach 150 ms, 2 reaches 270 ms (many spheres to read).
+"""
 TOOL_PASSES = 2
 """Jacobi passes of the contact that holds in every collision step (PBD iterates its
 projections, Müller et al. 2007 §3.2). One pass averages the pushes of the triangles
@@ -93,10 +93,9 @@ class TissueCollision:
     pairs closer at rest than κ times the sum of their broad radii never collide when
     of one body (:func:`organ_bodies`) or not facing each other at rest (0: only
     adjacent triangles are skipped), ``cell_size`` [m] of the spatial hash (default
-    2 × REACH_FACTOR × the largest rest broad radius + margin + slack: a triangle's
-    broad radius plus its motion in a substep must stay under REACH_FACTOR × that
-    largest radius, ``reach_bound``; steps where some do not are counted in
-    ``oversize_steps`` and the first is logged as a warning).
+    :data:`CELL_REACHES` × (the largest rest broad radius + margin + slack), the
+    reach of a scan from the smallest triangle; a scan from a larger one, or after
+    triangles stretched, visits more cells).
     ``timing``: synchronise around :meth:`step` and record ``last_ms``, ``total_ms``,
     ``calls`` and ``phase_ms`` (cumulative per phase). These settings are compiled
     into the kernels: fixed per instance.
@@ -152,7 +151,6 @@ class TissueCollision:
         self.polygon_thickness = float(polygon_thickness)
         self.rest_exclusion = float(rest_exclusion)
         self.timing, self.last_ms, self.total_ms, self.calls = timing, 0.0, 0.0, 0
-        self.oversize_steps = 0
         self.phase_ms = dict.fromkeys(PHASES, 0.0)
         self._hashed, self._mark = False, 0.0
         data = model.data
@@ -171,7 +169,6 @@ class TissueCollision:
         )
         self.hash_slack = self.pair_margin if hash_slack is None else float(hash_slack)
         self.rescan_drift = self.pair_margin / 3.0
-        self.reach_bound = REACH_FACTOR * max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
         self._body = organ_bodies(data)
         tables = triangle_corner_tables(data)
         self._init_fields(data, triangles, tables, rest_sphere, rest_normal)
@@ -179,7 +176,8 @@ class TissueCollision:
         self.grid = self.rows = self.spare = self.found = None  # tissue pairs only
         if tissue_pairs:
             if cell_size is None:
-                cell_size = 2.0 * self.reach_bound + self.pair_margin + self.hash_slack
+                largest = max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
+                cell_size = CELL_REACHES * (largest + self.pair_margin + self.hash_slack)
             f = max(self.triangle_count, 1)
             self.grid = SpatialHash(f, 1 << max(4, int(2 * f).bit_length()), cell_size)
             self.rows = PairRows(f, ROW_CAPACITY * f)
@@ -424,13 +422,12 @@ class TissueCollision:
         when listed, wherever the state jumped since, and a triangle that is now
         elsewhere rescans at the next step, as after any drift. With ``pairs`` the
         lists and the hash are forgotten too (every triangle rescans, as in a new
-        collision), and so is the count of oversize steps. Which triangles a tool's
+        collision). Which triangles a tool's
         contact held is forgotten (the response reads it in the next step)."""
         cleared = [(self.area_last, 0.0), (self.tool_held, 0)]
         fields.fill(cleared + [(self.ref_sphere, FAR)] if pairs else cleared)
         if pairs:
             self._hashed = False
-            self.oversize_steps = 0
             if self._swapped:  # a reused collision lists in the order it first did
                 self.rows, self.spare, self._swapped = self.spare, self.rows, False
 
@@ -460,9 +457,7 @@ class TissueCollision:
         self._lap("bounds")
         tissue = tissue and self.tissue_pairs
         if tissue:
-            oversize = self._refresh_pairs()
-            if oversize:
-                self._report_oversize(oversize)
+            self._refresh_pairs()
             broad_phase.mark_active(self, self.rows)
         spheres.update_spheres(self.model, state, self, False)
         self._lap("spheres")
@@ -480,36 +475,12 @@ class TissueCollision:
             self.total_ms += self.last_ms
             self.calls += 1
 
-    def _refresh_pairs(self) -> int:
+    def _refresh_pairs(self):
         """After :func:`kernels.collision.broad_phase.update_bounds`: rescan the triangles
-        that drifted; returns how many outgrew the hash's bound."""
-        moved, stale, oversize = self.broad.to_numpy()[
-            [broad_phase.B_MOVED, broad_phase.B_STALE, broad_phase.B_OVERSIZE]
-        ]
+        that drifted."""
+        moved, stale = self.broad.to_numpy()[[broad_phase.B_MOVED, broad_phase.B_STALE]]
         if moved:
             self._list_pairs(bool(stale))
-        return int(oversize)
-
-    def _report_oversize(self, count: int):
-        """Count steps where some triangle's broad sphere (its radius plus its motion in
-        the substep) outgrew ``reach_bound``, the largest the hash cells are sized for:
-        their tissue pairs may be missed. Warns at the first such step, naming the
-        organs and the largest sphere."""
-        if not self.oversize_steps:
-            f = self.triangle_count
-            radius = self.broad_sphere.to_numpy()[:f, 3]
-            organ = self.tri_organ.to_numpy()[:f][radius > self.reach_bound]
-            organs = sorted({self.model.data.organs[k].name for k in np.unique(organ)})
-            log.warning(
-                "tissue collision: %d triangles of %s are stretched or move beyond %.2f mm "
-                "in a substep (the largest %.2f mm); their tissue contacts may be missed "
-                "(more substeps per frame help where they move)",
-                count,
-                ", ".join(organs),
-                self.reach_bound * 1e3,
-                radius.max() * 1e3,
-            )
-        self.oversize_steps += 1
 
     def _list_pairs(self, stale: bool):
         """Broad phase of the moved triangles (:mod:`kernels.collision.broad_phase`): the hash
