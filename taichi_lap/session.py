@@ -43,6 +43,7 @@ from taichi_lap.preprocess.cache import (
     scene_digest,
 )
 from taichi_lap.scene import Scene
+from taichi_lap.scene.schema import PLANE_LOOK
 from taichi_lap.scenes.anatomy.tubes import environment_centreline
 from taichi_lap.sim import Control, Model, Solver, SolverSettings, State
 
@@ -70,12 +71,12 @@ def scene_script(scene: Scene) -> ScriptedDevice | None:
 
 def session_key(scene: Scene) -> str:
     """What a session's device objects and settled start depend on: the model (its cache
-    key: validated organs, detail, mesh files, builder code), the settings, planes and
-    tools."""
+    key: validated organs, detail, mesh files, builder code), the settings, the planes
+    (how they collide, not how they are drawn), environment tubes and tools."""
     content = {
         "model": scene_digest(scene),
         "settings": scene.settings,
-        "planes": scene.planes,
+        "planes": [{k: v for k, v in p.items() if k not in PLANE_LOOK} for p in scene.planes],
         "tubes": scene.tubes,
         "tools": scene.tools,
     }

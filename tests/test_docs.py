@@ -14,6 +14,7 @@ TABLES = {
     "camera": scene_mod.CAMERA_PARAMS,
     "planes": scene_mod.PLANE_PARAMS,
     "environment tubes": scene_mod.ENVIRONMENT_TUBE_PARAMS,
+    "cavity": scene_mod.CAVITY_PARAMS,
     "tools": scene_mod.TOOL_PARAMS,
     "organs": scene_mod.ORGAN_PARAMS,
     "geometry": scene_mod.GEOMETRY_COMMON,

@@ -67,9 +67,12 @@ def test_the_loops_rest_on_the_colon_and_do_not_pass_through_it():
 
 def test_the_colon_is_drawn_and_its_view_is_measured_from_the_object_ids():
     """From the scene's endoscope the loops hide part of the colon; from beneath the
-    floor, looking up at it, nothing does (all of its image shows); looking away, it
-    is out of view."""
-    scene = intestine_scene()
+    floor (the floor and the cavity's wall not drawn), looking up at it, nothing does
+    (all of its image shows); looking away, it is out of view."""
+    raw = scene_mod.load("intestine").raw
+    raw["environment"]["planes"][0]["extent"] = 0.0
+    del raw["environment"]["cavity"]
+    scene = scene_mod.validate(raw, "intestine", ".")
     with Session(scene, progress=False) as session:
         renderer = Renderer.for_scene(scene, session.model, size=(160, 120))
         renderer.render(session.state, session.control)

@@ -1,7 +1,8 @@
 """Everything drawn, as one triangle mesh on the device: organ surfaces (skinned
 to the particles), generalized-cylinder tubes (the intestine, seed 001 §5), the
-instruments and the environment's fixed tubes. Each triangle carries a material and
-an object index (organs, then tools, then environment tubes: ``object_names``).
+instruments and the environment: its fixed tubes, the planes' patches and the cavity
+wall. Each triangle carries a material and an object index (organs, then tools, then
+environment tubes, then ``cavity``: ``object_names``).
 
 Layout of the vertex fields: ``[surfaces | instruments | tubes | environment]``;
 triangles in the same order; the environment's vertices are written once. The surfaces are the model's rows, spare ones included, copied again
@@ -30,6 +31,8 @@ from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.tubes import TubeMesh
 from taichi_lap.scene.materials import INSTRUMENT, PRESETS, Material, material_table
+from taichi_lap.scene import CAVITY
+from taichi_lap.scenes.anatomy.cavity import cavity_wall, plane_patch
 from taichi_lap.scenes.anatomy.tubes import environment_centreline, tube_mesh
 
 
@@ -44,26 +47,48 @@ def organ_material(organ) -> Material:
     return appearance_material(organ.appearance, organ.color)
 
 
-def environment_arrays(tubes: list[dict]) -> dict[str, np.ndarray]:
-    """The environment's fixed tubes as one mesh: ``position``, ``normal`` (V, 3),
-    ``triangles`` (F, 3, from 0) and the ``tube`` of each triangle, each tube drawn
-    round its :func:`~taichi_lap.scenes.anatomy.tubes.environment_centreline` with
-    rounded ends, as it collides."""
-    positions, normals, triangles, owner, base = [], [], [], [], 0
-    for k, tube in enumerate(tubes):
+def environment_arrays(scene) -> dict:
+    """The scene's fixed surroundings as one mesh: ``position``, ``normal`` (V, 3),
+    ``triangles`` (F, 3, from 0) and the ``piece`` of each triangle, indexing
+    ``materials`` and ``names`` (the object each piece is). The pieces: each
+    environment tube, drawn round its
+    :func:`~taichi_lap.scenes.anatomy.tubes.environment_centreline` with rounded ends
+    as it collides (an object of its name); each plane's disc and the cavity wall
+    (:mod:`~taichi_lap.scenes.anatomy.cavity`), together the object ``cavity``."""
+    pieces = []  # (vertices, faces, vertex normals or None, material, name)
+    for tube in scene.tubes:
         mesh = tube_mesh(environment_centreline(tube["points"]), tube["radius"], 16)
-        vertices = np.asarray(mesh.vertices, np.float64)
-        faces = np.asarray(mesh.triangles, np.int32)
+        material = appearance_material(tube["appearance"], tube["color"])
+        pieces.append((mesh.vertices, mesh.triangles, None, material, tube["name"]))
+    for plane in scene.planes:
+        if plane["extent"] > 0.0:
+            mesh = plane_patch(plane["point"], plane["normal"], plane["extent"])
+            normal = np.tile(np.asarray(plane["normal"], float), (len(mesh.vertices), 1))
+            material = appearance_material(plane["appearance"], plane["color"])
+            pieces.append((mesh.vertices, mesh.triangles, normal, material, CAVITY))
+    if scene.cavity is not None:
+        cavity = scene.cavity
+        mesh = cavity_wall(cavity["center"], cavity["radii"], cavity["relief"])
+        material = appearance_material(cavity["appearance"], cavity["color"])
+        pieces.append((mesh.vertices, mesh.triangles, None, material, CAVITY))
+    names = list(dict.fromkeys(name for *_, name in pieces))
+    positions, normals, triangles, piece, base = [], [], [], [], 0
+    for k, (vertices, faces, normal, _, _) in enumerate(pieces):
+        if normal is None:
+            normal = trimesh.Trimesh(vertices, faces, process=False).vertex_normals
         positions.append(vertices)
-        normals.append(trimesh.Trimesh(vertices, faces, process=False).vertex_normals)
-        triangles.append(faces + base)
-        owner.append(np.full(len(faces), k, np.int32))
+        normals.append(normal)
+        triangles.append(np.asarray(faces, np.int32) + base)
+        piece.append(np.full(len(faces), k, np.int32))
         base += len(vertices)
     return {
         "position": np.concatenate(positions or [np.zeros((0, 3))]).astype(np.float32),
         "normal": np.concatenate(normals or [np.zeros((0, 3))]).astype(np.float32),
         "triangles": np.concatenate(triangles or [np.zeros((0, 3), np.int32)]),
-        "tube": np.concatenate(owner or [np.zeros(0, np.int32)]),
+        "piece": np.concatenate(piece or [np.zeros(0, np.int32)]),
+        "materials": [material for *_, material, _ in pieces],
+        "piece_object": np.array([names.index(name) for *_, name in pieces], np.int32),
+        "names": names,
     }
 
 
@@ -158,7 +183,8 @@ class SceneMesh(ArrayMesh):
         self._layout = model.layout_version
         specs = {organ.name: organ for organ in scene.organs}
         materials = [organ_material(specs[o.name]) for o in data.organs] + [PRESETS[INSTRUMENT]]
-        materials += [appearance_material(t["appearance"], t["color"]) for t in scene.tubes]
+        environment = environment_arrays(scene)
+        materials += environment["materials"]
         self.model, self._version = model, model.topology_version
         self._charred = False  # whether the surfaces' char may be non-zero
         self.surface_count = model.surface_vertex_count
@@ -169,8 +195,7 @@ class SceneMesh(ArrayMesh):
         instrument_material = np.full(len(tools["triangles"]), len(data.organs), np.int32)
         instrument_object = tools["tool"][tools["triangles"][:, 0]] + len(data.organs)
         self.object_names = [o.name for o in data.organs] + [t["name"] for t in scene.tools]
-        self.object_names += [t["name"] for t in scene.tubes]
-        environment = environment_arrays(scene.tubes)
+        self.object_names += environment["names"]
 
         tubes = [(index, o) for index, o in enumerate(data.organs) if o.row_length]
         self.tubes = [
@@ -191,7 +216,9 @@ class SceneMesh(ArrayMesh):
             ]
             or [np.zeros(0, np.int32)]
         )
-        environment_object = environment["tube"] + len(data.organs) + len(scene.tools)
+        environment_object = (
+            environment["piece_object"][environment["piece"]] + len(data.organs) + len(scene.tools)
+        )
         super().__init__(
             np.concatenate(
                 [
@@ -206,7 +233,7 @@ class SceneMesh(ArrayMesh):
                     surface_material,
                     instrument_material,
                     tube_material,
-                    environment["tube"] + len(data.organs) + 1,
+                    environment["piece"] + len(data.organs) + 1,
                 ]
             ),
             materials,

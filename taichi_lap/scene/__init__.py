@@ -31,6 +31,7 @@ from taichi_lap.scene.schema import (
     MESH_PARAMS,
     ORGAN_PARAMS,
     ENVIRONMENT_TUBE_PARAMS,
+    CAVITY_PARAMS,
     PLANE_PARAMS,
     SCENE_PARAMS,
     TASK_PARAMS,
@@ -99,6 +100,21 @@ class Scene:
     raw: dict[str, Any]
     task: dict[str, Any] | None = None  # the [task] table, if the scene has one
     tubes: list[dict[str, Any]] = field(default_factory=list)  # [[environment.tubes]]
+    cavity: dict[str, Any] | None = None  # [environment.cavity]
+
+    @property
+    def drawn_environment(self) -> bool:
+        """Whether the scene draws a cavity wall or a plane (the object ``cavity``)."""
+        return draws_environment(self.cavity, self.planes)
+
+
+CAVITY = "cavity"
+"""Object name of the drawn cavity wall and planes (the renderer's object-id image)."""
+
+
+def draws_environment(cavity: dict | None, planes: list[dict]) -> bool:
+    """Whether a scene with this ``cavity`` and ``planes`` draws a wall or a plane."""
+    return cavity is not None or any(p["extent"] > 0.0 for p in planes)
 
 
 def builtin_names() -> list[str]:
@@ -232,7 +248,7 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
     settings = check_table(source, "scene", raw["scene"], SCENE_PARAMS)
     camera = check_table(source, "camera", raw.get("camera", {}), CAMERA_PARAMS)
     environment = raw.get("environment", {})
-    check_table(source, "environment", environment, {}, ignore=("planes", "tubes"))
+    check_table(source, "environment", environment, {}, ignore=("planes", "tubes", "cavity"))
     planes = []
     for k, table in enumerate(
         _list_of_tables(source, "environment.planes", environment.get("planes", []))
@@ -257,6 +273,9 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
                 f"at least 2 points were expected, found {len(tube['points'])}",
             )
         tubes.append(tube)
+    cavity = None
+    if "cavity" in environment:
+        cavity = check_table(source, "environment.cavity", environment["cavity"], CAVITY_PARAMS)
     tools = _tools(source, _list_of_tables(source, "tools", raw.get("tools", [])))
     organ_tables = _list_of_tables(source, "organs", raw.get("organs", []))
     if not organ_tables:
@@ -268,7 +287,7 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
             f"at most {MAX_ORGANS} organs were expected, found {len(organ_tables)}",
         )
     organs = [_organ(source, directory, f"organs[{k}]", t) for k, t in enumerate(organ_tables)]
-    _check_names(source, organs, tools, tubes)
+    _check_names(source, organs, tools, tubes, draws_environment(cavity, planes))
     task = (
         check_task(
             source,
@@ -292,6 +311,7 @@ def validate(raw: dict[str, Any], source: str, directory: Path) -> Scene:
         raw=copy.deepcopy(raw),
         task=task,
         tubes=tubes,
+        cavity=cavity,
     )
 
 
@@ -517,10 +537,13 @@ def _attachment(source: str, key: str, table: dict, model: str) -> AttachmentSpe
     return AttachmentSpec(kind=kind, region=region)
 
 
-def _check_names(source: str, organs: list[OrganSpec], tools: list[dict], tubes: list[dict]):
-    """Organ names unique, joins naming other cluster organs, tool names unique, and
+def _check_names(
+    source: str, organs: list[OrganSpec], tools: list[dict], tubes: list[dict], drawn: bool
+):
+    """Organ names unique, joins naming other cluster organs, tool names unique,
     environment tubes named apart from every organ, tool and other tube (they are
-    objects of the drawn scene alike)."""
+    objects of the drawn scene alike), and, where the scene draws its cavity or planes
+    (``drawn``), nothing else named ``cavity`` (their object's name)."""
     seen: dict[str, str] = {}
     for organ in organs:
         if organ.name in seen:
@@ -562,3 +585,10 @@ def _check_names(source: str, organs: list[OrganSpec], tools: list[dict], tubes:
                 f"a name no organ, tool or other tube has was expected, found {tube['name']!r}",
             )
         taken.add(tube["name"])
+    if drawn and CAVITY in taken:
+        raise InputError(
+            source,
+            "environment",
+            f"no organ, tool or tube named {CAVITY!r} was expected: the drawn cavity and "
+            f"planes are the object of that name",
+        )

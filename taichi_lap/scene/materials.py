@@ -32,6 +32,7 @@ PRESETS: dict[str, Material] = {
     "serosa": Material((0.78, 0.46, 0.40), 0.45, 0.0, 0.7),
     "fascia": Material((0.80, 0.68, 0.60), 0.55, 0.0, 0.45),
     "fat": Material((0.86, 0.68, 0.34), 0.4, 0.0, 0.5),
+    "peritoneum": Material((0.70, 0.38, 0.33), 0.45, 0.0, 0.75),
     "artery": Material((0.62, 0.09, 0.075), 0.35, 0.0, 0.6),
     "vein": Material((0.22, 0.09, 0.20), 0.35, 0.0, 0.6),
     "bile_duct": Material((0.46, 0.50, 0.18), 0.4, 0.0, 0.55),

@@ -90,6 +90,37 @@ PLANE_PARAMS = {
     "point": Param("vec3", REQUIRED, "a point on the plane", lo=-100, hi=100, unit="m"),
     "normal": Param("vec3", REQUIRED, "normal pointing to the free side", lo=-1e3, hi=1e3),
     "friction": Param("float", 0.5, "Coulomb friction coefficient", lo=0.0, hi=10.0),
+    "appearance": Param(
+        "str", "peritoneum", "render material preset of its drawn patch", choices=tuple(PRESETS)
+    ),
+    "color": Param(
+        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
+    ),
+    "extent": Param(
+        "float",
+        0.5,
+        "radius of the disc drawn around point (0: not drawn)",
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+    ),
+}
+PLANE_LOOK = ("appearance", "color", "extent")
+"""Keys of a plane that only change how it is drawn, not how it collides."""
+CAVITY_PARAMS = {
+    "center": Param("vec3", REQUIRED, "centre of the body cavity", lo=-100, hi=100, unit="m"),
+    "radii": Param(
+        "vec3", REQUIRED, "semi-axes of its wall along x, y, z", lo=1e-3, hi=100, unit="m"
+    ),
+    "relief": Param(
+        "float", 0.08, "height of the wall's bulges, a fraction of the radii", lo=0.0, hi=0.5
+    ),
+    "appearance": Param(
+        "str", "peritoneum", "render material preset of its wall", choices=tuple(PRESETS)
+    ),
+    "color": Param(
+        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
+    ),
 }
 ENVIRONMENT_TUBE_PARAMS = {
     "name": Param("str", REQUIRED, "its name, apart from every organ's and tool's"),
