@@ -116,6 +116,25 @@ def shade(
         frame[x, y] = colour
 
 
+DEPTH_BINS = 64
+"""Bins of :func:`depth_histogram`: 8 per octave over 8 octaves from the near plane."""
+DEPTH_BINS_PER_OCTAVE = 8
+
+
+@ti.kernel
+def depth_histogram(gbuffer: ti.template(), counts: ti.template(), near: ti.f32):
+    """How many pixels show a surface at each depth: ``counts[k]`` (i32, exact in any
+    order) of the pixels whose depth d [m] lies in octave bin k = floor(8 log2(d /
+    near)), clamped to the :data:`DEPTH_BINS`; the background is not counted."""
+    for k in range(DEPTH_BINS):
+        counts[k] = 0
+    for x, y in gbuffer.depth:
+        if gbuffer.triangle[x, y] >= 0:
+            octave = ti.log(ti.max(gbuffer.depth[x, y], near) / near) / ti.log(2.0)
+            k = ti.min(ti.cast(octave * DEPTH_BINS_PER_OCTAVE, ti.i32), DEPTH_BINS - 1)
+            ti.atomic_add(counts[k], 1)
+
+
 MARK_COLOUR = (0.1, 0.8, 0.45)  # the planned line's green, as a surgical marker's
 MARK_HALF_WIDTH = 0.0006  # [m]
 MARK_DASH = 0.004  # [m] one dash and its gap along the line

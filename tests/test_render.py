@@ -230,3 +230,50 @@ if __name__ == "__main__":
     GOLDEN.parent.mkdir(exist_ok=True)
     imageio.imwrite(GOLDEN, material_spheres()["image"])
     print(f"wrote {GOLDEN}")
+
+
+def test_automatic_exposure_follows_the_square_of_the_views_depth_and_adapts():
+    """The same view twice as large and as far (every depth doubled) gets a quarter of
+    the headlight's light: automatic exposure exposes it four times as much (the depth
+    bins are octave fractions, so exactly), and after a jump of the view it
+    approaches the new exposure frame by frame."""
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
+
+    def mesh(scale):
+        positions = np.asarray(sphere.vertices * scale, np.float32)
+        return ArrayMesh(
+            sphere.faces,
+            np.zeros(len(sphere.faces), np.int32),
+            [PRESETS["liver"]],
+            vertex_count=len(positions),
+            smooth_count=len(positions),
+            positions=positions,
+        )
+
+    def camera(distance):
+        return EndoscopeCamera(
+            eye=np.array([0.0, 0.0, distance]),
+            target=np.zeros(3),
+            up=np.array([0.0, 1.0, 0.0]),
+            fov=30.0,
+            near=0.01 * distance,
+            far=1.0,
+        )
+
+    near = Renderer(mesh(1.0), camera(0.1), size=(64, 48), exposure=2.0, auto_exposure=True)
+    far = Renderer(mesh(2.0), camera(0.2), size=(64, 48), exposure=2.0, auto_exposure=True)
+    near.render(None, None)
+    far.render(None, None)
+    first_near, first_far = near.params.exposure[None], far.params.exposure[None]
+    assert first_far / first_near == pytest.approx(4.0, rel=1e-5)
+    near.camera = camera(0.3)  # the view jumps back
+    fresh = Renderer(mesh(1.0), camera(0.3), size=(64, 48), exposure=2.0, auto_exposure=True)
+    fresh.render(None, None)
+    target = fresh.params.exposure[None]
+    steps = []
+    for _ in range(20):  # 0.75^20: within 1 % of a 27-fold jump
+        near.render(None, None)
+        steps.append(near.params.exposure[None])
+    assert target > 2.0 * first_near
+    assert np.all(np.diff(steps) > 0) and steps[0] < first_near + 0.5 * (target - first_near)
+    assert steps[-1] == pytest.approx(target, rel=0.05)

@@ -20,12 +20,28 @@ from taichi_lap.kernels.raster import (
     count_object_pixels,
     gather_object_triangles,
 )
-from taichi_lap.kernels.shading import mark_plane, shade
+from taichi_lap.kernels.shading import (
+    DEPTH_BINS,
+    DEPTH_BINS_PER_OCTAVE,
+    depth_histogram,
+    mark_plane,
+    shade,
+)
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
 from taichi_lap.scene.planned_plane import PlannedPlane
 
 BACKGROUND = (0.02, 0.008, 0.006)
+EXPOSURE_DISTANCE = 0.3
+"""[m] The depth at which the headlight's light is exposed as set (``exposure``): with
+automatic exposure a view whose median depth is d is exposed (d / this)² as much,
+as the headlight's inverse-square light asks (a laparoscope's camera adapts so)."""
+EXPOSURE_QUANTILE = 0.25
+"""The depth automatic exposure exposes for: the nearest quarter of the image (the
+tissue worked on, nearer than the cavity's wall behind it)."""
+EXPOSURE_ADAPTATION = 0.25
+"""Fraction of the way (in log exposure) towards the view's exposure taken per frame:
+after a jump of the view the image settles in about ten frames."""
 
 
 @ti.data_oriented
@@ -60,6 +76,7 @@ class Renderer:
         ambient: float = 0.06,
         exposure: float = 1.0,
         spot_angle: float = 50.0,
+        auto_exposure: bool = False,
     ):
         self.width, self.height = size
         self.mesh = mesh
@@ -72,6 +89,9 @@ class Renderer:
         self.params.cos_outer[None] = math.cos(math.radians(spot_angle))
         self.params.ambient[None] = ambient
         self.params.exposure[None] = exposure
+        self.exposure, self.auto_exposure = exposure, auto_exposure
+        self._adapted = None  # the exposure automatic exposure reached (None: none yet)
+        self._depths = ti.field(ti.i32, DEPTH_BINS) if auto_exposure else None
         self.params.background[None] = BACKGROUND
         builder = ti.FieldsBuilder()
         self.frame = ti.Vector.field(3, ti.f32)
@@ -87,7 +107,13 @@ class Renderer:
     def for_scene(cls, scene, model, *, size=(640, 480)) -> "Renderer":
         """The renderer of a scene: the organs of its ``model``, tubes and instruments
         seen from its camera, with its task's planned transection marked."""
-        renderer = cls(SceneMesh(scene, model), EndoscopeCamera.from_scene(scene.camera), size=size)
+        renderer = cls(
+            SceneMesh(scene, model),
+            EndoscopeCamera.from_scene(scene.camera),
+            size=size,
+            exposure=scene.camera["exposure"],
+            auto_exposure=scene.camera["auto_exposure"],
+        )
         plane = scene.task["plane"] if scene.task else None
         if plane is not None:
             organ = [organ.name for organ in scene.organs].index(plane["organ"])
@@ -124,6 +150,8 @@ class Renderer:
         self.params.eye[None] = cam.eye
         self.params.forward[None] = cam.axes()[0]
         self.params.far[None] = cam.far
+        if self.auto_exposure:
+            self.params.exposure[None] = self._adapt_exposure(cam.near)
         shade(self.gbuffer, self.mesh, self.lighting, self.params, self.frame, self.view)
         if self.planned is not None and self.view == 0:
             organ, plane = self.planned
@@ -142,6 +170,22 @@ class Renderer:
         marks.append(time.perf_counter())
         for name, a, b in zip(("vertex", "visibility", "shading"), marks, marks[1:]):
             self.timings[name] = (b - a) * 1e3
+
+    def _adapt_exposure(self, near: float) -> float:
+        """The exposure of this frame with automatic exposure: ``exposure`` × (median
+        depth / :data:`EXPOSURE_DISTANCE`)², approached by :data:`EXPOSURE_ADAPTATION`
+        per frame from the last one (reached at once in the first frame)."""
+        depth_histogram(self.gbuffer, self._depths, near)
+        counts = np.cumsum(self._depths.to_numpy())
+        if counts[-1] == 0:  # nothing drawn: keep what was reached
+            return self._adapted or self.exposure
+        nearest = int(np.searchsorted(counts, counts[-1] * EXPOSURE_QUANTILE))
+        depth = near * 2.0 ** ((nearest + 0.5) / DEPTH_BINS_PER_OCTAVE)
+        target = self.exposure * (depth / EXPOSURE_DISTANCE) ** 2
+        if self._adapted is None:
+            self._adapted = target
+        self._adapted *= (target / self._adapted) ** EXPOSURE_ADAPTATION
+        return self._adapted
 
     def view_of(self, name: str) -> tuple[float, float]:
         """How the last frame shows object ``name`` (an organ, tool or environment

@@ -85,6 +85,14 @@ CAMERA_PARAMS = {
     "fov": Param("float", 60.0, "vertical field of view", lo=5.0, hi=170.0, unit="deg"),
     "near": Param("float", 0.002, "near clipping distance", lo=1e-5, hi=10.0, unit="m"),
     "far": Param("float", 5.0, "far clipping distance", lo=1e-3, hi=1e4, unit="m"),
+    "exposure": Param(
+        "float", 1.0, "exposure (with auto_exposure: of tissue 30 cm from the tip)", lo=1e-3, hi=1e3
+    ),
+    "auto_exposure": Param(
+        "bool",
+        True,
+        "expose for the view's depth (the headlight's inverse-square falloff), adapting over about ten frames",
+    ),
 }
 PLANE_PARAMS = {
     "point": Param("vec3", REQUIRED, "a point on the plane", lo=-100, hi=100, unit="m"),
