@@ -21,6 +21,24 @@ def copy_surface(surface: ti.template(), count: ti.i32, positions: ti.template()
 
 
 @ti.kernel
+def surface_texcoords(model: ti.template(), texcoord: ti.template()):
+    """texcoord[s] = the rest position [m] of the model's surface vertex s, skinned from
+    its particles' rest positions as it is from their positions (a wound vertex: its
+    place on the cut edge, as in :func:`surface_char`): the surface detail drawn there
+    stays on the tissue as it deforms."""
+    for s in range(model.surface_vertex_count):
+        idx, w = model.surface_index[s], model.surface_weight[s]
+        rest = ti.Vector([0.0, 0.0, 0.0])
+        if model.surface_cluster[s] >= 0:
+            rest = (1.0 - CUT_POINT) * model.rest_position[idx[0]]
+            rest += CUT_POINT * model.rest_position[idx[1]]
+        else:
+            for k in ti.static(range(4)):
+                rest += w[k] * model.rest_position[idx[k]]
+        texcoord[s] = rest
+
+
+@ti.kernel
 def surface_char(model: ti.template(), peak: ti.template(), char: ti.template()):
     """char[s] = smoothstep(CHAR_START, CHAR_FULL, Σ_k w[s, k] peak[idx[s, k]]) for the
     model's surface vertices s: how charred each looks, from the peak temperatures

@@ -332,12 +332,17 @@ def skin_tubes(
     vertices: ti.template(),
     normals: ti.template(),
     indices: ti.template(),
+    texcoords: ti.template(),
     vertex_offset: ti.i32,
     index_offset: ti.i32,
+    spacing: ti.f32,
 ):
     """Eq. 1, 13, 14 and the plane clearance, after sample_tubes with the same level.
 
-    Writes vertices [m] and normals at vertex_offset + ring * sides + side, and
+    Writes vertices [m], normals and texcoords (where the surface detail is evaluated:
+    (spacing × the point parameter along the tube, the ring's radius × (cos φ, sin φ))
+    [m], fixed to the tube's material however it bends) at vertex_offset + ring * sides
+    + side, and
     indices[index_offset + 3 * triangle] (absolute vertex indices); slots between the
     live counts and the previous call's are padded: zero vertices, degenerate triangles
     (three times vertex_offset).
@@ -368,10 +373,15 @@ def skin_tubes(
         tubes.ring_taper[g] = dw * (r1 - r2) / ti.max(w * r1 + (1.0 - w) * r2, 1e-30)
         tubes.ring_plane[g] = tubes.ring_a[g].cross(tubes.ring_b[g]).normalized(1e-30)
         tubes.ring_flags[g] = (FIRST_RING if r == 0 else 0) | (LAST_RING if r == last else 0)
+        u1 = tubes.sample_segment[s] + tubes.sample_parameter[s]
+        u2 = tubes.sample_segment[s + 1] + tubes.sample_parameter[s + 1]
+        tubes.ring_param[g] = (1.0 - z) * u1 + z * u2
+        tubes.ring_radius[g] = w * r1 + (1.0 - w) * r2
     live_rings = tubes.tube_ring_base[tube_count]
     for v in range(tubes.vertex_write_end[None]):
         g = v // tubes.sides
         position, normal = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
+        texcoord = ti.Vector([0.0, 0.0, 0.0])
         if g < live_rings:
             phi = (2.0 * math.pi / tubes.sides) * (v - g * tubes.sides)
             cs, sn = ti.cos(phi), ti.sin(phi)
@@ -393,8 +403,11 @@ def skin_tubes(
                 reach = (1.0 - PLANE_MARGIN) * (c - tubes.ring_center[g - 1]).dot(behind)
                 q = clear_plane(q, own, -behind, reach)
             position = c + q
+            rim = tubes.ring_radius[g]
+            texcoord = ti.Vector([spacing * tubes.ring_param[g], rim * cs, rim * sn])
         vertices[vertex_offset + v] = position
         normals[vertex_offset + v] = normal
+        texcoords[vertex_offset + v] = texcoord
     live_bands = tubes.tube_band_base[tube_count]
     for slot in range(tubes.band_write_end[None] * tubes.sides):  # 2 triangles per band and side
         band = slot // tubes.sides

@@ -12,6 +12,7 @@ channel instead of the shaded colour.
 import taichi as ti
 from taichi_lap.kernels.brdf import surface_brdf_cos
 from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
+from taichi_lap.kernels.surface_detail import surface_detail
 from taichi_lap.scene.materials import CHAR_ALBEDO, CHAR_ROUGHNESS
 
 VIEWS = (
@@ -54,6 +55,27 @@ def object_colour(index):
     return ti.Vector([0.5 + 0.5 * ti.cos(6.2831853 * (h + k / 3.0)) for k in range(3)])
 
 
+@ti.func
+def rest_point(mesh: ti.template(), triangle, p):
+    """The texcoord (rest-space point [m]) of the point ``p`` [m] on ``triangle``:
+    its barycentric coordinates among the corners' positions (clamped to the
+    triangle), applied to their ``texcoord``."""
+    first = 3 * triangle
+    i0, i1, i2 = mesh.triangles[first], mesh.triangles[first + 1], mesh.triangles[first + 2]
+    v0 = mesh.positions[i0]
+    e0, e1, d = mesh.positions[i1] - v0, mesh.positions[i2] - v0, p - v0
+    d00, d01, d11 = e0.dot(e0), e0.dot(e1), e1.dot(e1)
+    d20, d21 = d.dot(e0), d.dot(e1)
+    den = d00 * d11 - d01 * d01
+    b1, b2 = 1.0 / 3.0, 1.0 / 3.0
+    if ti.abs(den) > 1e-30:
+        b1 = ti.math.clamp((d11 * d20 - d01 * d21) / den, 0.0, 1.0)
+        b2 = ti.math.clamp((d00 * d21 - d01 * d20) / den, 0.0, 1.0)
+    total = ti.max(b1 + b2, 1.0)
+    b1, b2 = b1 / total, b2 / total
+    return (1.0 - b1 - b2) * mesh.texcoord[i0] + b1 * mesh.texcoord[i1] + b2 * mesh.texcoord[i2]
+
+
 @ti.kernel
 def shade(
     gbuffer: ti.template(),
@@ -71,16 +93,25 @@ def shade(
     scale), ``exposure``, ``far`` [m] for the depth view and ``background``. The
     material of a pixel with char c is blended towards the charred wound: albedo to
     CHAR_ALBEDO and roughness to CHAR_ROUGHNESS by c, the mucus film scaled by
-    1 - c (the wound is dry), metalness kept."""
+    1 - c (the wound is dry), metalness kept. Before that the material gets its
+    procedural detail (:func:`~taichi_lap.kernels.surface_detail.surface_detail`) at
+    the pixel's rest-space point (:func:`rest_point`)."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
         colour = light.background[None]
         if triangle >= 0:
             m, c = materials.triangle_material[triangle], gbuffer.char[x, y]
-            albedo = ti.math.mix(materials.albedo[m], ti.Vector(CHAR_ALBEDO), c)
+            p = gbuffer.position[x, y]
+            albedo, n = surface_detail(
+                materials,
+                m,
+                rest_point(materials, triangle, p),
+                materials.albedo[m],
+                gbuffer.normal[x, y],
+            )
+            albedo = ti.math.mix(albedo, ti.Vector(CHAR_ALBEDO), c)
             roughness = ti.math.mix(materials.roughness[m], CHAR_ROUGHNESS, c)
             metalness, mucus = materials.metalness[m], materials.mucus[m] * (1.0 - c)
-            p, n = gbuffer.position[x, y], gbuffer.normal[x, y]
             to_eye = light.eye[None] - p
             distance = to_eye.norm(1e-9)
             v = to_eye / distance

@@ -277,3 +277,44 @@ def test_automatic_exposure_follows_the_square_of_the_views_depth_and_adapts():
     assert target > 2.0 * first_near
     assert np.all(np.diff(steps) > 0) and steps[0] < first_near + 0.5 * (target - first_near)
     assert steps[-1] == pytest.approx(target, rel=0.05)
+
+
+def test_surface_detail_moves_with_the_tissue_not_with_space():
+    """The albedo view of a liver-textured sphere moved 3 cm (and the camera with it)
+    is the unmoved one's when its texcoords stay its rest positions, and another
+    pattern when they follow it through space (as world-space texturing would)."""
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.03)
+    rest = np.asarray(sphere.vertices, np.float32)
+    offset = np.array([0.03, -0.01, 0.02], np.float32)
+
+    def albedo(positions, texcoords, eye):
+        mesh = ArrayMesh(
+            sphere.faces,
+            np.zeros(len(sphere.faces), np.int32),
+            [PRESETS["liver"]],
+            vertex_count=len(rest),
+            smooth_count=len(rest),
+            positions=positions,
+            texcoords=texcoords,
+        )
+        camera = EndoscopeCamera(
+            eye=eye,
+            target=eye - [0.0, 0.0, 0.1],
+            up=np.array([0.0, 1.0, 0.0]),
+            fov=40.0,
+            near=0.01,
+            far=1.0,
+        )
+        renderer = Renderer(mesh, camera, size=(96, 96))
+        renderer.view = 1  # albedo
+        renderer.render(None, None)
+        return renderer.frame.to_numpy(), renderer.gbuffer.triangle.to_numpy() >= 0
+
+    eye = np.array([0.0, 0.0, 0.1])
+    still, covered = albedo(rest, rest, eye)
+    moved, moved_covered = albedo(rest + offset, rest, eye + offset)
+    swum, _ = albedo(rest + offset, rest + offset, eye + offset)
+    both = covered & moved_covered
+    assert both.sum() > 0.9 * covered.sum() > 2000
+    assert np.quantile(np.abs(moved - still)[both], 0.99) < 1.0 / 255.0
+    assert np.abs(swum - still)[both].mean() > 10.0 * np.abs(moved - still)[both].mean() + 0.005

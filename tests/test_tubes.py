@@ -31,6 +31,7 @@ def rig():
         vertices=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
         normals=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
         indices=g.field(ti.i32, 3 * mesh.triangle_capacity + 5),
+        texcoords=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
     )
     g.finalize()
     return mesh, fields
@@ -57,6 +58,7 @@ def tessellate(polylines, radii, epsilon=0.1, level=2, vertex_offset=7, index_of
         f["vertices"],
         f["normals"],
         f["indices"],
+        f["texcoords"],
         vertex_offset=vertex_offset,
         index_offset=index_offset,
         epsilon=epsilon,

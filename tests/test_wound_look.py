@@ -115,6 +115,7 @@ def wound_renders() -> dict[str, np.ndarray]:
     result["fresh char"] = renderer.gbuffer.char.to_numpy()
     draw("body", body)
     result["body char"] = renderer.gbuffer.char.to_numpy()
+    draw("fresh albedo", None, "albedo")  # the material with its surface detail
     for view in ("albedo", "roughness", "mucus", "char"):
         draw(f"wound {view}", wound, view)
     draw("wound", wound)
@@ -126,7 +127,6 @@ def wound_renders() -> dict[str, np.ndarray]:
     result["facing"] = np.sum(renderer.gbuffer.normal.to_numpy() * to_eye, axis=-1)
     result["triangle"] = renderer.gbuffer.triangle.to_numpy()
     draw("fresh again", None)
-    result["albedo"] = renderer.mesh.albedo.to_numpy()[0]  # the block's material
     result["roughness"] = renderer.mesh.roughness.to_numpy()[0]
     result["mucus"] = renderer.mesh.mucus.to_numpy()[0]
     session.close()
@@ -163,7 +163,7 @@ def test_heated_tissue_is_drawn_charred_and_darker():
 def test_charred_material_is_dark_rough_and_dry():
     """The debug views show the blended material: the char look where char is near 1
     (within 1 % of the way back to the block's material), the block's own material
-    where it is 0."""
+    (its albedo with its surface detail, as drawn unheated) where it is 0."""
     renders = wound_renders()
     char, covered = renders["char"], renders["triangle"] >= 0
     charred, fresh = covered & (char > 0.99), covered & (char == 0.0)
@@ -174,7 +174,7 @@ def test_charred_material_is_dark_rough_and_dry():
     assert np.allclose(albedo[charred], CHAR_ALBEDO, rtol=0, atol=0.01)
     assert np.allclose(roughness[charred], CHAR_ROUGHNESS, rtol=0, atol=0.01)
     assert (mucus[charred] <= 0.01 * renders["mucus"]).all()
-    assert (albedo[fresh] == renders["albedo"]).all()
+    assert (albedo[fresh] == renders["fresh albedo frame"][fresh]).all()
     assert (roughness[fresh] == renders["roughness"]).all()
     assert (mucus[fresh] == renders["mucus"]).all()
 

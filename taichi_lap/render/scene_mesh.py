@@ -26,11 +26,12 @@ from taichi_lap.kernels.draw_mesh import (
     gather_points,
     place_instruments,
     surface_char,
+    surface_texcoords,
 )
 from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.tubes import TubeMesh
-from taichi_lap.scene.materials import INSTRUMENT, PRESETS, Material, material_table
+from taichi_lap.scene.materials import DETAIL, INSTRUMENT, PRESETS, Material, material_table
 from taichi_lap.scene import CAVITY
 from taichi_lap.scenes.anatomy.cavity import cavity_wall, plane_patch
 from taichi_lap.scenes.anatomy.tubes import environment_centreline, tube_mesh
@@ -95,10 +96,13 @@ def environment_arrays(scene) -> dict:
 @ti.data_oriented
 class ArrayMesh:
     """A triangle mesh for the renderer. Fields: ``positions``, ``normals`` (vec3
-    per vertex), ``char`` (per vertex, 0 fresh to 1 charred; zeros unless its owner
-    writes it), ``triangles`` (flat, 3 per triangle), ``triangle_material`` and
-    ``triangle_object`` (per triangle), and the material table ``albedo``,
-    ``roughness``, ``metalness``, ``mucus``. Normals of the first
+    per vertex), ``texcoord`` (vec3 per vertex [m]: where the surface detail is
+    evaluated, its rest position, so that the detail moves with the tissue; default
+    ``positions`` as given), ``char`` (per vertex, 0 fresh to 1 charred; zeros unless
+    its owner writes it), ``triangles`` (flat, 3 per triangle), ``triangle_material``
+    and ``triangle_object`` (per triangle), and the material table ``albedo``,
+    ``roughness``, ``metalness``, ``mucus`` and the detail's ``mottling``, ``vessels``,
+    ``bump``, ``scale``. Normals of the first
     ``smooth_count`` vertices are gathered from their triangles (the rows of
     ``incident``, a field of :func:`~taichi_lap.core.mesh.incident_table`, built
     from ``triangles`` when not given) by :meth:`update`; the others are written by
@@ -117,6 +121,7 @@ class ArrayMesh:
         smooth_count: int,
         triangle_object: np.ndarray | None = None,
         positions: np.ndarray | None = None,
+        texcoords: np.ndarray | None = None,
         incident=None,
     ):
         triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
@@ -126,6 +131,9 @@ class ArrayMesh:
         group = FieldGroup()
         self.positions = group.field(ti.f32, vertex_count, vector=3, values=positions)
         self.normals = group.field(ti.f32, vertex_count, vector=3)
+        self.texcoord = group.field(
+            ti.f32, vertex_count, vector=3, values=positions if texcoords is None else texcoords
+        )
         self.char = group.field(ti.f32, vertex_count)
         self.triangles = group.field(ti.i32, 3 * self.triangle_count, values=triangles.reshape(-1))
         self.triangle_material = group.field(ti.i32, self.triangle_count, values=triangle_material)
@@ -141,9 +149,8 @@ class ArrayMesh:
             incident = group.field(ti.i32, smooth_count, columns=rows.shape[1], values=rows)
         self.incident = incident
         self.albedo = group.field(ti.f32, len(materials), vector=3, values=table["albedo"])
-        self.roughness = group.field(ti.f32, len(materials), values=table["roughness"])
-        self.metalness = group.field(ti.f32, len(materials), values=table["metalness"])
-        self.mucus = group.field(ti.f32, len(materials), values=table["mucus"])
+        for name in ("roughness", "metalness", "mucus") + DETAIL:
+            setattr(self, name, group.field(ti.f32, len(materials), values=table[name]))
         group.finalize()
         self._mesh_group = group
 
@@ -245,10 +252,15 @@ class SceneMesh(ArrayMesh):
             incident=model.surface_incident,
         )
         if len(environment["position"]):  # written once: nothing else writes these rows
-            for target, values in ((self.positions, "position"), (self.normals, "normal")):
+            for target, values in (
+                (self.positions, "position"),
+                (self.normals, "normal"),
+                (self.texcoord, "position"),
+            ):
                 rows = target.to_numpy()
                 rows[base:] = environment[values]
                 target.from_numpy(rows)
+        surface_texcoords(model, self.texcoord)
 
         group = FieldGroup()
         self.tool_position = group.field(
@@ -259,9 +271,13 @@ class SceneMesh(ArrayMesh):
         )
         self.vertex_tool = group.field(ti.i32, self.instrument_count, values=tools["tool"])
         self.tube_fields = []  # per tube: (source, points, radius, range) fields
+        self.tube_spacing = []  # per tube: its points' mean rest distance [m]
         for _, organ in tubes:
             first, count = organ.surface_vertices[0], organ.row_length
-            radius = data.radius[organ.particles[0] : organ.particles[0] + count]
+            row = slice(organ.particles[0], organ.particles[0] + count)
+            radius = data.radius[row]
+            steps = np.linalg.norm(np.diff(data.rest_position[row], axis=0), axis=1)
+            self.tube_spacing.append(float(steps.mean()) if len(steps) else 0.0)
             self.tube_fields.append(
                 (
                     group.field(ti.i32, count, values=np.arange(first, first + count)),
@@ -300,6 +316,7 @@ class SceneMesh(ArrayMesh):
             copy_surface_triangles(
                 self.model, self.triangles, self.triangle_material, self.triangle_object
             )
+            surface_texcoords(self.model, self.texcoord)
             self._version = self.model.topology_version
         copy_surface(state.surface_position, self.surface_count, self.positions)
         if peak is not None:
@@ -320,8 +337,8 @@ class SceneMesh(ArrayMesh):
                 self.normals,
                 self.surface_count,
             )
-        for mesh, (source, points, radius, span), (vertex_offset, index_offset) in zip(
-            self.tubes, self.tube_fields, self.tube_offsets
+        for mesh, (source, points, radius, span), (vertex_offset, index_offset), spacing in zip(
+            self.tubes, self.tube_fields, self.tube_offsets, self.tube_spacing
         ):
             gather_points(state.surface_position, source, points)
             mesh.update(
@@ -332,8 +349,10 @@ class SceneMesh(ArrayMesh):
                 self.positions,
                 self.normals,
                 self.triangles,
+                self.texcoord,
                 vertex_offset=vertex_offset,
                 index_offset=index_offset,
                 epsilon=self.tube_epsilon,
                 level=self.tube_level,
+                spacing=spacing,
             )

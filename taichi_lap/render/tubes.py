@@ -7,7 +7,7 @@ Per frame::
     mesh = TubeMesh(point_capacity=100, tube_capacity=1, sides=12, max_level=2)
     control = TessellationController(target_ms=4.0, max_level=2)
     ...
-    mesh.update(points, radius, tube_range, 1, vertices, normals, indices,
+    mesh.update(points, radius, tube_range, 1, vertices, normals, indices, texcoords,
                 vertex_offset=organ_vertices, index_offset=3 * organ_triangles,
                 epsilon=control.epsilon, level=control.level)
     control.update(measured_frame_ms)
@@ -89,6 +89,8 @@ class TubeMesh:
         self.ring_taper = g.field(f32, self.ring_capacity)  # (dr/dz) / r
         self.ring_plane = g.field(f32, self.ring_capacity, vector=3)
         self.ring_flags = g.field(i32, self.ring_capacity)
+        self.ring_param = g.field(f32, self.ring_capacity)  # point index + parameter
+        self.ring_radius = g.field(f32, self.ring_capacity)  # [m]
         self.live_vertex_count = g.field(i32, None)
         self.live_triangle_count = g.field(i32, None)
         self.vertex_write_end = g.field(i32, None)
@@ -108,11 +110,13 @@ class TubeMesh:
         vertices,
         normals,
         indices,
+        texcoords,
         *,
         vertex_offset: int = 0,
         index_offset: int = 0,
         epsilon: float = 0.1,
         level: int | None = None,
+        spacing: float = 0.01,
     ) -> None:
         """Tessellate the tubes into the output region (seed 001 §5). No host sync.
 
@@ -120,8 +124,10 @@ class TubeMesh:
         [start, end) per tube (ascending, disjoint; consecutive points distinct; tubes of
         fewer than 2 points draw nothing). ``epsilon``: Eq. 10 indicator threshold in [0, 1] for
         Eq. 11 refinement; ``level``: cylinder primitive level (default ``max_level``).
-        Writes ``vertices``/``normals`` (vec3 f32) from ``vertex_offset`` and ``indices``
-        (i32) from ``index_offset`` (see the module docstring for the layout)."""
+        Writes ``vertices``/``normals``/``texcoords`` (vec3 f32; a texcoord is (``spacing``
+        [m] × the point parameter along the tube, the radius × (cos φ, sin φ)): the
+        tube's material, moving with it) from ``vertex_offset`` and ``indices`` (i32)
+        from ``index_offset`` (see the module docstring for the layout)."""
         level = self.max_level if level is None else int(level)
         if not 0 <= level <= self.max_level:
             raise ValueError(f"level must be in [0, {self.max_level}], got {level}")
@@ -132,7 +138,8 @@ class TubeMesh:
         if (
             vertex_offset < 0
             or index_offset < 0
-            or vertex_offset + self.vertex_capacity > min(vertices.shape[0], normals.shape[0])
+            or vertex_offset + self.vertex_capacity
+            > min(vertices.shape[0], normals.shape[0], texcoords.shape[0])
             or index_offset + 3 * self.triangle_capacity > indices.shape[0]
         ):
             raise ValueError("output fields too small for the tube capacity at these offsets")
@@ -143,7 +150,16 @@ class TubeMesh:
             self._output = output
         gc.sample_tubes(self, points, radius, tube_range, tube_count, float(epsilon), level)
         gc.skin_tubes(
-            self, tube_count, level, vertices, normals, indices, vertex_offset, index_offset
+            self,
+            tube_count,
+            level,
+            vertices,
+            normals,
+            indices,
+            texcoords,
+            vertex_offset,
+            index_offset,
+            float(spacing),
         )
 
 

@@ -18,31 +18,45 @@ import numpy as np
 @dataclass(frozen=True)
 class Material:
     """A surface material: ``albedo`` linear RGB in [0, 1], ``roughness`` and
-    ``metalness`` and ``mucus`` (wet-layer weight) in [0, 1]."""
+    ``metalness`` and ``mucus`` (wet-layer weight) in [0, 1]; its procedural surface
+    detail (:mod:`taichi_lap.kernels.surface_detail`, in rest-space coordinates):
+    ``mottling`` (relative albedo variation), ``vessels`` (how dark its capillary
+    lines are), ``bump`` (slope of its relief) and ``scale`` [m] (the size of its
+    features: lobules, folds)."""
 
     albedo: tuple[float, float, float]
     roughness: float
     metalness: float
     mucus: float
+    mottling: float = 0.0
+    vessels: float = 0.0
+    bump: float = 0.0
+    scale: float = 0.003
 
 
 PRESETS: dict[str, Material] = {
-    "liver": Material((0.36, 0.075, 0.055), 0.45, 0.0, 0.65),
-    "mucosa": Material((0.62, 0.24, 0.21), 0.5, 0.0, 0.8),
-    "serosa": Material((0.78, 0.46, 0.40), 0.45, 0.0, 0.7),
-    "fascia": Material((0.80, 0.68, 0.60), 0.55, 0.0, 0.45),
-    "fat": Material((0.86, 0.68, 0.34), 0.4, 0.0, 0.5),
-    "peritoneum": Material((0.70, 0.38, 0.33), 0.45, 0.0, 0.75),
-    "artery": Material((0.62, 0.09, 0.075), 0.35, 0.0, 0.6),
-    "vein": Material((0.22, 0.09, 0.20), 0.35, 0.0, 0.6),
-    "bile_duct": Material((0.46, 0.50, 0.18), 0.4, 0.0, 0.55),
-    "polyp": Material((0.72, 0.26, 0.27), 0.45, 0.0, 0.75),
-    "gland": Material((0.74, 0.45, 0.36), 0.5, 0.0, 0.5),
+    "liver": Material((0.36, 0.075, 0.055), 0.45, 0.0, 0.65, 0.25, 0.1, 0.06, 0.004),
+    "mucosa": Material((0.62, 0.24, 0.21), 0.5, 0.0, 0.8, 0.12, 0.3, 0.08, 0.005),
+    "serosa": Material((0.78, 0.46, 0.40), 0.45, 0.0, 0.7, 0.1, 0.4, 0.05, 0.008),
+    "fascia": Material((0.80, 0.68, 0.60), 0.55, 0.0, 0.45, 0.06, 0.2, 0.03, 0.01),
+    "fat": Material((0.86, 0.68, 0.34), 0.4, 0.0, 0.5, 0.2, 0.25, 0.12, 0.008),
+    "peritoneum": Material((0.70, 0.38, 0.33), 0.45, 0.0, 0.75, 0.12, 0.45, 0.06, 0.015),
+    "artery": Material((0.62, 0.09, 0.075), 0.35, 0.0, 0.6, 0.06, 0.0, 0.03, 0.005),
+    "vein": Material((0.22, 0.09, 0.20), 0.35, 0.0, 0.6, 0.06, 0.0, 0.03, 0.005),
+    "bile_duct": Material((0.46, 0.50, 0.18), 0.4, 0.0, 0.55, 0.06, 0.0, 0.03, 0.005),
+    "polyp": Material((0.72, 0.26, 0.27), 0.45, 0.0, 0.75, 0.15, 0.25, 0.1, 0.003),
+    "gland": Material((0.74, 0.45, 0.36), 0.5, 0.0, 0.5, 0.15, 0.2, 0.08, 0.005),
     "metal": Material((0.76, 0.76, 0.78), 0.28, 1.0, 0.0),
 }
-"""Presets by name; scene organs choose one with ``appearance``."""
+"""Presets by name; scene organs choose one with ``appearance``. The surface detail
+is chosen by eye after laparoscopic footage: the liver's capsule mottled by its
+lobules, serosa and peritoneum threaded with capillaries, fat in lobules
+with a bumpy surface, the vessels' walls nearly smooth (not measured)."""
 
 INSTRUMENT = "metal"
+
+DETAIL = ("mottling", "vessels", "bump", "scale")
+"""The surface-detail parameters of a :class:`Material`."""
 
 CHAR_ALBEDO = (0.05, 0.03, 0.02)
 """Linear RGB albedo of fully charred tissue: the dark brown-black of an
@@ -56,10 +70,9 @@ by eye like :data:`CHAR_ALBEDO`."""
 
 def material_table(materials: list[Material]) -> dict[str, np.ndarray]:
     """Per-material arrays for upload: ``albedo`` (M, 3), ``roughness``,
-    ``metalness``, ``mucus`` (M,), all float32."""
-    return {
-        "albedo": np.array([m.albedo for m in materials], np.float32).reshape(-1, 3),
-        "roughness": np.array([m.roughness for m in materials], np.float32),
-        "metalness": np.array([m.metalness for m in materials], np.float32),
-        "mucus": np.array([m.mucus for m in materials], np.float32),
-    }
+    ``metalness``, ``mucus`` and the surface detail ``mottling``, ``vessels``,
+    ``bump``, ``scale`` (M,), all float32."""
+    table = {"albedo": np.array([m.albedo for m in materials], np.float32).reshape(-1, 3)}
+    for name in ("roughness", "metalness", "mucus") + DETAIL:
+        table[name] = np.array([getattr(m, name) for m in materials], np.float32)
+    return table
