@@ -69,7 +69,8 @@ def tessellate(polylines, radii, epsilon=0.1, level=2, vertex_offset=7, index_of
     n = f["normals"].to_numpy()[vertex_offset : vertex_offset + mesh.vertex_capacity]
     i = f["indices"].to_numpy()[index_offset : index_offset + 3 * mesh.triangle_capacity]
     i = i.reshape(-1, 3) - vertex_offset
-    return mesh, dict(vertices=v[:nv], normals=n[:nv], triangles=i[:nt]), (v, n, i)
+    t = f["texcoords"].to_numpy()[vertex_offset : vertex_offset + nv]
+    return mesh, dict(vertices=v[:nv], normals=n[:nv], triangles=i[:nt], texcoords=t), (v, n, i)
 
 
 def samples(mesh, tube=0):
@@ -222,6 +223,24 @@ def test_surface_lies_at_the_radius_on_straight_parts():
     legs = second[second[:, :, 0].max(1) < -0.1]  # more than 2.5 segments before the bend
     assert len(legs) > 20
     assert np.abs(np.hypot(legs[..., 1], legs[..., 2]) / 0.015 - 1).max() < 0.01
+
+
+def test_texcoords_run_along_the_tube_and_round_it():
+    """A tube's texcoords (the surface detail's rest-space points): along it, the
+    spacing (0.01 m by default) times the point parameter, from 0 at the first ring to
+    the last point's index at the last, the same round each ring and growing ring by
+    ring; across it, the radius round the circle of the ring's side angle."""
+    points = helix()
+    _, out, _ = tessellate([points], [0.004])
+    rings = out["texcoords"].reshape(-1, SIDES, 3).astype(np.float64)
+    along = rings[:, :, 0]
+    assert np.allclose(along, along[:, :1], atol=1e-7)
+    assert along[0, 0] == pytest.approx(0.0, abs=1e-7)
+    assert along[-1, 0] == pytest.approx(0.01 * (len(points) - 1), rel=1e-5)
+    assert np.all(np.diff(along[:, 0]) > 0.0)
+    assert np.allclose(np.linalg.norm(rings[:, :, 1:], axis=2), 0.004, rtol=1e-4)
+    angle = np.arctan2(rings[0, :, 2], rings[0, :, 1])
+    assert np.allclose(np.diff(np.unwrap(angle)), 2 * np.pi / SIDES, atol=1e-5)
 
 
 def test_unused_capacity_is_degenerate_padding():
