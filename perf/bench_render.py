@@ -61,14 +61,7 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
     from taichi_lap.scene.materials import PRESETS
 
     rest, faces = cube_sphere(triangles)
-    mesh = ArrayMesh(
-        faces,
-        np.zeros(len(faces), np.int32),
-        [PRESETS["liver"]],
-        vertex_count=len(rest),
-        smooth_count=len(rest),
-        positions=rest,
-    )
+    mesh = ArrayMesh.of_material(faces, rest, PRESETS["liver"])
     rest_field = ti.Vector.field(3, ti.f32, len(rest))
     rest_field.from_numpy(rest)
 

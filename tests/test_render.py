@@ -223,15 +223,6 @@ def test_offscreen_window_shows_the_rendered_scene():
     assert psnr(screenshot, result["image"]) >= 30.0
 
 
-if __name__ == "__main__":
-    from taichi_lap import runtime
-
-    runtime.init("cpu", threads=2)
-    GOLDEN.parent.mkdir(exist_ok=True)
-    imageio.imwrite(GOLDEN, material_spheres()["image"])
-    print(f"wrote {GOLDEN}")
-
-
 def test_automatic_exposure_follows_the_square_of_the_views_depth_and_adapts():
     """The same view twice as large and as far (every depth doubled) gets a quarter of
     the headlight's light: automatic exposure exposes it four times as much (the depth
@@ -240,14 +231,8 @@ def test_automatic_exposure_follows_the_square_of_the_views_depth_and_adapts():
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
 
     def mesh(scale):
-        positions = np.asarray(sphere.vertices * scale, np.float32)
-        return ArrayMesh(
-            sphere.faces,
-            np.zeros(len(sphere.faces), np.int32),
-            [PRESETS["liver"]],
-            vertex_count=len(positions),
-            smooth_count=len(positions),
-            positions=positions,
+        return ArrayMesh.of_material(
+            sphere.faces, np.asarray(sphere.vertices * scale, np.float32), PRESETS["liver"]
         )
 
     def camera(distance):
@@ -288,15 +273,7 @@ def test_surface_detail_moves_with_the_tissue_not_with_space():
     offset = np.array([0.03, -0.01, 0.02], np.float32)
 
     def albedo(positions, texcoords, eye):
-        mesh = ArrayMesh(
-            sphere.faces,
-            np.zeros(len(sphere.faces), np.int32),
-            [PRESETS["liver"]],
-            vertex_count=len(rest),
-            smooth_count=len(rest),
-            positions=positions,
-            texcoords=texcoords,
-        )
+        mesh = ArrayMesh.of_material(sphere.faces, positions, PRESETS["liver"], texcoords)
         camera = EndoscopeCamera(
             eye=eye,
             target=eye - [0.0, 0.0, 0.1],
@@ -318,3 +295,12 @@ def test_surface_detail_moves_with_the_tissue_not_with_space():
     assert both.sum() > 0.9 * covered.sum() > 2000
     assert np.quantile(np.abs(moved - still)[both], 0.99) < 1.0 / 255.0
     assert np.abs(swum - still)[both].mean() > 10.0 * np.abs(moved - still)[both].mean() + 0.005
+
+
+if __name__ == "__main__":
+    from taichi_lap import runtime
+
+    runtime.init("cpu", threads=2)
+    GOLDEN.parent.mkdir(exist_ok=True)
+    imageio.imwrite(GOLDEN, material_spheres()["image"])
+    print(f"wrote {GOLDEN}")

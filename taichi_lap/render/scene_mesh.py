@@ -154,6 +154,19 @@ class ArrayMesh:
         group.finalize()
         self._mesh_group = group
 
+    @classmethod
+    def of_material(cls, triangles, positions, material: Material, texcoords=None) -> "ArrayMesh":
+        """A mesh of one ``material``, every vertex smooth, one object."""
+        return cls(
+            triangles,
+            np.zeros(len(triangles), np.int32),
+            [material],
+            vertex_count=len(positions),
+            smooth_count=len(positions),
+            positions=positions,
+            texcoords=texcoords,
+        )
+
     def close(self):
         """Free the mesh's fields (:meth:`FieldGroup.close`)."""
         self._mesh_group.close()
