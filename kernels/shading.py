@@ -166,6 +166,35 @@ def depth_histogram(gbuffer: ti.template(), counts: ti.template(), near: ti.f32)
             ti.atomic_add(counts[k], 1)
 
 
+@ti.kernel
+def lens(shaded: ti.template(), frame: ti.template(), distortion: ti.f32, vignetting: ti.f32):
+    """A laparoscope's optics on the ``shaded`` image, into ``frame`` (both ``(width,
+    height)``). Barrel distortion by the one-term radial model (Brown 1966): the pixel
+    at radius r, in half-diagonals from the centre, shows what the rectilinear image
+    holds at r (1 + ``distortion`` r²), scaled so that the middles of the left and right
+    edges stay where they are, bilinearly sampled (past its edge, at the corners:
+    black, the dark rim of the scope's round image); then vignetting, the light falling to
+    1 - ``vignetting`` at the corners as (1 - vignetting r²)."""
+    width, height = ti.static(shaded.shape)
+    half = ti.Vector([0.5 * width, 0.5 * height])
+    diagonal = half.norm()
+    edge = half[0] / diagonal
+    scale = 1.0 / (1.0 + distortion * edge * edge)
+    for x, y in frame:
+        d = (ti.Vector([x + 0.5, y + 0.5]) - half) / diagonal
+        r2 = d.dot(d)
+        source = half + d * (scale * (1.0 + distortion * r2)) * diagonal - 0.5
+        colour = ti.Vector([0.0, 0.0, 0.0])
+        if 0.0 <= source[0] <= width - 1.0 and 0.0 <= source[1] <= height - 1.0:
+            i = ti.min(ti.cast(ti.floor(source), ti.i32), ti.Vector([width - 2, height - 2]))
+            i = ti.max(i, 0)
+            f = source - ti.cast(i, ti.f32)
+            lower = ti.math.mix(shaded[i[0], i[1]], shaded[i[0] + 1, i[1]], f[0])
+            upper = ti.math.mix(shaded[i[0], i[1] + 1], shaded[i[0] + 1, i[1] + 1], f[0])
+            colour = ti.math.mix(lower, upper, f[1])
+        frame[x, y] = colour * ti.max(1.0 - vignetting * r2, 0.0)
+
+
 MARK_COLOUR = (0.1, 0.8, 0.45)  # the planned line's green, as a surgical marker's
 MARK_HALF_WIDTH = 0.0006  # [m]
 MARK_DASH = 0.004  # [m] one dash and its gap along the line

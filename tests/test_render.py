@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import taichi as ti
 import trimesh
-from taichi_lap.kernels.shading import srgb_encode
+from taichi_lap.kernels.shading import lens, srgb_encode
 
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.renderer import Renderer
@@ -179,6 +179,7 @@ def test_the_planned_plane_of_the_task_is_marked_dashed_on_its_organ_only():
 
     session = small_session("liver")
     renderer = Renderer.for_scene(session.scene, session.model, size=(320, 240))
+    renderer.distortion = renderer.vignetting = 0.0  # pixels as the G-buffer's
     renderer.render(session.state, session.control)
     marked = renderer.image()
     organ, plane = renderer.planned
@@ -295,6 +296,34 @@ def test_surface_detail_moves_with_the_tissue_not_with_space():
     assert both.sum() > 0.9 * covered.sum() > 2000
     assert np.quantile(np.abs(moved - still)[both], 0.99) < 1.0 / 255.0
     assert np.abs(swum - still)[both].mean() > 10.0 * np.abs(moved - still)[both].mean() + 0.005
+
+
+def test_the_lens_distorts_radially_and_darkens_the_corners():
+    """:func:`lens` on an image holding each pixel's own coordinates (bilinear
+    sampling reproduces them exactly): a pixel at radius r (of the half-diagonal)
+    shows the source at r (1 + k r²), scaled to keep the middles of the side edges;
+    past the source's edge it is black; vignetting alone scales the image by
+    1 - v r²."""
+    width, height = 64, 48
+    shaded = ti.Vector.field(3, ti.f32, (width, height))
+    frame = ti.Vector.field(3, ti.f32, (width, height))
+    x, y = np.meshgrid(np.arange(width), np.arange(height), indexing="ij")
+    shaded.from_numpy(np.stack([x, y, np.ones_like(x)], -1).astype(np.float32))
+    half, diagonal = np.array([width, height]) / 2.0, np.hypot(width, height) / 2.0
+    d = (np.stack([x, y], -1) + 0.5 - half) / diagonal
+    r2 = (d**2).sum(-1)
+    k = 0.1
+    lens(shaded, frame, k, 0.0)
+    out = frame.to_numpy()
+    scale = 1.0 / (1.0 + k * (half[0] / diagonal) ** 2)
+    source = half + d * (scale * (1.0 + k * r2))[..., None] * diagonal - 0.5
+    inside = (source >= 0).all(-1) & (source <= [width - 1, height - 1]).all(-1)
+    assert inside.mean() > 0.9 and not inside.all()
+    assert np.allclose(out[inside][:, :2], source[inside], atol=2e-3)
+    assert (out[~inside] == 0).all()
+    lens(shaded, frame, 0.0, 0.35)
+    expected = shaded.to_numpy() * (1.0 - 0.35 * r2)[..., None]
+    assert np.allclose(frame.to_numpy(), expected, atol=1e-4)
 
 
 if __name__ == "__main__":

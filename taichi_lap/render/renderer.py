@@ -24,6 +24,7 @@ from taichi_lap.kernels.shading import (
     DEPTH_BINS,
     DEPTH_BINS_PER_OCTAVE,
     depth_histogram,
+    lens,
     mark_plane,
     shade,
 )
@@ -77,6 +78,8 @@ class Renderer:
         exposure: float = 1.0,
         spot_angle: float = 50.0,
         auto_exposure: bool = False,
+        distortion: float = 0.0,
+        vignetting: float = 0.0,
     ):
         self.width, self.height = size
         self.mesh = mesh
@@ -92,6 +95,8 @@ class Renderer:
         self.exposure, self.auto_exposure = exposure, auto_exposure
         self._adapted = None  # the exposure automatic exposure reached (None: none yet)
         self._depths = ti.field(ti.i32, DEPTH_BINS) if auto_exposure else None
+        self.distortion, self.vignetting = distortion, vignetting  # the lens (0 0: none)
+        self._shaded = None  # the image before the lens, made at its first use
         self.params.background[None] = BACKGROUND
         builder = ti.FieldsBuilder()
         self.frame = ti.Vector.field(3, ti.f32)
@@ -113,6 +118,8 @@ class Renderer:
             size=size,
             exposure=scene.camera["exposure"],
             auto_exposure=scene.camera["auto_exposure"],
+            distortion=scene.camera["distortion"],
+            vignetting=scene.camera["vignetting"],
         )
         plane = scene.task["plane"] if scene.task else None
         if plane is not None:
@@ -152,13 +159,17 @@ class Renderer:
         self.params.far[None] = cam.far
         if self.auto_exposure:
             self.params.exposure[None] = self._adapt_exposure(cam.near)
-        shade(self.gbuffer, self.mesh, self.lighting, self.params, self.frame, self.view)
+        optics = self.view == 0 and (self.distortion > 0.0 or self.vignetting > 0.0)
+        if optics and self._shaded is None:
+            self._shaded = ti.Vector.field(3, ti.f32, (self.width, self.height))
+        shaded = self._shaded if optics else self.frame
+        shade(self.gbuffer, self.mesh, self.lighting, self.params, shaded, self.view)
         if self.planned is not None and self.view == 0:
             organ, plane = self.planned
             mark_plane(
                 self.gbuffer,
                 self.mesh,
-                self.frame,
+                shaded,
                 organ,
                 plane.point,
                 plane.normal,
@@ -166,6 +177,8 @@ class Renderer:
                 plane.along,
                 plane.length,
             )
+        if optics:
+            lens(shaded, self.frame, self.distortion, self.vignetting)
         ti.sync()
         marks.append(time.perf_counter())
         for name, a, b in zip(("vertex", "visibility", "shading"), marks, marks[1:]):

@@ -88,6 +88,14 @@ CAMERA_PARAMS = {
     "exposure": Param(
         "float", 1.0, "exposure (with auto_exposure: of tissue 30 cm from the tip)", lo=1e-3, hi=1e3
     ),
+    "distortion": Param(
+        "float",
+        0.06,
+        "barrel distortion k: radius r (of the half-diagonal) shows r (1 + k r²)",
+        lo=0.0,
+        hi=0.5,
+    ),
+    "vignetting": Param("float", 0.35, "the light's fall at the image's corners", lo=0.0, hi=1.0),
     "auto_exposure": Param(
         "bool",
         True,
