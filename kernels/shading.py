@@ -29,6 +29,11 @@ VIEWS = (
 """What :func:`shade` writes: the image or one G-buffer channel."""
 
 
+SMOKE_RADIANCE = (0.3, 0.29, 0.27)
+"""Exposed radiance of thick cautery smoke lit by the headlight: a light warm grey
+after tone mapping (chosen by eye, not measured)."""
+
+
 @ti.func
 def srgb_encode(x):
     """The sRGB transfer function of a linear value in [0, 1]; above the linear toe
@@ -90,7 +95,9 @@ def shade(
 
     ``light`` holds the camera: ``eye`` [m], ``forward``, ``intensity`` of the
     headlight [W/sr], its cone ``cos_inner``/``cos_outer``, ``ambient`` (IBL
-    scale), ``exposure``, ``far`` [m] for the depth view and ``background``. The
+    scale), ``exposure``, ``far`` [m] for the depth view, ``smoke`` [1/m] (the density
+    of cautery smoke in front of the scope: a pixel at distance d is veiled by
+    1 - exp(-smoke d) of SMOKE_RADIANCE) and ``background``. The
     material of a pixel with char c is blended towards the charred wound: albedo to
     CHAR_ALBEDO and roughness to CHAR_ROUGHNESS by c, the mucus film scaled by
     1 - c (the wound is dry), metalness kept. Before that the material gets its
@@ -125,7 +132,9 @@ def shade(
                 ambient = ibl_diffuse(lighting, n, v, albedo, metalness, mucus) + ibl_specular(
                     lighting, n, v, albedo, roughness, metalness, mucus
                 )
-                colour = tone_map((direct + light.ambient[None] * ambient) * light.exposure[None])
+                lit = (direct + light.ambient[None] * ambient) * light.exposure[None]
+                haze = 1.0 - ti.exp(-light.smoke[None] * distance)  # Beer-Lambert
+                colour = tone_map(ti.math.mix(lit, ti.Vector(SMOKE_RADIANCE), haze))
             elif view == 1:
                 colour = albedo
             elif view == 2:

@@ -21,6 +21,11 @@ from taichi_lap.training.metrics import session_metrics
 from taichi_lap.video import FrameWriter, write_png
 
 
+def _smoke(session: Session, renderer: Renderer):
+    """After a frame was stepped: the cautery smoke of its energised hooks."""
+    renderer.update_smoke(bool(session.energised), session.dt)
+
+
 def _render(session: Session, renderer: Renderer):
     start = time.perf_counter()
     renderer.render(session.state, session.control, session.peak_temperature)
@@ -124,6 +129,7 @@ def run_headless(
         session.solver.time_stages = recorder is not None
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
             _advance(session, device, recorder, check_topology)
+            _smoke(session, renderer)
             _render(session, renderer)
             if recorder is not None or scene.task is not None:
                 _measure(session, recorder, live, renderer)
@@ -167,6 +173,7 @@ def run_window(
             stepping = not viewer.paused and verdict is None
             if stepping:
                 _advance(session, device, recorder, check_topology)
+                _smoke(session, viewer.renderer)
             session.timings["frame"] = (now - last) * 1e3
             last = now
             start = time.perf_counter()

@@ -32,6 +32,18 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float("inf") if mse == 0 else 10.0 * np.log10(255.0**2 / mse)
 
 
+def head_on(eye, fov: float, near: float = 0.01) -> EndoscopeCamera:
+    """A camera at ``eye`` [m] looking along -z, y up, of vertical ``fov`` [deg]."""
+    return EndoscopeCamera(
+        eye=eye,
+        target=eye - np.array([0.0, 0.0, 0.1]),
+        up=np.array([0.0, 1.0, 0.0]),
+        fov=fov,
+        near=near,
+        far=1.0,
+    )
+
+
 def material_spheres() -> dict[str, np.ndarray]:
     """One sphere per material preset, 4 per row, seen head-on under the headlight
     and the image-based light: the rendered ``image`` (H, W, 3) uint8."""
@@ -52,15 +64,7 @@ def material_spheres() -> dict[str, np.ndarray]:
         smooth_count=len(positions),
         positions=positions,
     )
-    camera = EndoscopeCamera(
-        eye=np.array([0.0, 0.0, 0.2]),
-        target=np.zeros(3),
-        up=np.array([0.0, 1.0, 0.0]),
-        fov=45.0,
-        near=0.01,
-        far=1.0,
-    )
-    renderer = Renderer(mesh, camera, size=SIZE)
+    renderer = Renderer(mesh, head_on(np.array([0.0, 0.0, 0.2]), 45.0), size=SIZE)
     renderer.render(None, None)
     return {"image": renderer.image()}
 
@@ -237,14 +241,7 @@ def test_automatic_exposure_follows_the_square_of_the_views_depth_and_adapts():
         )
 
     def camera(distance):
-        return EndoscopeCamera(
-            eye=np.array([0.0, 0.0, distance]),
-            target=np.zeros(3),
-            up=np.array([0.0, 1.0, 0.0]),
-            fov=30.0,
-            near=0.01 * distance,
-            far=1.0,
-        )
+        return head_on(np.array([0.0, 0.0, distance]), 30.0, 0.01 * distance)
 
     near = Renderer(mesh(1.0), camera(0.1), size=(64, 48), exposure=2.0, auto_exposure=True)
     far = Renderer(mesh(2.0), camera(0.2), size=(64, 48), exposure=2.0, auto_exposure=True)
@@ -275,15 +272,7 @@ def test_surface_detail_moves_with_the_tissue_not_with_space():
 
     def albedo(positions, texcoords, eye):
         mesh = ArrayMesh.of_material(sphere.faces, positions, PRESETS["liver"], texcoords)
-        camera = EndoscopeCamera(
-            eye=eye,
-            target=eye - [0.0, 0.0, 0.1],
-            up=np.array([0.0, 1.0, 0.0]),
-            fov=40.0,
-            near=0.01,
-            far=1.0,
-        )
-        renderer = Renderer(mesh, camera, size=(96, 96))
+        renderer = Renderer(mesh, head_on(eye, 40.0), size=(96, 96))
         renderer.view = 1  # albedo
         renderer.render(None, None)
         return renderer.frame.to_numpy(), renderer.gbuffer.triangle.to_numpy() >= 0
@@ -324,6 +313,40 @@ def test_the_lens_distorts_radially_and_darkens_the_corners():
     lens(shaded, frame, 0.0, 0.35)
     expected = shaded.to_numpy() * (1.0 - 0.35 * r2)[..., None]
     assert np.allclose(frame.to_numpy(), expected, atol=1e-4)
+
+
+def test_cautery_smoke_thickens_to_its_balance_thins_by_half_and_veils_the_view():
+    """Under steady cautery the smoke settles where it thickens as fast as it thins
+    (rate × half-life / ln 2); a half-life later, the hook off, half is left. Drawn,
+    it pulls every pixel towards the smoke's grey (none away), the more the thicker
+    it is."""
+    from taichi_lap.render.renderer import SMOKE_HALF_LIFE, SMOKE_RATE
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    mesh = ArrayMesh.of_material(
+        sphere.faces, np.asarray(sphere.vertices, np.float32), PRESETS["liver"]
+    )
+    renderer = Renderer(mesh, head_on(np.array([0.0, 0.0, 0.1]), 40.0), size=(64, 48), smoke=1.0)
+    dt = 1.0 / 600.0
+    for _ in range(18000):  # 30 s of cautery in small steps
+        renderer.update_smoke(True, dt)
+    balance = SMOKE_RATE * SMOKE_HALF_LIFE / np.log(2.0)
+    assert renderer.smoke == pytest.approx(balance, rel=2e-3)  # less dt's rounding
+    for _ in range(round(SMOKE_HALF_LIFE / dt)):
+        renderer.update_smoke(False, dt)
+    assert renderer.smoke == pytest.approx(balance / 2.0, rel=1e-3)
+    images = []
+    for density in (0.0, 5.0, 20.0):
+        renderer.smoke = density
+        renderer.render(None, None)
+        images.append(renderer.frame.to_numpy())
+    renderer.smoke = 1e4  # nothing but smoke
+    renderer.render(None, None)
+    grey = renderer.frame.to_numpy()
+    covered = renderer.gbuffer.triangle.to_numpy() >= 0
+    away = [np.abs(image - grey).sum(-1)[covered] for image in images]
+    for thin, thick in zip(away, away[1:]):  # (a saturated highlight may stay white)
+        assert (thick <= thin).all() and thick.mean() < 0.8 * thin.mean()
 
 
 if __name__ == "__main__":

@@ -96,6 +96,9 @@ CAMERA_PARAMS = {
         hi=0.5,
     ),
     "vignetting": Param("float", 0.35, "the light's fall at the image's corners", lo=0.0, hi=1.0),
+    "smoke": Param(
+        "float", 1.0, "how fast an energised hook's smoke veils the view (0: none)", lo=0.0, hi=10.0
+    ),
     "auto_exposure": Param(
         "bool",
         True,
