@@ -20,43 +20,44 @@ def copy_surface(surface: ti.template(), count: ti.i32, positions: ti.template()
         positions[s] = surface[s]
 
 
+@ti.func
+def at_surface_vertex(model: ti.template(), values: ti.template(), s):
+    """A per-particle quantity ``values`` (scalar or vector) at the model's surface
+    vertex s: the weighted sum over its particles (``surface_index``,
+    ``surface_weight``; a row of zero weights gives 0), or, for a wound vertex (bound to
+    a cluster, ``surface_cluster`` >= 0), the value at its place on the cut edge between
+    its kept and removed particle (``surface_index`` 0 and 1; CUT_POINT along it)."""
+    idx, w = model.surface_index[s], model.surface_weight[s]
+    value = w[0] * values[idx[0]]
+    if model.surface_cluster[s] >= 0:
+        value = (1.0 - CUT_POINT) * values[idx[0]] + CUT_POINT * values[idx[1]]
+    else:
+        for k in ti.static(range(1, 4)):
+            value += w[k] * values[idx[k]]
+    return value
+
+
 @ti.kernel
 def surface_texcoords(model: ti.template(), texcoord: ti.template()):
-    """texcoord[s] = the rest position [m] of the model's surface vertex s, skinned from
-    its particles' rest positions as it is from their positions (a wound vertex: its
-    place on the cut edge, as in :func:`surface_char`): the surface detail drawn there
-    stays on the tissue as it deforms."""
+    """texcoord[s] = the rest position [m] of the model's surface vertex s
+    (:func:`at_surface_vertex` of the particles' rest positions, as the surface is
+    skinned from their positions): the surface detail drawn there stays on the tissue
+    as it deforms."""
     for s in range(model.surface_vertex_count):
-        idx, w = model.surface_index[s], model.surface_weight[s]
-        rest = ti.Vector([0.0, 0.0, 0.0])
-        if model.surface_cluster[s] >= 0:
-            rest = (1.0 - CUT_POINT) * model.rest_position[idx[0]]
-            rest += CUT_POINT * model.rest_position[idx[1]]
-        else:
-            for k in ti.static(range(4)):
-                rest += w[k] * model.rest_position[idx[k]]
-        texcoord[s] = rest
+        texcoord[s] = at_surface_vertex(model, model.rest_position, s)
 
 
 @ti.kernel
 def surface_char(model: ti.template(), peak: ti.template(), char: ti.template()):
     """char[s] = smoothstep(CHAR_START, CHAR_FULL, Σ_k w[s, k] peak[idx[s, k]]) for the
     model's surface vertices s: how charred each looks, from the peak temperatures
-    ``peak`` [°C] its particles reached (a row of zero weights gives 0). A wound
-    vertex (bound to a cluster, ``surface_cluster`` >= 0) takes the temperature at its
-    place on the cut edge between its kept and removed particle (``surface_index``
-    0 and 1; CUT_POINT along it), so a burnt-away neighbour chars the wound. As
-    electrosurgery texts commonly state, the proteins of soft tissue begin to
-    coagulate at about 50 to 60 °C and its water boils away at 100 °C, leaving dry,
-    darkened tissue, so the look blends between the two."""
+    ``peak`` [°C] its particles reached (:func:`at_surface_vertex`: a wound vertex
+    takes the temperature at its place on the cut edge, so a burnt-away neighbour
+    chars the wound). As electrosurgery texts commonly state, the proteins of soft
+    tissue begin to coagulate at about 50 to 60 °C and its water boils away at 100 °C,
+    leaving dry, darkened tissue, so the look blends between the two."""
     for s in range(model.surface_vertex_count):
-        idx, w = model.surface_index[s], model.surface_weight[s]
-        temperature = 0.0
-        if model.surface_cluster[s] >= 0:
-            temperature = (1.0 - CUT_POINT) * peak[idx[0]] + CUT_POINT * peak[idx[1]]
-        else:
-            for k in ti.static(range(4)):
-                temperature += w[k] * peak[idx[k]]
+        temperature = at_surface_vertex(model, peak, s)
         char[s] = ti.math.smoothstep(CHAR_START, CHAR_FULL, temperature)
 
 
