@@ -35,8 +35,15 @@ from taichi_lap.scene.planned_plane import PlannedPlane
 BACKGROUND = (0.02, 0.008, 0.006)
 EXPOSURE_DISTANCE = 0.3
 """[m] The depth at which the headlight's light is exposed as set (``exposure``): with
-automatic exposure a view whose median depth is d is exposed (d / this)² as much,
-as the headlight's inverse-square light asks (a laparoscope's camera adapts so)."""
+automatic exposure a view whose depth (:data:`EXPOSURE_QUANTILE`) is d is exposed
+(d / this)² as much, as the headlight's inverse-square light asks (a laparoscope's
+camera adapts so)."""
+EXPOSURE_QUANTILE = 0.25
+"""The depth automatic exposure exposes for: the nearest quarter of the image (the
+tissue worked on, nearer than the cavity's wall behind it)."""
+EXPOSURE_ADAPTATION = 0.25
+"""Fraction of the way (in log exposure) towards the view's exposure taken per frame:
+after a jump of the view the image settles in about ten frames."""
 SMOKE_RATE = 2.0
 """[1/m per s] How fast an energised hook's smoke thickens in front of the scope (at
 ``[camera] smoke`` = 1): under steady cautery it settles at 4.3/m (rate × half-life
@@ -45,12 +52,6 @@ SMOKE_HALF_LIFE = 1.5
 """[s] The smoke thins by half in this time (insufflation carries it off)."""
 SMOKE_MAX = 8.0
 """[1/m] The thickest smoke."""
-EXPOSURE_QUANTILE = 0.25
-"""The depth automatic exposure exposes for: the nearest quarter of the image (the
-tissue worked on, nearer than the cavity's wall behind it)."""
-EXPOSURE_ADAPTATION = 0.25
-"""Fraction of the way (in log exposure) towards the view's exposure taken per frame:
-after a jump of the view the image settles in about ten frames."""
 
 
 @ti.data_oriented
@@ -205,9 +206,10 @@ class Renderer:
         self.smoke = min(grown, SMOKE_MAX) * 0.5 ** (dt / SMOKE_HALF_LIFE)
 
     def _adapt_exposure(self, near: float) -> float:
-        """The exposure of this frame with automatic exposure: ``exposure`` × (median
-        depth / :data:`EXPOSURE_DISTANCE`)², approached by :data:`EXPOSURE_ADAPTATION`
-        per frame from the last one (reached at once in the first frame)."""
+        """The exposure of this frame with automatic exposure: ``exposure`` × (the
+        depth of the nearest :data:`EXPOSURE_QUANTILE` of the image /
+        :data:`EXPOSURE_DISTANCE`)², approached by :data:`EXPOSURE_ADAPTATION` per frame
+        from the last one (reached at once in the first frame)."""
         depth_histogram(self.gbuffer, self._depths, near)
         counts = np.cumsum(self._depths.to_numpy())
         if counts[-1] == 0:  # nothing drawn: keep what was reached

@@ -102,18 +102,14 @@ class Scene:
     tubes: list[dict[str, Any]] = field(default_factory=list)  # [[environment.tubes]]
     cavity: dict[str, Any] | None = None  # [environment.cavity]
 
-    @property
-    def drawn_environment(self) -> bool:
-        """Whether the scene draws a cavity wall or a plane (the object ``cavity``)."""
-        return draws_environment(self.cavity, self.planes)
-
 
 CAVITY = "cavity"
 """Object name of the drawn cavity wall and planes (the renderer's object-id image)."""
 
 
 def draws_environment(cavity: dict | None, planes: list[dict]) -> bool:
-    """Whether a scene with this ``cavity`` and ``planes`` draws a wall or a plane."""
+    """Whether a scene with this ``cavity`` and ``planes`` draws a wall or a plane (the
+    object ``cavity``)."""
     return cavity is not None or any(p["extent"] > 0.0 for p in planes)
 
 

@@ -78,6 +78,9 @@ SCENE_PARAMS = {
         "float", 0.001, "self-collision: gap counted as contact", lo=0.0, hi=0.1, unit="m"
     ),
 }
+_COLOR = Param("vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0)
+"""The ``color`` of whatever is drawn with an ``appearance``: organs, planes, the
+cavity's wall, environment tubes."""
 CAMERA_PARAMS = {
     "position": Param("vec3", [0.0, 0.1, 0.35], "endoscope tip", lo=-100, hi=100, unit="m"),
     "target": Param("vec3", [0.0, 0.0, 0.0], "point looked at", lo=-100, hi=100, unit="m"),
@@ -112,9 +115,7 @@ PLANE_PARAMS = {
     "appearance": Param(
         "str", "peritoneum", "render material preset of its drawn patch", choices=tuple(PRESETS)
     ),
-    "color": Param(
-        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
-    ),
+    "color": _COLOR,
     "extent": Param(
         "float",
         0.5,
@@ -137,9 +138,7 @@ CAVITY_PARAMS = {
     "appearance": Param(
         "str", "peritoneum", "render material preset of its wall", choices=tuple(PRESETS)
     ),
-    "color": Param(
-        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
-    ),
+    "color": _COLOR,
 }
 ENVIRONMENT_TUBE_PARAMS = {
     "name": Param("str", REQUIRED, "its name, apart from every organ's and tool's"),
@@ -155,9 +154,7 @@ ENVIRONMENT_TUBE_PARAMS = {
     "appearance": Param(
         "str", "serosa", "render material preset (seed 000 §6.1)", choices=tuple(PRESETS)
     ),
-    "color": Param(
-        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
-    ),
+    "color": _COLOR,
     "friction": Param("float", 0.5, "Coulomb friction coefficient", lo=0.0, hi=10.0),
 }
 TOOL_PARAMS = {
@@ -205,9 +202,7 @@ ORGAN_PARAMS = {
     "appearance": Param(
         "str", "serosa", "render material preset (seed 000 §6.1)", choices=tuple(PRESETS)
     ),
-    "color": Param(
-        "vec3", None, "base colour (linear RGB); default: the appearance's", lo=0.0, hi=1.0
-    ),
+    "color": _COLOR,
 }
 GEOMETRY_COMMON = {
     "translate": Param(
