@@ -81,6 +81,54 @@ def rest_point(mesh: ti.template(), triangle, p):
     return (1.0 - b1 - b2) * mesh.texcoord[i0] + b1 * mesh.texcoord[i1] + b2 * mesh.texcoord[i2]
 
 
+SIMILAR_NORMAL = 0.9
+"""Checkerboard shading fills a pixel only where its neighbours' normals are within
+this cosine of its own (about 25°)."""
+SIMILAR_DEPTH = 0.03
+"""... and their depths within this fraction of its own (not a fold behind it)."""
+_NEIGHBOURS = ((1, 0), (-1, 0), (0, 1), (0, -1))
+
+
+@ti.func
+def filled(gbuffer: ti.template(), materials: ti.template(), x, y):
+    """Whether checkerboard shading fills pixel (x, y) from its four neighbours instead
+    of shading it: a pixel of odd x + y inside the border whose four neighbours show
+    the same object at depths within SIMILAR_DEPTH and normals within SIMILAR_NORMAL of
+    its own. Edges, silhouettes and creases are shaded at full rate."""
+    width, height = ti.static(gbuffer.triangle.shape)
+    result = False
+    if (x + y) % 2 == 1 and 0 < x < width - 1 and 0 < y < height - 1:
+        triangle = gbuffer.triangle[x, y]
+        if triangle >= 0:
+            result = True
+            drawn = materials.triangle_object[triangle]
+            depth, normal = gbuffer.depth[x, y], gbuffer.normal[x, y]
+            for k in ti.static(range(4)):
+                i, j = x + _NEIGHBOURS[k][0], y + _NEIGHBOURS[k][1]
+                other = gbuffer.triangle[i, j]
+                if other < 0:
+                    result = False
+                else:  # nested: Taichi evaluates both sides of `or`
+                    near = ti.abs(gbuffer.depth[i, j] - depth) <= SIMILAR_DEPTH * depth
+                    alike = gbuffer.normal[i, j].dot(normal) >= SIMILAR_NORMAL
+                    if materials.triangle_object[other] != drawn or not near or not alike:
+                        result = False
+    return result
+
+
+@ti.kernel
+def fill_checkerboard(gbuffer: ti.template(), materials: ti.template(), frame: ti.template()):
+    """Checkerboard shading's second half: each pixel :func:`filled` takes the mean of
+    its four neighbours' colours (shaded by :func:`shade`, never filled themselves), as
+    checkerboard rendering reconstructs its unshaded half (El Mansouri 2016, without the
+    previous frame)."""
+    for x, y in frame:
+        if filled(gbuffer, materials, x, y):
+            frame[x, y] = 0.25 * (
+                frame[x - 1, y] + frame[x + 1, y] + frame[x, y - 1] + frame[x, y + 1]
+            )
+
+
 @ti.kernel
 def shade(
     gbuffer: ti.template(),
@@ -89,6 +137,7 @@ def shade(
     light: ti.template(),
     frame: ti.template(),
     view: ti.i32,
+    checkerboard: ti.i32,
 ):
     """Write ``frame[x, y]`` from the G-buffer (both ``(width, height)``, x right,
     y up: GGUI's layout).
@@ -102,11 +151,15 @@ def shade(
     CHAR_ALBEDO and roughness to CHAR_ROUGHNESS by c, the mucus film scaled by
     1 - c (the wound is dry), metalness kept. Before that the material gets its
     procedural detail (:func:`~taichi_lap.kernels.surface_detail.surface_detail`) at
-    the pixel's rest-space point (:func:`rest_point`)."""
+    the pixel's rest-space point (:func:`rest_point`). With ``checkerboard`` (view 0
+    only) the pixels :func:`filled` are skipped, for :func:`fill_checkerboard`."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
         colour = light.background[None]
-        if triangle >= 0:
+        skipped = False
+        if checkerboard and view == 0:
+            skipped = filled(gbuffer, materials, x, y)
+        if triangle >= 0 and not skipped:
             m, c = materials.triangle_material[triangle], gbuffer.char[x, y]
             p = gbuffer.position[x, y]
             albedo, n = surface_detail(
@@ -153,7 +206,8 @@ def shade(
                 colour = object_colour(materials.triangle_object[triangle])
             else:
                 colour = ti.Vector([c, c, c])
-        frame[x, y] = colour
+        if not skipped:
+            frame[x, y] = colour
 
 
 DEPTH_BINS = 64
@@ -163,12 +217,16 @@ DEPTH_BINS_PER_OCTAVE = 8
 
 @ti.kernel
 def depth_histogram(gbuffer: ti.template(), counts: ti.template(), near: ti.f32):
-    """How many pixels show a surface at each depth: ``counts[k]`` (i32, exact in any
-    order) of the pixels whose depth d [m] lies in octave bin k = floor(8 log2(d /
-    near)), clamped to the :data:`DEPTH_BINS`; the background is not counted."""
+    """How many pixels show a surface at each depth, counted on every other row and
+    column (a quarter of the pixels suffices for a quantile): ``counts[k]`` (i32, exact
+    in any order) of the pixels whose depth d [m] lies in octave bin k = floor(8
+    log2(d / near)), clamped to the :data:`DEPTH_BINS`; the background is not
+    counted."""
+    width, height = ti.static(gbuffer.depth.shape)
     for k in range(DEPTH_BINS):
         counts[k] = 0
-    for x, y in gbuffer.depth:
+    for i, j in ti.ndrange((width + 1) // 2, (height + 1) // 2):
+        x, y = 2 * i, 2 * j
         if gbuffer.triangle[x, y] >= 0:
             octave = ti.log(ti.max(gbuffer.depth[x, y], near) / near) / ti.log(2.0)
             k = ti.min(ti.cast(octave * DEPTH_BINS_PER_OCTAVE, ti.i32), DEPTH_BINS - 1)

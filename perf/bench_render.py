@@ -6,7 +6,8 @@ filling most of a 640x480 or 1280x720 frame, drawn by the deferred renderer (see
 visibility buffer and G-buffer resolve, near-plane clipping), ``shading`` (BRDF,
 headlight, image-based light, tone mapping). Metric ``ms_per_frame`` (the three
 passes; deforming the blob is not counted) and ``ms_<pass>`` per pass, cases like
-``640x480-100k``.
+``640x480-100k``. The shading is the scenes' default, checkerboard (``[camera]
+checkerboard``); case ``640x480-100k-full`` shades every pixel.
 
 Usage: python perf/bench_render.py [--quick] [--arch cpu] [--json OUT]
 """
@@ -52,7 +53,9 @@ def cube_sphere(triangles: int) -> tuple[np.ndarray, np.ndarray]:
     return positions.astype(np.float32), faces.astype(np.int32)
 
 
-def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
+def blob_case(
+    width: int, height: int, triangles: int, runs: int, checkerboard: bool = True
+) -> list[dict]:
     import taichi as ti
 
     from taichi_lap.render.camera import EndoscopeCamera
@@ -85,7 +88,7 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
         near=0.002,
         far=1.0,
     )
-    renderer = Renderer(mesh, camera, size=(width, height))
+    renderer = Renderer(mesh, camera, size=(width, height), checkerboard=checkerboard)
     passes: dict[str, list[float]] = {}
     frames = []
     for k in range(runs + 2):
@@ -98,13 +101,14 @@ def blob_case(width: int, height: int, triangles: int, runs: int) -> list[dict]:
             frames.append(elapsed)
             for name, ms in renderer.timings.items():
                 passes.setdefault(name, []).append(ms)
-    case = f"{width}x{height}-{triangles // 1000}k"
+    case = f"{width}x{height}-{triangles // 1000}k" + ("" if checkerboard else "-full")
     covered = int((renderer.gbuffer.triangle.to_numpy() >= 0).sum())
     params = {
         "width": width,
         "height": height,
         "triangles": len(faces),
         "covered_fraction": round(covered / (width * height), 3),
+        "checkerboard": checkerboard,
     }
     return [result(case, params, "ms_per_frame", frames)] + [
         result(case, params, f"ms_{name}", samples) for name, samples in passes.items()
@@ -123,6 +127,8 @@ def main():
     for width, height in sizes:
         for triangles in counts:
             results += blob_case(width, height, triangles, runs)
+    if not args.quick:
+        results += blob_case(640, 480, 100_000, runs, checkerboard=False)
     report("render", args.arch, results, args.json)
 
 

@@ -24,6 +24,7 @@ from taichi_lap.kernels.shading import (
     DEPTH_BINS,
     DEPTH_BINS_PER_OCTAVE,
     depth_histogram,
+    fill_checkerboard,
     lens,
     mark_plane,
     shade,
@@ -91,6 +92,7 @@ class Renderer:
         distortion: float = 0.0,
         vignetting: float = 0.0,
         smoke: float = 0.0,
+        checkerboard: bool = False,
     ):
         self.width, self.height = size
         self.mesh = mesh
@@ -109,6 +111,7 @@ class Renderer:
         self.distortion, self.vignetting = distortion, vignetting  # the lens (0 0: none)
         self._shaded = None  # the image before the lens, made at its first use
         self.params.background[None] = BACKGROUND
+        self.checkerboard = checkerboard  # shade half the smooth pixels, fill the rest
         self.smoke_rate, self.smoke = smoke * SMOKE_RATE, 0.0  # [1/m per s], [1/m]
         builder = ti.FieldsBuilder()
         self.frame = ti.Vector.field(3, ti.f32)
@@ -133,6 +136,7 @@ class Renderer:
             distortion=scene.camera["distortion"],
             vignetting=scene.camera["vignetting"],
             smoke=scene.camera["smoke"],
+            checkerboard=scene.camera["checkerboard"],
         )
         plane = scene.task["plane"] if scene.task else None
         if plane is not None:
@@ -177,7 +181,10 @@ class Renderer:
         if optics and self._shaded is None:
             self._shaded = ti.Vector.field(3, ti.f32, (self.width, self.height))
         shaded = self._shaded if optics else self.frame
-        shade(self.gbuffer, self.mesh, self.lighting, self.params, shaded, self.view)
+        checkerboard = self.checkerboard and self.view == 0
+        shade(self.gbuffer, self.mesh, self.lighting, self.params, shaded, self.view, checkerboard)
+        if checkerboard:
+            fill_checkerboard(self.gbuffer, self.mesh, shaded)
         if self.planned is not None and self.view == 0:
             organ, plane = self.planned
             mark_plane(

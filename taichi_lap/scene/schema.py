@@ -107,6 +107,11 @@ CAMERA_PARAMS = {
         True,
         "expose for the view's depth (the headlight's inverse-square falloff), adapting over about ten frames",
     ),
+    "checkerboard": Param(
+        "bool",
+        True,
+        "shade half the pixels of smooth surfaces and fill the others from their neighbours (false: every pixel)",
+    ),
 }
 PLANE_PARAMS = {
     "point": Param("vec3", REQUIRED, "a point on the plane", lo=-100, hi=100, unit="m"),
