@@ -63,15 +63,21 @@ def surface_char(model: ti.template(), peak: ti.template(), char: ti.template())
 
 @ti.kernel
 def copy_surface_triangles(
-    model: ti.template(), triangles: ti.template(), material: ti.template(), owner: ti.template()
+    model: ti.template(),
+    membrane: ti.template(),
+    triangles: ti.template(),
+    material: ti.template(),
+    owner: ti.template(),
 ):
     """The model's surface triangles (flat, 3 per triangle) with their organ as
-    material and object, into the first rows of a drawn mesh."""
+    material and object, into the first rows of a drawn mesh; degenerate (not drawn)
+    for the organs whose ``membrane`` flag is set (drawn as their membrane)."""
     for t in range(model.surface_triangle_count):
+        organ, corners = model.surface_triangle_organ[t], model.surface_triangles[t]
         for k in ti.static(range(3)):
-            triangles[3 * t + k] = model.surface_triangles[t][k]
-        material[t] = model.surface_triangle_organ[t]
-        owner[t] = model.surface_triangle_organ[t]
+            triangles[3 * t + k] = ti.select(membrane[organ] != 0, corners[0], corners[k])
+        material[t] = organ
+        owner[t] = organ
 
 
 @ti.kernel

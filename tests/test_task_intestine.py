@@ -12,13 +12,13 @@ from tests.test_task_liver import failed, judged
 
 @pytest.mark.scene_task
 def test_the_intestine_expert_exposes_the_colon_and_the_careless_probe_hides_it(tmp_path):
-    """The scene's script sweeps the lowest loops off the colon: 65 % of it shows,
+    """The scene's script sweeps the lowest loops off the colon: 80 % of it shows,
     filling 4 % of the image, for more than the second the task asks. The careless
     probe drags the loops towards the scope, over the colon."""
     expert = judged(tmp_path, "expert", "intestine", 250, size="160x120")
     assert expert["passed"], verdict_lines(expert)
     view = expert["goal"]["view"]
-    assert view["visible_best"] >= 0.65 and view["longest_in_view"] >= 1.0
+    assert view["visible_best"] >= 0.8 and view["longest_in_view"] >= 1.0
     assert expert["goal"]["time_to_completion"] <= 4.2
 
     careless = judged(
@@ -32,4 +32,4 @@ def test_the_intestine_expert_exposes_the_colon_and_the_careless_probe_hides_it(
     )
     assert not careless["passed"]
     assert failed(careless) == {"colon held in view", "time to completion"}
-    assert careless["goal"]["view"]["visible_best"] < 0.5
+    assert careless["goal"]["view"]["visible_best"] < 0.75

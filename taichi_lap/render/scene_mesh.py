@@ -4,10 +4,13 @@ instruments and the environment: its fixed tubes, the planes' patches and the ca
 wall. Each triangle carries a material and an object index (organs, then tools, then
 environment tubes, then ``cavity``: ``object_names``).
 
-Layout of the vertex fields: ``[surfaces | instruments | tubes | environment]``;
-triangles in the same order; the environment's vertices are written once. The surfaces are the model's rows, spare ones included, copied again
-after each dissection (a dead triangle is degenerate); tubes are re-tessellated every
-frame into a fixed capacity, their unused triangles degenerate.
+Layout of the vertex fields: ``[surfaces | instruments | tubes | membranes |
+environment]``; triangles in the same order; the environment's vertices are written
+once. The surfaces are the model's rows, spare ones included, copied again after each
+dissection (a dead triangle is degenerate); tubes are re-tessellated every frame into a
+fixed capacity, their unused triangles degenerate. A spring sheet (the mesentery) is
+drawn as its smooth membrane (:mod:`~taichi_lap.kernels.membrane`), its own grid
+triangles left degenerate.
 """
 
 from __future__ import annotations
@@ -28,13 +31,18 @@ from taichi_lap.kernels.draw_mesh import (
     surface_char,
     surface_texcoords,
 )
+from taichi_lap.kernels.membrane import membrane_vertices
 from taichi_lap.kernels.normals import vertex_normals
+from taichi_lap.preprocess.sheets import sheet_triangles
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.tubes import TubeMesh
 from taichi_lap.scene.materials import DETAIL, INSTRUMENT, PRESETS, Material, material_table
 from taichi_lap.scene import CAVITY
 from taichi_lap.scenes.anatomy.cavity import cavity_wall, plane_patch
 from taichi_lap.scenes.anatomy.tubes import environment_centreline, tube_mesh
+
+MEMBRANE_ACROSS, MEMBRANE_ALONG = 4, 2
+"""Samples of a drawn membrane per span between its rows and between its columns."""
 
 
 def appearance_material(appearance: str, color) -> Material:
@@ -236,6 +244,24 @@ class SceneMesh(ArrayMesh):
             ]
             or [np.zeros(0, np.int32)]
         )
+        self.membranes = []  # per sheet: (first surface vertex, rows, columns, vertex offset)
+        membrane_triangles, membrane_material = [], []
+        for index, organ in tubes:
+            cols = organ.row_length
+            rows = (organ.surface_vertices[1] - organ.surface_vertices[0]) // cols
+            fine = ((rows - 1) * MEMBRANE_ACROSS + 1, (cols - 1) * MEMBRANE_ALONG + 1)
+            self.membranes.append((organ.surface_vertices[0], rows, cols, base))
+            membrane_triangles.append(sheet_triangles(*fine) + base)
+            membrane_material.append(np.full(len(membrane_triangles[-1]), index, np.int32))
+            base += fine[0] * fine[1]
+        membrane_triangles = np.concatenate(membrane_triangles or [np.zeros((0, 3), np.int32)])
+        membrane_material = np.concatenate(membrane_material or [np.zeros(0, np.int32)])
+        membrane_organ = np.array([bool(o.row_length) for o in data.organs])
+        surface_triangles = np.where(  # a sheet's grid is drawn as its membrane instead
+            membrane_organ[surface_material][:, None],
+            surface_triangles[:, :1],
+            surface_triangles,
+        )
         environment_object = (
             environment["piece_object"][environment["piece"]] + len(data.organs) + len(scene.tools)
         )
@@ -245,6 +271,7 @@ class SceneMesh(ArrayMesh):
                     surface_triangles,
                     tools["triangles"] + self.surface_count,
                     np.zeros((len(tube_material), 3), np.int32),
+                    membrane_triangles,
                     environment["triangles"] + base,
                 ]
             ),
@@ -253,12 +280,19 @@ class SceneMesh(ArrayMesh):
                     surface_material,
                     instrument_material,
                     tube_material,
+                    membrane_material,
                     environment["piece"] + len(data.organs) + 1,
                 ]
             ),
             materials,
             triangle_object=np.concatenate(
-                [surface_material, instrument_object, tube_material, environment_object]
+                [
+                    surface_material,
+                    instrument_object,
+                    tube_material,
+                    membrane_material,
+                    environment_object,
+                ]
             ),
             vertex_count=base + len(environment["position"]),
             smooth_count=self.surface_count,
@@ -274,6 +308,18 @@ class SceneMesh(ArrayMesh):
                 rows[base:] = environment[values]
                 target.from_numpy(rows)
         surface_texcoords(model, self.texcoord)
+        for first, rows, cols, offset in self.membranes:  # through the rest positions
+            membrane_vertices(
+                self.texcoord,
+                first,
+                rows,
+                cols,
+                MEMBRANE_ACROSS,
+                MEMBRANE_ALONG,
+                self.texcoord,
+                self.normals,
+                offset,
+            )
 
         group = FieldGroup()
         self.tool_position = group.field(
@@ -283,6 +329,7 @@ class SceneMesh(ArrayMesh):
             ti.f32, self.instrument_count, vector=3, values=tools["normal"]
         )
         self.vertex_tool = group.field(ti.i32, self.instrument_count, values=tools["tool"])
+        self.membrane_organ = group.field(ti.i32, len(data.organs), values=membrane_organ)
         self.tube_fields = []  # per tube: (source, points, radius, range) fields
         self.tube_spacing = []  # per tube: its points' mean rest distance [m]
         for _, organ in tubes:
@@ -327,7 +374,11 @@ class SceneMesh(ArrayMesh):
         (:func:`~taichi_lap.kernels.draw_mesh.surface_char`), or zero when None."""
         if self._version != self.model.topology_version:
             copy_surface_triangles(
-                self.model, self.triangles, self.triangle_material, self.triangle_object
+                self.model,
+                self.membrane_organ,
+                self.triangles,
+                self.triangle_material,
+                self.triangle_object,
             )
             surface_texcoords(self.model, self.texcoord)
             self._version = self.model.topology_version
@@ -339,6 +390,18 @@ class SceneMesh(ArrayMesh):
             self.char.fill(0.0)
             self._charred = False
         super().update()
+        for first, rows, cols, offset in self.membranes:
+            membrane_vertices(
+                state.surface_position,
+                first,
+                rows,
+                cols,
+                MEMBRANE_ACROSS,
+                MEMBRANE_ALONG,
+                self.positions,
+                self.normals,
+                offset,
+            )
         if self.instrument_count:
             place_instruments(
                 self.tool_position,
