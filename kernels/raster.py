@@ -384,6 +384,7 @@ def resolve_gbuffer(
     positions: ti.template(),
     normals: ti.template(),
     char: ti.template(),
+    blood: ti.template(),
     triangles: ti.template(),
     visibility: ti.template(),
     eye: ti.math.vec3,
@@ -392,6 +393,7 @@ def resolve_gbuffer(
     gbuffer_position: ti.template(),
     gbuffer_normal: ti.template(),
     gbuffer_char: ti.template(),
+    gbuffer_blood: ti.template(),
     gbuffer_triangle: ti.template(),
 ):
     """Per pixel: the winning triangle t of ``visibility`` (or background), intersected
@@ -401,7 +403,8 @@ def resolve_gbuffer(
     ``gbuffer_depth`` = |hit - eye| [m] (BACKGROUND_DEPTH if none), ``gbuffer_position``
     = hit [m] (0), ``gbuffer_normal`` = the barycentric mix of ``normals``, normalised
     and flipped to face the eye (0; the geometric normal if the mix vanishes),
-    ``gbuffer_char`` = the same mix of the vertices' ``char`` (0) and
+    ``gbuffer_char`` and ``gbuffer_blood`` = the same mix of the vertices' ``char`` and
+    ``blood`` (0) and
     ``gbuffer_triangle`` = t (-1). The ray direction is the cross product of the
     clip planes x = ndc_x w and y = ndc_y w, pointing to increasing w."""
     width, height = ti.static(visibility.shape)
@@ -410,7 +413,7 @@ def resolve_gbuffer(
         key = visibility[x, y]
         triangle, depth = -1, BACKGROUND_DEPTH
         position, normal = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
-        charred = 0.0
+        charred, bloody = 0.0, 0.0
         if key != ti.i64(VISIBILITY_CLEAR):
             triangle = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
             ndc_x = (x + 0.5) * (2.0 / width) - 1.0
@@ -443,9 +446,11 @@ def resolve_gbuffer(
             if normal.dot(hit) > 0.0:
                 normal = -normal
             charred = b0 * char[i0] + b1 * char[i1] + b2 * char[i2]
+            charred = ti.math.clamp(charred, 0.0, 1.0)  # the rounding of the mix
+            bloody = ti.max(b0 * blood[i0] + b1 * blood[i1] + b2 * blood[i2], 0.0)
         gbuffer_triangle[x, y], gbuffer_depth[x, y] = triangle, depth
         gbuffer_position[x, y], gbuffer_normal[x, y] = position, normal
-        gbuffer_char[x, y] = charred
+        gbuffer_char[x, y], gbuffer_blood[x, y] = charred, bloody
 
 
 class GBuffer:
@@ -453,7 +458,7 @@ class GBuffer:
     ``(width, height)`` indexed ``[x, y]`` (origin bottom-left), in one SNode tree:
     ``visibility`` (i64 keys) and the outputs of :func:`resolve_gbuffer`: ``depth``
     (f32 [m]), ``position`` (vec3 [m]), ``normal`` (unit vec3), ``char`` (f32, 0 fresh
-    to 1 charred tissue) and ``triangle`` (i32, -1 for background). ``by_pixel`` picks
+    to 1 charred tissue), ``blood`` (f32, the blood film's thickness [m]) and ``triangle`` (i32, -1 for background). ``by_pixel`` picks
     :func:`rasterize_visibility_by_pixel` (default: on every backend but the CPU)."""
 
     def __init__(self, width: int, height: int, *, by_pixel: bool | None = None):
@@ -468,9 +473,10 @@ class GBuffer:
         self.position = ti.Vector.field(3, ti.f32)
         self.normal = ti.Vector.field(3, ti.f32)
         self.char = ti.field(ti.f32)
+        self.blood = ti.field(ti.f32)
         self.triangle = ti.field(ti.i32)
         builder = ti.FieldsBuilder()  # the i64 field last (see BoxPixels)
-        fields = (self.depth, self.position, self.normal, self.char, self.triangle)
+        fields = (self.depth, self.position, self.normal, self.char, self.blood, self.triangle)
         for f in fields + (self.visibility,):
             builder.dense(ti.ij, (self.width, self.height)).place(f)
         self.tree = builder.finalize()
@@ -480,6 +486,7 @@ class GBuffer:
         positions,
         normals,
         char,
+        blood,
         triangles,
         triangle_count: int,
         eye,
@@ -489,8 +496,8 @@ class GBuffer:
         """Rasterize ``triangle_count`` triangles of ``positions`` [m] (flat vertex ids in
         ``triangles``) seen from ``eye`` [m] through ``view_projection`` (4x4, see
         :func:`camera_matrices`), clipped at view depth ``near`` [m], and resolve the
-        G-buffer, interpolating the vertex ``normals`` and ``char``. Two kernel
-        launches."""
+        G-buffer, interpolating the vertex ``normals``, ``char`` and ``blood``. Two
+        kernel launches."""
         if not near > 0.0:
             raise ValueError(f"near must be > 0, got {near}")
         matrix = np.asarray(view_projection, dtype=np.float32)
@@ -508,6 +515,7 @@ class GBuffer:
             positions,
             normals,
             char,
+            blood,
             triangles,
             self.visibility,
             np.asarray(eye, np.float32),
@@ -516,6 +524,7 @@ class GBuffer:
             self.position,
             self.normal,
             self.char,
+            self.blood,
             self.triangle,
         )
 

@@ -13,7 +13,13 @@ import taichi as ti
 from taichi_lap.kernels.brdf import surface_brdf_cos
 from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
 from taichi_lap.kernels.surface_detail import surface_detail
-from taichi_lap.scene.materials import CHAR_ALBEDO, CHAR_ROUGHNESS
+from taichi_lap.scene.materials import (
+    BLOOD_ALBEDO,
+    BLOOD_FILM,
+    BLOOD_ROUGHNESS,
+    CHAR_ALBEDO,
+    CHAR_ROUGHNESS,
+)
 
 VIEWS = (
     "shaded",
@@ -25,6 +31,7 @@ VIEWS = (
     "mucus",
     "object",
     "char",
+    "blood",
 )
 """What :func:`shade` writes: the image or one G-buffer channel."""
 
@@ -149,9 +156,11 @@ def shade(
     1 - exp(-smoke d) of SMOKE_RADIANCE) and ``background``. The
     material of a pixel with char c is blended towards the charred wound: albedo to
     CHAR_ALBEDO and roughness to CHAR_ROUGHNESS by c, the mucus film scaled by
-    1 - c (the wound is dry), metalness kept. Before that the material gets its
-    procedural detail (:func:`~taichi_lap.kernels.surface_detail.surface_detail`) at
-    the pixel's rest-space point (:func:`rest_point`). With ``checkerboard`` (view 0
+    1 - c (the wound is dry), metalness kept; then towards blood (BLOOD_ALBEDO,
+    BLOOD_ROUGHNESS, a full wet film) by its cover 1 - exp(-film / BLOOD_FILM), the
+    G-buffer's ``blood`` film [m]. Before that the material gets its procedural detail
+    (:func:`~taichi_lap.kernels.surface_detail.surface_detail`) at the pixel's
+    rest-space point (:func:`rest_point`). With ``checkerboard`` (view 0
     only) the pixels :func:`filled` are skipped, for :func:`fill_checkerboard`."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
@@ -172,6 +181,10 @@ def shade(
             albedo = ti.math.mix(albedo, ti.Vector(CHAR_ALBEDO), c)
             roughness = ti.math.mix(materials.roughness[m], CHAR_ROUGHNESS, c)
             metalness, mucus = materials.metalness[m], materials.mucus[m] * (1.0 - c)
+            blood = 1.0 - ti.exp(-gbuffer.blood[x, y] / BLOOD_FILM)  # the film's cover
+            albedo = ti.math.mix(albedo, ti.Vector(BLOOD_ALBEDO), blood)
+            roughness = ti.math.mix(roughness, BLOOD_ROUGHNESS, blood)
+            mucus = ti.math.mix(mucus, 1.0, blood)
             to_eye = light.eye[None] - p
             distance = to_eye.norm(1e-9)
             v = to_eye / distance
@@ -204,8 +217,10 @@ def shade(
                 colour = ti.Vector([mucus, mucus, mucus])
             elif view == 7:
                 colour = object_colour(materials.triangle_object[triangle])
-            else:
+            elif view == 8:
                 colour = ti.Vector([c, c, c])
+            else:
+                colour = ti.Vector([blood, blood, blood])
         if not skipped:
             frame[x, y] = colour
 

@@ -21,9 +21,13 @@ from taichi_lap.training.metrics import session_metrics
 from taichi_lap.video import FrameWriter, write_png
 
 
-def _smoke(session: Session, renderer: Renderer):
-    """After a frame was stepped: the cautery smoke of its energised hooks."""
+def _after_step(session: Session, renderer: Renderer):
+    """After a frame was stepped: the cautery smoke of its energised hooks and the
+    blood of its damaged vessels."""
     renderer.update_smoke(bool(session.energised), session.dt)
+    renderer.update_blood(
+        session.events, session.state, session.data, session.state.time, session.dt
+    )
 
 
 def _render(session: Session, renderer: Renderer):
@@ -129,7 +133,7 @@ def run_headless(
         session.solver.time_stages = recorder is not None
         for _ in tqdm(range(frames), desc=f"{scene.settings['name']} -> {out}", unit="frame"):
             _advance(session, device, recorder, check_topology)
-            _smoke(session, renderer)
+            _after_step(session, renderer)
             _render(session, renderer)
             if recorder is not None or scene.task is not None:
                 _measure(session, recorder, live, renderer)
@@ -173,7 +177,7 @@ def run_window(
             stepping = not viewer.paused and verdict is None
             if stepping:
                 _advance(session, device, recorder, check_topology)
-                _smoke(session, viewer.renderer)
+                _after_step(session, viewer.renderer)
             session.timings["frame"] = (now - last) * 1e3
             last = now
             start = time.perf_counter()

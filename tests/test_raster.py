@@ -72,6 +72,7 @@ def draw(target: GBuffer, count: int, near: float):
         mesh().positions,
         mesh().normals,
         mesh().char,
+        mesh().char,  # no blood either
         mesh().triangles,
         count,
         EYE,

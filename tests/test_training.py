@@ -193,6 +193,8 @@ def test_planted_events_are_counted_and_cautery_time_is_summed(tmp_path):
     assert [e["kind"] for e in metrics.timeline] == ["vessel_damage", "cut"]
     assert metrics.timeline[0]["time"] == pytest.approx(0.35)
     assert metrics.instruments["hook"].cautery_time == pytest.approx(0.3 + 0.2)
+    # the vessel bleeds from 0.35 s to the end at 1.0 s: 0.5 ml/s, clotting over 15 s
+    assert metrics.blood_lost == pytest.approx(0.5 * 15.0 * (1.0 - math.exp(-0.65 / 15.0)))
 
 
 def test_a_session_without_its_end_or_cut_short_is_reported_incomplete(tmp_path, caplog):

@@ -29,6 +29,7 @@ from taichi_lap.kernels.shading import (
     mark_plane,
     shade,
 )
+from taichi_lap.render.blood import BloodFilm
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
 from taichi_lap.scene.planned_plane import PlannedPlane
@@ -93,6 +94,7 @@ class Renderer:
         vignetting: float = 0.0,
         smoke: float = 0.0,
         checkerboard: bool = False,
+        gravity=(0.0, -9.81, 0.0),
     ):
         self.width, self.height = size
         self.mesh = mesh
@@ -112,6 +114,7 @@ class Renderer:
         self._shaded = None  # the image before the lens, made at its first use
         self.params.background[None] = BACKGROUND
         self.checkerboard = checkerboard  # shade half the smooth pixels, fill the rest
+        self.blood = BloodFilm(gravity)  # bleeds of damaged vessels, drawn on the surface
         self.smoke_rate, self.smoke = smoke * SMOKE_RATE, 0.0  # [1/m per s], [1/m]
         builder = ti.FieldsBuilder()
         self.frame = ti.Vector.field(3, ti.f32)
@@ -137,6 +140,7 @@ class Renderer:
             vignetting=scene.camera["vignetting"],
             smoke=scene.camera["smoke"],
             checkerboard=scene.camera["checkerboard"],
+            gravity=scene.settings["gravity"],
         )
         plane = scene.task["plane"] if scene.task else None
         if plane is not None:
@@ -163,6 +167,7 @@ class Renderer:
             self.mesh.positions,
             self.mesh.normals,
             self.mesh.char,
+            self.mesh.blood,
             self.mesh.triangles,
             self.mesh.triangle_count,
             cam.eye,
@@ -212,6 +217,14 @@ class Renderer:
         grown = self.smoke + (self.smoke_rate * dt if cauterising else 0.0)
         self.smoke = min(grown, SMOKE_MAX) * 0.5 ** (dt / SMOKE_HALF_LIFE)
 
+    def update_blood(self, events: list[dict], state, data, time: float, dt: float):
+        """After a stepped frame ending at ``time`` [s]: bleeds from its
+        ``vessel_damage`` events and the blood film over ``dt`` [s]
+        (:meth:`BloodFilm.update`)."""
+        if self.mesh.outgrown:
+            self.mesh = self.mesh.rebuilt()
+        self.blood.update(events, state, data, time, dt, self.mesh)
+
     def _adapt_exposure(self, near: float) -> float:
         """The exposure of this frame with automatic exposure: ``exposure`` × (the
         depth of the nearest :data:`EXPOSURE_QUANTILE` of the image /
@@ -251,6 +264,7 @@ class Renderer:
             mesh.positions,
             mesh.normals,
             mesh.char,
+            mesh.blood,
             triangles,
             int(count[None]),
             cam.eye,

@@ -107,7 +107,8 @@ class ArrayMesh:
     per vertex), ``texcoord`` (vec3 per vertex [m]: where the surface detail is
     evaluated, its rest position, so that the detail moves with the tissue; default
     ``positions`` as given), ``char`` (per vertex, 0 fresh to 1 charred; zeros unless
-    its owner writes it), ``triangles`` (flat, 3 per triangle), ``triangle_material``
+    its owner writes it), ``blood`` (per vertex, the thickness of the blood film on it
+    [m]; zeros unless a :class:`~taichi_lap.render.blood.BloodFilm` writes it), ``triangles`` (flat, 3 per triangle), ``triangle_material``
     and ``triangle_object`` (per triangle), and the material table ``albedo``,
     ``roughness``, ``metalness``, ``mucus`` and the detail's ``mottling``, ``vessels``,
     ``bump``, ``scale``. Normals of the first
@@ -143,6 +144,7 @@ class ArrayMesh:
             ti.f32, vertex_count, vector=3, values=positions if texcoords is None else texcoords
         )
         self.char = group.field(ti.f32, vertex_count)
+        self.blood = group.field(ti.f32, vertex_count)
         self.triangles = group.field(ti.i32, 3 * self.triangle_count, values=triangles.reshape(-1))
         self.triangle_material = group.field(ti.i32, self.triangle_count, values=triangle_material)
         self.triangle_object = group.field(
@@ -356,9 +358,12 @@ class SceneMesh(ArrayMesh):
 
     def rebuilt(self) -> SceneMesh:
         """A new mesh of the scene and model as they are now, at this mesh's tube
-        settings; this one is closed."""
+        settings and with its blood film; this one is closed."""
         mesh = SceneMesh(self.scene, self.model, **self._tube_options)
         mesh.tube_epsilon, mesh.tube_level = self.tube_epsilon, self.tube_level
+        film = mesh.blood.to_numpy()  # the blood on the surface stays where it was
+        film[: self.surface_count] = self.blood.to_numpy()[: self.surface_count]
+        mesh.blood.from_numpy(film)
         self.close()
         return mesh
 

@@ -67,6 +67,15 @@ CHAR_ROUGHNESS = 0.7
 """Roughness of fully charred tissue: dry and rough, with the mucus film gone; chosen
 by eye like :data:`CHAR_ALBEDO`."""
 
+BLOOD_ALBEDO = (0.28, 0.012, 0.01)
+"""Linear RGB albedo of a blood film thick enough to hide the tissue: the dark red of
+fresh blood on tissue in endoscopic video (chosen by eye, not measured)."""
+BLOOD_ROUGHNESS = 0.15
+"""Roughness of blood: a wet, glossy liquid, under a full mucus-like film."""
+BLOOD_FILM = 1e-4
+"""[m] the film thickness over which blood hides the tissue by a factor e: coverage
+1 - exp(-thickness / BLOOD_FILM)."""
+
 
 def material_table(materials: list[Material]) -> dict[str, np.ndarray]:
     """Per-material arrays for upload: ``albedo`` (M, 3), ``roughness``,

@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from taichi_lap.core.bleeding import blood_lost
 from taichi_lap.replay import Recording
 from taichi_lap.training.task import judge_task, recorded_task
 
@@ -77,6 +78,7 @@ class SessionMetrics:
     duration: float  # [s] simulated time the frames span
     instruments: dict[str, InstrumentMetrics]
     events: dict[str, int]  # count per event kind
+    blood_lost: float  # [ml] bled by the end from each vessel damage (core.bleeding)
     stages: dict[str, dict[str, float]]  # per stage: mean, median, p95 [ms]
     # series for the plots, not in the JSON numbers
     frame_time: np.ndarray = field(repr=False)
@@ -101,6 +103,7 @@ class SessionMetrics:
             "duration": self.duration,
             "instruments": {name: asdict(m) for name, m in self.instruments.items()},
             "events": self.events,
+            "blood_lost": self.blood_lost,
             "stages": self.stages,
             "task": self.task,
         }
@@ -303,6 +306,8 @@ def session_metrics(recording: Recording) -> SessionMetrics:
         duration=duration,
         instruments=instruments,
         events=events,
+        blood_lost=1e6
+        * blood_lost([e["time"] for e in timeline if e["kind"] == "vessel_damage"], end_time),
         stages=stages,
         frame_time=time,
         tips=tips,

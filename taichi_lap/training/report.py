@@ -120,6 +120,7 @@ def _session_section(number: int, m: SessionMetrics) -> list[str]:
         ("status", status),
         ("frames", str(m.frames)),
         ("duration [s]", f"{m.duration:.2f}"),
+        ("blood lost [ml]", f"{m.blood_lost:.1f}"),
     ]
     parts = [f"<h2>Session {number}: {html.escape(m.scene)}</h2>", _table(None, rows)]
     parts += _task_section(m.task)
