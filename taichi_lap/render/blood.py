@@ -1,6 +1,6 @@
 """The blood film drawn on the tissue (kernels in ``taichi_lap.kernels.blood``): each
-vessel damage starts a bleed at the damaged vessel, which follows the vessel's nearest
-particle as the tissue moves; every stepped frame each bleed pours its flow
+vessel damage starts a bleed where the tissue around the damaged vessel is open
+(:meth:`BloodFilm._outlet`), which follows the tissue as it moves; every stepped frame each bleed pours its flow
 (:func:`~taichi_lap.core.bleeding.bleed_rate`) onto the surface around it and the film
 drains one step downhill. The film is the drawn mesh's ``blood`` (thickness [m] per
 surface vertex), which the G-buffer interpolates and the shading draws as wet, dark
@@ -39,18 +39,11 @@ class BloodFilm:
 
     def update(self, events: list[dict], state, data, time: float, dt: float, mesh):
         """After a stepped frame ending at ``time`` [s]: a bleed for each new
-        ``vessel_damage`` event (at the particle of its vessel nearest its position,
-        ``data`` the model's :class:`~taichi_lap.core.topology.ModelData`), then each
-        bleed's flow over ``dt`` [s] poured onto ``mesh``'s surface and one drainage
-        step."""
-        damaged = [e for e in events if e["kind"] == "vessel_damage"]
-        if damaged:
-            x = state.x.to_numpy()
-            organs = {organ.name: organ.particles for organ in data.organs}
-            for event in damaged:
-                first, end = organs[event["vessel"]]
-                gap = np.linalg.norm(x[first:end] - np.asarray(event["position"]), axis=1)
-                self.bleeds.append((first + int(np.argmin(gap)), time))
+        ``vessel_damage`` event (at its outlet, :meth:`_outlet`; ``data`` the model's
+        :class:`~taichi_lap.core.topology.ModelData`), then each bleed's flow over
+        ``dt`` [s] poured onto ``mesh``'s surface and one drainage step."""
+        for event in (e for e in events if e["kind"] == "vessel_damage"):
+            self.bleeds.append((self._outlet(event, state, data, mesh), time))
         if not self.bleeds:
             return
         count = mesh.smooth_count
@@ -64,6 +57,21 @@ class BloodFilm:
         film_shares(*args, BLOOD_SPEED * dt, FILM_RESIDUE, mesh.blood, share)
         drain(*args, share, mesh.blood, drained)
         mesh.blood.copy_from(drained)
+
+    @staticmethod
+    def _outlet(event: dict, state, data, mesh) -> int:
+        """The particle a new bleed follows: the blood leaves the damaged vessel where
+        the tissue around it is open, so it pours onto the drawn surface nearest the
+        damage that is not the vessel's own (a wound's floor, the tissue under the
+        vessel), and follows the particle of the other organs nearest that point."""
+        vessel = next(o for o in data.organs if o.name == event["vessel"])
+        surface = mesh.positions.to_numpy()[: mesh.smooth_count]
+        gap = np.linalg.norm(surface - np.asarray(event["position"]), axis=1)
+        gap[vessel.surface_vertices[0] : vessel.surface_vertices[1]] = np.inf
+        pour = surface[int(np.argmin(gap))]
+        reach = np.linalg.norm(state.x.to_numpy() - pour, axis=1)
+        reach[vessel.particles[0] : vessel.particles[1]] = np.inf
+        return int(np.argmin(reach))
 
     def _fields(self, mesh):
         """The per-vertex scratch of ``mesh`` (made again for a new mesh)."""
