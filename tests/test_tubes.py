@@ -248,9 +248,41 @@ def test_unused_capacity_is_degenerate_padding():
     mesh, _, _ = tessellate([p], [np.full(40, 0.01)], epsilon=0.0, level=3)
     _, out, (v, n, i) = tessellate([p[:20]], [np.full(20, 0.01)], epsilon=0.5, level=1)
     nv, nt = len(out["vertices"]), len(out["triangles"])
-    assert nt == 2 * (nv // SIDES - 1) * SIDES and 0 < nt < mesh.triangle_capacity
-    assert np.all(i[nt:] == 0) and not np.any(v[nv:]) and not np.any(n[nv:])
+    assert nt == 2 * (nv // SIDES - 1) * SIDES and 0 < nt < mesh.cap_triangle_start
+    rings_v, rings_t = slice(nv, mesh.cap_vertex_start), slice(nt, mesh.cap_triangle_start)
+    assert np.all(i[rings_t] == 0) and not np.any(v[rings_v]) and not np.any(n[rings_v])
     assert out["triangles"].min() == 0 and out["triangles"].max() == nv - 1
+
+
+def test_each_tube_is_closed_by_its_rounded_end_caps():
+    """With its two caps a tube is a closed surface (every edge in exactly two
+    triangles); each cap is a half sphere of the end ring's radius about the end ring's
+    centre, its pole one radius beyond the end along the tube; the caps of the tube
+    slots left empty are zero vertices and degenerate triangles."""
+    from taichi_lap.kernels.generalized_cylinder import CAP_RINGS
+
+    p = helix(n=30)
+    mesh, out, (v, n, i) = tessellate([p], [np.full(len(p), 0.01)])
+    nt, per_cap = len(out["triangles"]), (CAP_RINGS - 1) * SIDES + 1
+    cap_triangles = (2 * CAP_RINGS - 1) * SIDES
+    start = mesh.cap_triangle_start
+    closed = np.concatenate([out["triangles"], i[start : start + 2 * cap_triangles]])
+    edges = np.sort(closed[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, uses = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(uses == 2)
+    assert np.all(i[start + 2 * cap_triangles :] == 0)
+    assert not np.any(v[mesh.cap_vertex_start + 2 * per_cap :])
+    rings = len(out["vertices"]) // SIDES
+    for end, ring in ((0, 0), (1, rings - 1)):
+        centre = mesh.ring_center.to_numpy()[ring]
+        axis = mesh.ring_center_rate.to_numpy()[ring]
+        axis *= (2 * end - 1) / np.linalg.norm(axis)
+        first = mesh.cap_vertex_start + end * per_cap
+        cap = v[first : first + per_cap]
+        assert np.allclose(np.linalg.norm(cap - centre, axis=1), 0.01, rtol=1e-3)
+        assert np.allclose(cap[-1], centre + 0.01 * axis, atol=1e-5)
+        normals = n[first : first + per_cap]
+        assert np.allclose(normals, (cap - centre) / 0.01, atol=1e-3)
 
 
 def test_packed_tubes_match_tubes_drawn_alone():

@@ -16,10 +16,12 @@ Output layout: vertex ``vertex_offset + ring * sides + side``; triangle ``k`` at
 ``indices[index_offset + 3 k : index_offset + 3 k + 3]`` (absolute vertex indices,
 counter-clockwise seen from outside). Rings of all tubes are packed in tube order, so
 the live triangles are the first ``live_triangle_count`` of the region and the live
-vertices the first ``live_vertex_count``. The rest of the fixed region
-(``vertex_capacity`` vertices, ``triangle_capacity`` triangles) is padding: zero
+vertices the first ``live_vertex_count``. The rest of the rings' region
+(``cap_vertex_start`` vertices, ``cap_triangle_start`` triangles) is padding: zero
 vertices and normals, degenerate triangles (three equal indices) that a rasterizer
-skips. Padding is rewritten only where the previous call had live data.
+skips; it is rewritten only where the previous call had live data. After it, each tube
+slot has two rounded end caps (``cap_tubes``), so a tube is a closed surface; the caps
+of absent tubes are padding too.
 """
 
 from __future__ import annotations
@@ -63,8 +65,13 @@ class TubeMesh:
         self.sides, self.max_level, self.tension = int(sides), int(max_level), float(tension)
         bands = 2 ** (max_level + 1) - 1
         self.ring_capacity = 3 * bands * (self.point_capacity - 1) + 1
-        self.vertex_capacity = self.sides * self.ring_capacity
-        self.triangle_capacity = 2 * self.sides * (self.ring_capacity - 1)
+        self.cap_vertex_start = self.sides * self.ring_capacity
+        self.cap_triangle_start = 2 * self.sides * (self.ring_capacity - 1)
+        caps = 2 * self.tube_capacity
+        self.vertex_capacity = self.cap_vertex_start + caps * ((gc.CAP_RINGS - 1) * self.sides + 1)
+        self.triangle_capacity = (
+            self.cap_triangle_start + caps * (2 * gc.CAP_RINGS - 1) * self.sides
+        )
         samples = 3 * self.point_capacity
         g = FieldGroup()
         f32, i32 = ti.f32, ti.i32
@@ -145,7 +152,7 @@ class TubeMesh:
             raise ValueError("output fields too small for the tube capacity at these offsets")
         output = (id(vertices), id(normals), id(indices), vertex_offset, index_offset)
         if output != self._output:  # a new region: pad all of it once
-            self.padded_vertex_end[None] = self.vertex_capacity
+            self.padded_vertex_end[None] = self.cap_vertex_start
             self.padded_band_end[None] = self.ring_capacity - 1
             self._output = output
         gc.sample_tubes(self, points, radius, tube_range, tube_count, float(epsilon), level)
@@ -159,6 +166,19 @@ class TubeMesh:
             texcoords,
             vertex_offset,
             index_offset,
+            float(spacing),
+        )
+        gc.cap_tubes(
+            self,
+            tube_count,
+            vertices,
+            normals,
+            indices,
+            texcoords,
+            vertex_offset,
+            index_offset,
+            vertex_offset + self.cap_vertex_start,
+            index_offset + 3 * self.cap_triangle_start,
             float(spacing),
         )
 
