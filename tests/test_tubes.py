@@ -350,18 +350,22 @@ def test_two_runs_are_identical():
 
 
 def vulkan_case(level=2):
-    """Live output for a wiggle and a bend (run on CPU and on Vulkan)."""
-    _, out, _ = tessellate(
+    """Live output for a wiggle and a bend, and their end caps (run on CPU and on
+    Vulkan)."""
+    mesh, out, (vertices, normals, _) = tessellate(
         [wiggle(50, seed=7), bend(120.0, 0.03, 6)],
         [np.full(50, 0.02), np.full(13, 0.03)],
         0.1,
         level,
     )
-    return out
+    caps = slice(mesh.cap_vertex_start, None)
+    return dict(out, cap_vertices=vertices[caps], cap_normals=normals[caps])
 
 
 @pytest.mark.vulkan
 def test_vulkan_matches_cpu():
     # unit normals: CUDA's fused multiply-adds left them 2.5e-5 from the CPU's (an H100)
-    cpu = assert_backend_matches_cpu("tests.test_tubes:vulkan_case", 1e-5, {"normals": 1e-4})
+    cpu = assert_backend_matches_cpu(
+        "tests.test_tubes:vulkan_case", 1e-5, {"normals": 1e-4, "cap_normals": 1e-4}
+    )
     assert len(cpu["triangles"]) > 1000
