@@ -41,6 +41,9 @@ GUARD_BAND = float(2**20)  # [px] from the image centre
 VISIBILITY_CLEAR = 2**63 - 1  # no fragment: larger than every key
 BACKGROUND_DEPTH = 1.0e30  # [m], finite so fast-math arithmetic on it stays defined
 INF_BITS = 0x7F800000  # f32 bits of +inf
+SAME_SURFACE = 1e-3
+"""A triangle a bent ray crosses this fraction farther than its pixel's triangle's
+plane continues that surface (a neighbour across a shared edge), not one behind it."""
 PIXEL_ITEMS = 2**31 - 1  # most box pixels per frame on the by-pixel path
 
 
@@ -379,6 +382,47 @@ def rasterize_visibility_by_pixel(
             ti.atomic_min(visibility[x, y], key)
 
 
+@ti.func
+def _visible(visibility: ti.template(), pixel):
+    """The triangle the visibility buffer holds at ``pixel`` (ivec2), -1 for none or
+    outside the image."""
+    width, height = ti.static(visibility.shape)
+    triangle = -1
+    if 0 <= pixel[0] < width and 0 <= pixel[1] < height:
+        key = visibility[pixel[0], pixel[1]]
+        if key != ti.i64(VISIBILITY_CLEAR):
+            triangle = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
+    return triangle
+
+
+@ti.func
+def _ray_barycentrics(positions: ti.template(), triangles: ti.template(), eye, ray, triangle):
+    """(u, v, t): where the ray from ``eye`` along unit ``ray`` meets the plane of
+    ``triangle`` (Möller-Trumbore in f32, vertices taken relative to the eye), as the
+    weights of its second and third corners and the distance t [m]; (1/3, 1/3, inf)
+    when parallel or no triangle."""
+    u, v, t = 1.0 / 3.0, 1.0 / 3.0, BACKGROUND_DEPTH
+    if triangle >= 0:
+        first = 3 * triangle
+        v0 = positions[triangles[first]] - eye
+        e1 = positions[triangles[first + 1]] - eye - v0
+        e2 = positions[triangles[first + 2]] - eye - v0
+        p = ray.cross(e2)
+        det = e1.dot(p)
+        if ti.abs(det) > 1e-30:
+            q = v0.cross(e1)  # (origin - v0) x e1 with the origin at the eye
+            u = -v0.dot(p) / det
+            v = -ray.dot(q) / det
+            t = -e2.dot(q) / det
+    return u, v, t
+
+
+@ti.func
+def _inside(u, v):
+    """Whether barycentric weights (u, v) lie on their triangle."""
+    return u >= 0.0 and v >= 0.0 and u + v <= 1.0
+
+
 @ti.kernel
 def resolve_gbuffer(
     positions: ti.template(),
@@ -389,6 +433,7 @@ def resolve_gbuffer(
     visibility: ti.template(),
     eye: ti.math.vec3,
     view_projection: ti.math.mat4,
+    distortion: ti.f32,
     gbuffer_depth: ti.template(),
     gbuffer_position: ti.template(),
     gbuffer_normal: ti.template(),
@@ -396,9 +441,16 @@ def resolve_gbuffer(
     gbuffer_blood: ti.template(),
     gbuffer_triangle: ti.template(),
 ):
-    """Per pixel: the winning triangle t of ``visibility`` (or background), intersected
-    with the ray from ``eye`` [m] through the pixel centre (Möller-Trumbore in f32,
-    vertices taken relative to the eye; barycentrics clamped to [0, 1] and
+    """Per pixel: the ray of the laparoscope's wide-angle lens through the pixel centre
+    (one-term radial barrel distortion, Brown 1966: the pixel at radius r, in
+    half-diagonals from the centre, looks along the rectilinear ray at r (1 +
+    ``distortion`` r²), scaled so that the middles of the left and right edges keep
+    their rays; 0: none), the winning triangle t of ``visibility`` at the pixel that ray
+    crosses (or background, also past the image at the corners; through a lens, when
+    the ray misses t, the nearest triangle of the four pixel centres around that point
+    that it crosses, unless it lies behind t's plane: a silhouette keeps what is in
+    front), intersected with the ray from ``eye`` [m] (:func:`_ray_barycentrics`;
+    barycentrics clamped to [0, 1] and
     renormalised, so slivers and edge-on hits stay on the triangle). Writes
     ``gbuffer_depth`` = |hit - eye| [m] (BACKGROUND_DEPTH if none), ``gbuffer_position``
     = hit [m] (0), ``gbuffer_normal`` = the barycentric mix of ``normals``, normalised
@@ -409,30 +461,41 @@ def resolve_gbuffer(
     clip planes x = ndc_x w and y = ndc_y w, pointing to increasing w."""
     width, height = ti.static(visibility.shape)
     row_x, row_y, row_w = view_projection[0, :], view_projection[1, :], view_projection[3, :]
+    half = ti.Vector([0.5 * width, 0.5 * height])
+    edge = half[0] / half.norm()
+    keep_edges = 1.0 / (1.0 + distortion * edge * edge)
     for x, y in visibility:
-        key = visibility[x, y]
-        triangle, depth = -1, BACKGROUND_DEPTH
+        ndc = ti.Vector([(x + 0.5) / half[0] - 1.0, (y + 0.5) / half[1] - 1.0])
+        ndc *= keep_edges * (1.0 + distortion * (ndc * half).norm_sqr() / half.norm_sqr())
+        source = (ndc + 1.0) * half  # where the ray crosses the rectilinear image [px]
+        nearest = ti.cast(ti.floor(source), ti.i32)
+        triangle = _visible(visibility, nearest)
+        plane_x, plane_y = row_x - ndc[0] * row_w, row_y - ndc[1] * row_w
+        ray = plane_x.xyz.cross(plane_y.xyz).normalized()
+        if ray.dot(row_w.xyz) < 0.0:
+            ray = -ray
+        u, v, reach = _ray_barycentrics(positions, triangles, eye, ray, triangle)
+        seen = 0.0 <= source[0] < width and 0.0 <= source[1] < height
+        if distortion != 0.0 and seen and (triangle < 0 or not _inside(u, v)):
+            # a bent ray need not cross the triangle at its pixel's centre: the nearest
+            # triangle of the four centres around it that it crosses, not behind the
+            # first one's plane (so a silhouette keeps what is in front of it)
+            corner = ti.cast(ti.floor(source - 0.5), ti.i32)
+            nearest_hit = reach * (1.0 + SAME_SURFACE) if reach > 0.0 else BACKGROUND_DEPTH
+            for k in ti.static(range(4)):
+                other = _visible(visibility, corner + ti.Vector([k % 2, k // 2]))
+                if other >= 0:
+                    ou, ov, hit_at = _ray_barycentrics(positions, triangles, eye, ray, other)
+                    if _inside(ou, ov) and 0.0 < hit_at < nearest_hit:
+                        triangle, u, v, nearest_hit = other, ou, ov, hit_at
+        depth = BACKGROUND_DEPTH
         position, normal = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
         charred, bloody = 0.0, 0.0
-        if key != ti.i64(VISIBILITY_CLEAR):
-            triangle = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
-            ndc_x = (x + 0.5) * (2.0 / width) - 1.0
-            ndc_y = (y + 0.5) * (2.0 / height) - 1.0
-            plane_x, plane_y = row_x - ndc_x * row_w, row_y - ndc_y * row_w
-            ray = plane_x.xyz.cross(plane_y.xyz).normalized()
-            if ray.dot(row_w.xyz) < 0.0:
-                ray = -ray
+        if triangle >= 0:
             first = 3 * triangle
             i0, i1, i2 = triangles[first], triangles[first + 1], triangles[first + 2]
             v0, v1, v2 = positions[i0] - eye, positions[i1] - eye, positions[i2] - eye
             e1, e2 = v1 - v0, v2 - v0
-            p = ray.cross(e2)
-            det = e1.dot(p)
-            u, v = 1.0 / 3.0, 1.0 / 3.0
-            if ti.abs(det) > 1e-30:
-                q = v0.cross(e1)  # (origin - v0) x e1 with the origin at the eye
-                u = -v0.dot(p) / det
-                v = -ray.dot(q) / det
             b0 = ti.math.clamp(1.0 - u - v, 0.0, 1.0)
             b1, b2 = ti.math.clamp(u, 0.0, 1.0), ti.math.clamp(v, 0.0, 1.0)
             total = b0 + b1 + b2
@@ -492,12 +555,14 @@ class GBuffer:
         eye,
         view_projection,
         near: float,
+        distortion: float = 0.0,
     ) -> None:
         """Rasterize ``triangle_count`` triangles of ``positions`` [m] (flat vertex ids in
         ``triangles``) seen from ``eye`` [m] through ``view_projection`` (4x4, see
         :func:`camera_matrices`), clipped at view depth ``near`` [m], and resolve the
-        G-buffer, interpolating the vertex ``normals``, ``char`` and ``blood``. Two
-        kernel launches."""
+        G-buffer through a lens of barrel ``distortion`` (:func:`resolve_gbuffer`),
+        interpolating the vertex ``normals``, ``char`` and ``blood``. Two kernel
+        launches."""
         if not near > 0.0:
             raise ValueError(f"near must be > 0, got {near}")
         matrix = np.asarray(view_projection, dtype=np.float32)
@@ -520,6 +585,7 @@ class GBuffer:
             self.visibility,
             np.asarray(eye, np.float32),
             matrix,
+            float(distortion),
             self.depth,
             self.position,
             self.normal,

@@ -123,6 +123,15 @@ def filled(gbuffer: ti.template(), materials: ti.template(), x, y):
     return result
 
 
+@ti.func
+def edge_distance2(x, y, frame: ti.template()):
+    """r² of pixel (x, y): its squared distance from the image's centre in
+    half-diagonals."""
+    width, height = ti.static(frame.shape)
+    half = ti.Vector([0.5 * width, 0.5 * height])
+    return (ti.Vector([x + 0.5, y + 0.5]) - half).norm_sqr() / half.norm_sqr()
+
+
 @ti.kernel
 def fill_checkerboard(gbuffer: ti.template(), materials: ti.template(), frame: ti.template()):
     """Checkerboard shading's second half: each pixel :func:`filled` takes the mean of
@@ -153,7 +162,9 @@ def shade(
     headlight [W/sr], its cone ``cos_inner``/``cos_outer``, ``ambient`` (IBL
     scale), ``exposure``, ``far`` [m] for the depth view, ``smoke`` [1/m] (the density
     of cautery smoke in front of the scope: a pixel at distance d is veiled by
-    1 - exp(-smoke d) of SMOKE_RADIANCE) and ``background``. The
+    1 - exp(-smoke d) of SMOKE_RADIANCE), ``vignetting`` v (the shaded colour falls
+    by 1 - v r² towards the corners, r the radius in half-diagonals: the laparoscope's
+    lens, its distortion being the G-buffer's) and ``background``. The
     material of a pixel with char c is blended towards the charred wound: albedo to
     CHAR_ALBEDO and roughness to CHAR_ROUGHNESS by c, the mucus film scaled by
     1 - c (the wound is dry), metalness kept; then towards blood (BLOOD_ALBEDO,
@@ -201,6 +212,7 @@ def shade(
                 lit = (direct + light.ambient[None] * ambient) * light.exposure[None]
                 haze = 1.0 - ti.exp(-light.smoke[None] * distance)  # Beer-Lambert
                 colour = tone_map(ti.math.mix(lit, ti.Vector(SMOKE_RADIANCE), haze))
+                colour *= ti.max(1.0 - light.vignetting[None] * edge_distance2(x, y, frame), 0.0)
             elif view == 1:
                 colour = albedo
             elif view == 2:
@@ -246,35 +258,6 @@ def depth_histogram(gbuffer: ti.template(), counts: ti.template(), near: ti.f32)
             octave = ti.log(ti.max(gbuffer.depth[x, y], near) / near) / ti.log(2.0)
             k = ti.min(ti.cast(octave * DEPTH_BINS_PER_OCTAVE, ti.i32), DEPTH_BINS - 1)
             ti.atomic_add(counts[k], 1)
-
-
-@ti.kernel
-def lens(shaded: ti.template(), frame: ti.template(), distortion: ti.f32, vignetting: ti.f32):
-    """A laparoscope's optics on the ``shaded`` image, into ``frame`` (both ``(width,
-    height)``). Barrel distortion by the one-term radial model (Brown 1966): the pixel
-    at radius r, in half-diagonals from the centre, shows what the rectilinear image
-    holds at r (1 + ``distortion`` r²), scaled so that the middles of the left and right
-    edges stay where they are, bilinearly sampled (past its edge, at the corners:
-    black, the dark rim of the scope's round image); then vignetting, the light falling to
-    1 - ``vignetting`` at the corners as (1 - vignetting r²)."""
-    width, height = ti.static(shaded.shape)
-    half = ti.Vector([0.5 * width, 0.5 * height])
-    diagonal = half.norm()
-    edge = half[0] / diagonal
-    scale = 1.0 / (1.0 + distortion * edge * edge)
-    for x, y in frame:
-        d = (ti.Vector([x + 0.5, y + 0.5]) - half) / diagonal
-        r2 = d.dot(d)
-        source = half + d * (scale * (1.0 + distortion * r2)) * diagonal - 0.5
-        colour = ti.Vector([0.0, 0.0, 0.0])
-        if 0.0 <= source[0] <= width - 1.0 and 0.0 <= source[1] <= height - 1.0:
-            i = ti.min(ti.cast(ti.floor(source), ti.i32), ti.Vector([width - 2, height - 2]))
-            i = ti.max(i, 0)
-            f = source - ti.cast(i, ti.f32)
-            lower = ti.math.mix(shaded[i[0], i[1]], shaded[i[0] + 1, i[1]], f[0])
-            upper = ti.math.mix(shaded[i[0], i[1] + 1], shaded[i[0] + 1, i[1] + 1], f[0])
-            colour = ti.math.mix(lower, upper, f[1])
-        frame[x, y] = colour * ti.max(1.0 - vignetting * r2, 0.0)
 
 
 MARK_COLOUR = (0.1, 0.8, 0.45)  # the planned line's green, as a surgical marker's

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import taichi as ti
 import trimesh
-from taichi_lap.kernels.shading import filled, lens, srgb_encode
+from taichi_lap.kernels.shading import filled, srgb_encode
 
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.renderer import Renderer
@@ -287,32 +287,37 @@ def test_surface_detail_moves_with_the_tissue_not_with_space():
     assert np.abs(swum - still)[both].mean() > 10.0 * np.abs(moved - still)[both].mean() + 0.005
 
 
-def test_the_lens_distorts_radially_and_darkens_the_corners():
-    """:func:`lens` on an image holding each pixel's own coordinates (bilinear
-    sampling reproduces them exactly): a pixel at radius r (of the half-diagonal)
-    shows the source at r (1 + k r²), scaled to keep the middles of the side edges;
-    past the source's edge it is black; vignetting alone scales the image by
-    1 - v r²."""
-    width, height = 64, 48
-    shaded = ti.Vector.field(3, ti.f32, (width, height))
-    frame = ti.Vector.field(3, ti.f32, (width, height))
+def test_the_lens_bends_each_pixels_ray_radially_and_darkens_the_corners():
+    """Through the lens (G-buffer resolve), the pixel at radius r (of the half-diagonal)
+    shows the point of a wall facing the scope that the rectilinear ray at r (1 + k r²)
+    meets, scaled to keep the middles of the side edges; at the corners, past the
+    rectilinear image, nothing; vignetting alone scales the shaded image by 1 - v r²."""
+    width, height, fov, k = 64, 48, 60.0, 0.1
+    wall = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    mesh = ArrayMesh.of_material(
+        np.array([[0, 1, 2], [0, 2, 3]]), wall.astype(np.float32), PRESETS["liver"]
+    )
+    renderer = Renderer(mesh, head_on(np.array([0.0, 0.0, 0.1]), fov), size=(width, height))
+    renderer.distortion = k
+    renderer.render(None, None)
     x, y = np.meshgrid(np.arange(width), np.arange(height), indexing="ij")
-    shaded.from_numpy(np.stack([x, y, np.ones_like(x)], -1).astype(np.float32))
-    half, diagonal = np.array([width, height]) / 2.0, np.hypot(width, height) / 2.0
-    d = (np.stack([x, y], -1) + 0.5 - half) / diagonal
-    r2 = (d**2).sum(-1)
-    k = 0.1
-    lens(shaded, frame, k, 0.0)
-    out = frame.to_numpy()
-    scale = 1.0 / (1.0 + k * (half[0] / diagonal) ** 2)
-    source = half + d * (scale * (1.0 + k * r2))[..., None] * diagonal - 0.5
-    inside = (source >= 0).all(-1) & (source <= [width - 1, height - 1]).all(-1)
+    half = np.array([width, height]) / 2.0
+    ndc = (np.stack([x, y], -1) + 0.5) / half - 1.0
+    r2 = ((ndc * half) ** 2).sum(-1) / (half**2).sum()
+    scale = 1.0 / (1.0 + k * (half[0] ** 2 / (half**2).sum()))
+    bent = ndc * (scale * (1.0 + k * r2))[..., None]
+    inside = (np.abs(bent) < 1.0).all(-1)
     assert inside.mean() > 0.9 and not inside.all()
-    assert np.allclose(out[inside][:, :2], source[inside], atol=2e-3)
-    assert (out[~inside] == 0).all()
-    lens(shaded, frame, 0.0, 0.35)
-    expected = shaded.to_numpy() * (1.0 - 0.35 * r2)[..., None]
-    assert np.allclose(frame.to_numpy(), expected, atol=1e-4)
+    reach = 0.1 * np.tan(np.radians(fov / 2.0)) * np.array([width / height, 1.0])
+    shown = renderer.gbuffer.position.to_numpy()[..., :2]
+    assert np.allclose(shown[inside], (bent * reach)[inside], atol=1e-6)
+    assert (renderer.gbuffer.triangle.to_numpy()[~inside] == -1).all()
+    renderer.distortion = 0.0
+    renderer.render(None, None)
+    plain = renderer.frame.to_numpy()
+    renderer.vignetting = 0.35
+    renderer.render(None, None)
+    assert np.allclose(renderer.frame.to_numpy(), plain * (1.0 - 0.35 * r2)[..., None], atol=1e-6)
 
 
 def test_cautery_smoke_thickens_to_its_balance_thins_by_half_and_veils_the_view():

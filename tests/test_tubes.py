@@ -263,7 +263,7 @@ def test_each_tube_is_closed_by_its_rounded_end_caps():
 
     p = helix(n=30)
     mesh, out, (v, n, i) = tessellate([p], [np.full(len(p), 0.01)])
-    nt, per_cap = len(out["triangles"]), (CAP_RINGS - 1) * SIDES + 1
+    per_cap = (CAP_RINGS - 1) * SIDES + 1
     cap_triangles = (2 * CAP_RINGS - 1) * SIDES
     start = mesh.cap_triangle_start
     closed = np.concatenate([out["triangles"], i[start : start + 2 * cap_triangles]])

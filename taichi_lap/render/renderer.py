@@ -25,7 +25,6 @@ from taichi_lap.kernels.shading import (
     DEPTH_BINS_PER_OCTAVE,
     depth_histogram,
     fill_checkerboard,
-    lens,
     mark_plane,
     shade,
 )
@@ -60,7 +59,8 @@ SMOKE_MAX = 8.0
 class ShadingParams:
     """0-D fields the shading kernel reads: the camera (``eye``, ``forward`` [m]),
     the headlight (``intensity`` [W/sr], cone cosines), IBL scale ``ambient``,
-    ``exposure``, ``far`` [m], the ``smoke`` density [1/m] and the ``background``
+    ``exposure``, ``far`` [m], the ``smoke`` density [1/m], the lens's ``vignetting``
+    and the ``background``
     colour."""
 
     def __init__(self):
@@ -68,7 +68,16 @@ class ShadingParams:
         self.eye = group.field(ti.f32, None, vector=3)
         self.forward = group.field(ti.f32, None, vector=3)
         self.background = group.field(ti.f32, None, vector=3)
-        for name in ("intensity", "cos_inner", "cos_outer", "ambient", "exposure", "far", "smoke"):
+        for name in (
+            "intensity",
+            "cos_inner",
+            "cos_outer",
+            "ambient",
+            "exposure",
+            "far",
+            "smoke",
+            "vignetting",
+        ):
             setattr(self, name, group.field(ti.f32, None))
         group.finalize()
 
@@ -111,7 +120,6 @@ class Renderer:
         self._adapted = None  # the exposure automatic exposure reached (None: none yet)
         self._depths = ti.field(ti.i32, DEPTH_BINS) if auto_exposure else None
         self.distortion, self.vignetting = distortion, vignetting  # the lens (0 0: none)
-        self._shaded = None  # the image before the lens, made at its first use
         self.params.background[None] = BACKGROUND
         self.checkerboard = checkerboard  # shade half the smooth pixels, fill the rest
         self.blood = BloodFilm(gravity)  # bleeds of damaged vessels, drawn on the surface
@@ -173,6 +181,7 @@ class Renderer:
             cam.eye,
             self._matrix,
             cam.near,
+            self.distortion,
         )
         ti.sync()
         marks.append(time.perf_counter())
@@ -180,22 +189,21 @@ class Renderer:
         self.params.forward[None] = cam.axes()[0]
         self.params.far[None] = cam.far
         self.params.smoke[None] = self.smoke
+        self.params.vignetting[None] = self.vignetting
         if self.auto_exposure:
             self.params.exposure[None] = self._adapt_exposure(cam.near)
-        optics = self.view == 0 and (self.distortion > 0.0 or self.vignetting > 0.0)
-        if optics and self._shaded is None:
-            self._shaded = ti.Vector.field(3, ti.f32, (self.width, self.height))
-        shaded = self._shaded if optics else self.frame
         checkerboard = self.checkerboard and self.view == 0
-        shade(self.gbuffer, self.mesh, self.lighting, self.params, shaded, self.view, checkerboard)
+        shade(
+            self.gbuffer, self.mesh, self.lighting, self.params, self.frame, self.view, checkerboard
+        )
         if checkerboard:
-            fill_checkerboard(self.gbuffer, self.mesh, shaded)
+            fill_checkerboard(self.gbuffer, self.mesh, self.frame)
         if self.planned is not None and self.view == 0:
             organ, plane = self.planned
             mark_plane(
                 self.gbuffer,
                 self.mesh,
-                shaded,
+                self.frame,
                 organ,
                 plane.point,
                 plane.normal,
@@ -203,8 +211,6 @@ class Renderer:
                 plane.along,
                 plane.length,
             )
-        if optics:
-            lens(shaded, self.frame, self.distortion, self.vignetting)
         ti.sync()
         marks.append(time.perf_counter())
         for name, a, b in zip(("vertex", "visibility", "shading"), marks, marks[1:]):
@@ -270,6 +276,7 @@ class Renderer:
             cam.eye,
             self._matrix,
             cam.near,
+            self.distortion,
         )
         shown = int(count_object_pixels(self.gbuffer.triangle, mesh.triangle_object, target)[0])
         unhidden = int(count_object_pixels(alone.triangle, mesh.triangle_object, -1)[1])
