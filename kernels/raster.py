@@ -465,17 +465,22 @@ def resolve_gbuffer(
     edge = half[0] / half.norm()
     keep_edges = 1.0 / (1.0 + distortion * edge * edge)
     for x, y in visibility:
-        ndc = ti.Vector([(x + 0.5) / half[0] - 1.0, (y + 0.5) / half[1] - 1.0])
-        ndc *= keep_edges * (1.0 + distortion * (ndc * half).norm_sqr() / half.norm_sqr())
-        source = (ndc + 1.0) * half  # where the ray crosses the rectilinear image [px]
-        nearest = ti.cast(ti.floor(source), ti.i32)
-        triangle = _visible(visibility, nearest)
-        plane_x, plane_y = row_x - ndc[0] * row_w, row_y - ndc[1] * row_w
-        ray = plane_x.xyz.cross(plane_y.xyz).normalized()
-        if ray.dot(row_w.xyz) < 0.0:
-            ray = -ray
-        u, v, reach = _ray_barycentrics(positions, triangles, eye, ray, triangle)
-        seen = 0.0 <= source[0] < width and 0.0 <= source[1] < height
+        ndc = ti.Vector([(x + 0.5) * (2.0 / width) - 1.0, (y + 0.5) * (2.0 / height) - 1.0])
+        triangle, seen = _visible(visibility, ti.Vector([x, y])), True
+        source = ti.Vector([x + 0.5, y + 0.5])  # where the ray crosses the rectilinear image
+        if distortion != 0.0:
+            ndc *= keep_edges * (1.0 + distortion * (ndc * half).norm_sqr() / half.norm_sqr())
+            source = (ndc + 1.0) * half
+            seen = 0.0 <= source[0] < width and 0.0 <= source[1] < height
+            triangle = _visible(visibility, ti.cast(ti.floor(source), ti.i32))
+        ray = ti.Vector([0.0, 0.0, 1.0])
+        u, v, reach = 1.0 / 3.0, 1.0 / 3.0, BACKGROUND_DEPTH
+        if triangle >= 0 or (distortion != 0.0 and seen):
+            plane_x, plane_y = row_x - ndc[0] * row_w, row_y - ndc[1] * row_w
+            ray = plane_x.xyz.cross(plane_y.xyz).normalized()
+            if ray.dot(row_w.xyz) < 0.0:
+                ray = -ray
+            u, v, reach = _ray_barycentrics(positions, triangles, eye, ray, triangle)
         if distortion != 0.0 and seen and (triangle < 0 or not _inside(u, v)):
             # a bent ray need not cross the triangle at its pixel's centre: the nearest
             # triangle of the four centres around it that it crosses, not behind the
