@@ -276,12 +276,15 @@ def mark_plane(
     start: ti.types.vector(3, ti.f32),
     along: ti.types.vector(3, ti.f32),
     length: ti.f32,
+    smoke: ti.f32,
 ):
     """Draw a task's planned transection on the tissue (``[task.plane]``): the pixels
     of ``organ`` (object index) whose surface point lies within MARK_HALF_WIDTH [m] of
     the plane through ``point`` with unit ``normal``, beside the planned line (from
     ``start`` along unit ``along``, ``length`` [m]), dashed every MARK_DASH, are
-    blended towards MARK_COLOUR. It follows the tissue as it deforms and is cut."""
+    blended towards MARK_COLOUR, the less the thicker the cautery ``smoke`` [1/m]
+    between it and the scope (by exp(-smoke depth), as :func:`shade` veils the tissue).
+    It follows the tissue as it deforms and is cut."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
         if triangle >= 0 and materials.triangle_object[triangle] == organ:
@@ -289,4 +292,5 @@ def mark_plane(
             s = (p - start).dot(along)
             on_plane = ti.abs((p - point).dot(normal)) < MARK_HALF_WIDTH
             if on_plane and 0.0 <= s <= length and ti.math.mod(s, MARK_DASH) < 0.6 * MARK_DASH:
-                frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75)
+                clear = ti.exp(-smoke * gbuffer.depth[x, y])  # what the smoke lets through
+                frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75 * clear)

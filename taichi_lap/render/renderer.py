@@ -210,6 +210,7 @@ class Renderer:
                 plane.start,
                 plane.along,
                 plane.length,
+                self.smoke,
             )
         ti.sync()
         marks.append(time.perf_counter())
