@@ -43,6 +43,19 @@ def bleed(
 
 
 @ti.func
+def _edge_end(triangles: ti.template(), incident: ti.template(), v, k, c):
+    """The far end of an edge vertex v enumerates: corner c of its k-th incident
+    triangle, or -1 where that is v itself or the row has no k-th triangle."""
+    end = -1
+    t = incident[v, k]
+    if t >= 0:
+        end = triangles[3 * t + c]
+        if end == v:
+            end = -1
+    return end
+
+
+@ti.func
 def _slope(positions: ti.template(), u, v, down):
     """The slope w(u -> v) = max(0, down · ê) of edge u -> v (0 if degenerate)."""
     edge = positions[v] - positions[u]
@@ -67,16 +80,14 @@ def film_shares(
     for v in range(count):
         edges, length, steepest, total = 0, 0.0, 0.0, 0.0
         for k in range(incident.shape[1]):
-            t = incident[v, k]
-            if t >= 0:
-                for c in ti.static(range(3)):
-                    n = triangles[3 * t + c]
-                    if n != v:
-                        slope = _slope(positions, v, n, down)
-                        edges += 1
-                        length += (positions[n] - positions[v]).norm()
-                        steepest = ti.max(steepest, slope)
-                        total += slope
+            for c in ti.static(range(3)):
+                n = _edge_end(triangles, incident, v, k, c)
+                if n >= 0:
+                    slope = _slope(positions, v, n, down)
+                    edges += 1
+                    length += (positions[n] - positions[v]).norm()
+                    steepest = ti.max(steepest, slope)
+                    total += slope
         result = 0.0
         if total > 0.0:
             runs_off = ti.min(1.0, reach * steepest * edges / length)
@@ -100,11 +111,9 @@ def drain(
     for v in range(count):
         sent, taken = 0.0, 0.0
         for k in range(incident.shape[1]):
-            t = incident[v, k]
-            if t >= 0:
-                for c in ti.static(range(3)):
-                    n = triangles[3 * t + c]
-                    if n != v:
-                        sent += share[v] * _slope(positions, v, n, down)
-                        taken += share[n] * _slope(positions, n, v, down)
+            for c in ti.static(range(3)):
+                n = _edge_end(triangles, incident, v, k, c)
+                if n >= 0:
+                    sent += share[v] * _slope(positions, v, n, down)
+                    taken += share[n] * _slope(positions, n, v, down)
         drained[v] = film[v] - sent + taken

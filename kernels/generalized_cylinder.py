@@ -324,6 +324,36 @@ def clear_plane(q, own, other, clearance):
     return q
 
 
+CAP_RINGS = 3
+"""Rings of a tube's rounded end cap, the pole included: at 30°, 60° and 90° of the
+quarter circle from the end ring to the pole."""
+
+
+@ti.func
+def cap_vertex(tubes: ti.template(), t, end, k, spacing):
+    """Vertex k of the cap at ``end`` (0: first ring, 1: last) of live tube t: (position,
+    normal, texcoord). Ring i = k // sides + 1 of the quarter circle (the pole at i =
+    CAP_RINGS) lies at angle θ = i · 90° / CAP_RINGS: centre + cos θ q(φ) + sin θ r
+    (outward axis), q the end ring's own radius vector, the normal the sphere's; the
+    texcoord continues the tube's (the distance along the axis, then the ring's)."""
+    g = tubes.tube_ring_base[t] if end == 0 else tubes.tube_ring_base[t + 1] - 1
+    outward = tubes.ring_center_rate[g].normalized(1e-30) * (2.0 * end - 1.0)
+    ring = ti.min(k // tubes.sides + 1, CAP_RINGS)
+    theta = (0.5 * math.pi / CAP_RINGS) * ring
+    phi = (2.0 * math.pi / tubes.sides) * (k - (ring - 1) * tubes.sides)
+    radius = tubes.ring_radius[g]
+    q = ti.cos(phi) * tubes.ring_a[g] + ti.sin(phi) * tubes.ring_b[g]
+    across = ti.cos(theta) * q + ti.sin(theta) * radius * outward
+    texcoord = ti.Vector(
+        [
+            spacing * tubes.ring_param[g] + (2.0 * end - 1.0) * radius * ti.sin(theta),
+            radius * ti.cos(theta) * ti.cos(phi),
+            radius * ti.cos(theta) * ti.sin(phi),
+        ]
+    )
+    return tubes.ring_center[g] + across, across.normalized(1e-30), texcoord
+
+
 @ti.kernel
 def skin_tubes(
     tubes: ti.template(),
@@ -335,9 +365,17 @@ def skin_tubes(
     texcoords: ti.template(),
     vertex_offset: ti.i32,
     index_offset: ti.i32,
+    cap_vertex_offset: ti.i32,
+    cap_index_offset: ti.i32,
     spacing: ti.f32,
 ):
-    """Eq. 1, 13, 14 and the plane clearance, after sample_tubes with the same level.
+    """Eq. 1, 13, 14 and the plane clearance, after sample_tubes with the same level;
+    then both ends of every live tube (at least one ring) closed with a rounded cap
+    (:func:`cap_vertex`): per tube and end, (CAP_RINGS - 1) sides + 1 vertices from
+    ``cap_vertex_offset`` and (2 CAP_RINGS - 1) sides triangles from
+    ``cap_index_offset`` (absolute offsets), the first band stitched to the end ring's
+    vertices; the caps of tubes beyond ``tube_count`` or without rings are zero
+    vertices and degenerate triangles.
 
     Writes vertices [m], normals and texcoords (where the surface detail is evaluated:
     (spacing × the point parameter along the tube, the ring's radius × (cos φ, sin φ))
@@ -422,59 +460,7 @@ def skin_tubes(
             corners = ti.Vector([a, a_next, b, a_next, b_next, b])
         for k in ti.static(range(6)):
             indices[index_offset + 6 * slot + k] = corners[k]
-
-
-CAP_RINGS = 3
-"""Rings of a tube's rounded end cap, the pole included: at 30°, 60° and 90° of the
-quarter circle from the end ring to the pole."""
-
-
-@ti.func
-def cap_vertex(tubes: ti.template(), t, end, k, spacing):
-    """Vertex k of the cap at ``end`` (0: first ring, 1: last) of live tube t: (position,
-    normal, texcoord). Ring i = k // sides + 1 of the quarter circle (the pole at i =
-    CAP_RINGS) lies at angle θ = i · 90° / CAP_RINGS: centre + cos θ q(φ) + sin θ r
-    (outward axis), q the end ring's own radius vector, the normal the sphere's; the
-    texcoord continues the tube's (the distance along the axis, then the ring's)."""
-    g = tubes.tube_ring_base[t] if end == 0 else tubes.tube_ring_base[t + 1] - 1
-    outward = tubes.ring_center_rate[g].normalized(1e-30) * (2.0 * end - 1.0)
-    ring = ti.min(k // tubes.sides + 1, CAP_RINGS)
-    theta = (0.5 * math.pi / CAP_RINGS) * ring
-    phi = (2.0 * math.pi / tubes.sides) * (k - (ring - 1) * tubes.sides)
-    radius = tubes.ring_radius[g]
-    q = ti.cos(phi) * tubes.ring_a[g] + ti.sin(phi) * tubes.ring_b[g]
-    across = ti.cos(theta) * q + ti.sin(theta) * radius * outward
-    texcoord = ti.Vector(
-        [
-            spacing * tubes.ring_param[g] + (2.0 * end - 1.0) * radius * ti.sin(theta),
-            radius * ti.cos(theta) * ti.cos(phi),
-            radius * ti.cos(theta) * ti.sin(phi),
-        ]
-    )
-    return tubes.ring_center[g] + across, across.normalized(1e-30), texcoord
-
-
-@ti.kernel
-def cap_tubes(
-    tubes: ti.template(),
-    tube_count: ti.i32,
-    vertices: ti.template(),
-    normals: ti.template(),
-    indices: ti.template(),
-    texcoords: ti.template(),
-    vertex_offset: ti.i32,
-    index_offset: ti.i32,
-    cap_vertex_offset: ti.i32,
-    cap_index_offset: ti.i32,
-    spacing: ti.f32,
-):
-    """Close both ends of every live tube (at least one ring) with a rounded cap
-    (:func:`cap_vertex`), after :func:`skin_tubes`: per tube and end, (CAP_RINGS - 1)
-    sides + 1 vertices from ``cap_vertex_offset`` and (2 CAP_RINGS - 1) sides triangles
-    from ``cap_index_offset`` (absolute offsets), the first band stitched to the end
-    ring's vertices. The caps of tubes beyond ``tube_count`` or without rings are zero
-    vertices and degenerate triangles."""
-    sides = tubes.sides
+    sides = tubes.sides  # the rounded end caps (cap_vertex)
     per_cap = (CAP_RINGS - 1) * sides + 1
     triangles_per_cap = (2 * CAP_RINGS - 1) * sides
     for slot in range(2 * tubes.tube_capacity * per_cap):

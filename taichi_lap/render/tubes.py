@@ -20,8 +20,8 @@ vertices the first ``live_vertex_count``. The rest of the rings' region
 (``cap_vertex_start`` vertices, ``cap_triangle_start`` triangles) is padding: zero
 vertices and normals, degenerate triangles (three equal indices) that a rasterizer
 skips; it is rewritten only where the previous call had live data. After it, each tube
-slot has two rounded end caps (``cap_tubes``), so a tube is a closed surface; the caps
-of absent tubes are padding too.
+slot has two rounded end caps, so a tube is a closed surface; the caps
+of absent tubes are padding too (all written by ``skin_tubes``).
 """
 
 from __future__ import annotations
@@ -160,17 +160,6 @@ class TubeMesh:
             self,
             tube_count,
             level,
-            vertices,
-            normals,
-            indices,
-            texcoords,
-            vertex_offset,
-            index_offset,
-            float(spacing),
-        )
-        gc.cap_tubes(
-            self,
-            tube_count,
             vertices,
             normals,
             indices,
