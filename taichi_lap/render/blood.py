@@ -1,8 +1,8 @@
 """The blood film drawn on the tissue (kernels in ``taichi_lap.kernels.blood``): each
 vessel damage starts a bleed where the tissue around the damaged vessel is open
-(:meth:`BloodFilm._outlet`), which follows the tissue as it moves; every stepped frame each bleed pours its flow
-(:func:`~taichi_lap.core.bleeding.bleed_rate`) onto the surface around it and the film
-drains one step downhill. The film is the drawn mesh's ``blood`` (thickness [m] per
+(:meth:`BloodFilm._outlet`), which follows the tissue as it moves; every stepped
+frame each bleed pours its flow (:func:`~taichi_lap.core.bleeding.bleed_rate`) onto
+the surface around it and the film drains one step downhill. The film is the drawn mesh's ``blood`` (thickness [m] per
 surface vertex), which the G-buffer interpolates and the shading draws as wet, dark
 red blood."""
 

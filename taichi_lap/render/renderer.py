@@ -60,8 +60,7 @@ class ShadingParams:
     """0-D fields the shading kernel reads: the camera (``eye``, ``forward`` [m]),
     the headlight (``intensity`` [W/sr], cone cosines), IBL scale ``ambient``,
     ``exposure``, ``far`` [m], the ``smoke`` density [1/m], the lens's ``vignetting``
-    and the ``background``
-    colour."""
+    and the ``background`` colour."""
 
     def __init__(self):
         group = FieldGroup()

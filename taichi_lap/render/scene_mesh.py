@@ -108,11 +108,11 @@ class ArrayMesh:
     evaluated, its rest position, so that the detail moves with the tissue; default
     ``positions`` as given), ``char`` (per vertex, 0 fresh to 1 charred; zeros unless
     its owner writes it), ``blood`` (per vertex, the thickness of the blood film on it
-    [m]; zeros unless a :class:`~taichi_lap.render.blood.BloodFilm` writes it), ``triangles`` (flat, 3 per triangle), ``triangle_material``
-    and ``triangle_object`` (per triangle), and the material table ``albedo``,
-    ``roughness``, ``metalness``, ``mucus`` and the detail's ``mottling``, ``vessels``,
-    ``bump``, ``scale``. Normals of the first
-    ``smooth_count`` vertices are gathered from their triangles (the rows of
+    [m]; zeros unless a :class:`~taichi_lap.render.blood.BloodFilm` writes it),
+    ``triangles`` (flat, 3 per triangle), ``triangle_material`` and ``triangle_object``
+    (per triangle), and the material table ``albedo``, ``roughness``, ``metalness``,
+    ``mucus`` and the detail's ``mottling``, ``vessels``, ``bump``, ``scale``. Normals
+    of the first ``smooth_count`` vertices are gathered from their triangles (the rows of
     ``incident``, a field of :func:`~taichi_lap.core.mesh.incident_table`, built
     from ``triangles`` when not given) by :meth:`update`; the others are written by
     whoever places them. A mesh of fixed arrays never outgrows its fields
