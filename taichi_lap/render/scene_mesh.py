@@ -215,7 +215,7 @@ class SceneMesh(ArrayMesh):
         materials = [organ_material(specs[o.name]) for o in data.organs] + [PRESETS[INSTRUMENT]]
         environment = environment_arrays(scene)
         materials += environment["materials"]
-        self.model, self._version = model, model.topology_version
+        self.model = model
         self._charred = False  # whether the surfaces' char may be non-zero
         self.surface_count = model.surface_vertex_count
         surface_triangles = model.surface_triangles.to_numpy()
@@ -258,12 +258,6 @@ class SceneMesh(ArrayMesh):
             base += fine[0] * fine[1]
         membrane_triangles = np.concatenate(membrane_triangles or [np.zeros((0, 3), np.int32)])
         membrane_material = np.concatenate(membrane_material or [np.zeros(0, np.int32)])
-        membrane_organ = np.array([bool(o.row_length) for o in data.organs])
-        surface_triangles = np.where(  # a sheet's grid is drawn as its membrane instead
-            membrane_organ[surface_material][:, None],
-            surface_triangles[:, :1],
-            surface_triangles,
-        )
         environment_object = (
             environment["piece_object"][environment["piece"]] + len(data.organs) + len(scene.tools)
         )
@@ -309,19 +303,6 @@ class SceneMesh(ArrayMesh):
                 rows = target.to_numpy()
                 rows[base:] = environment[values]
                 target.from_numpy(rows)
-        surface_texcoords(model, self.texcoord)
-        for first, rows, cols, offset in self.membranes:  # through the rest positions
-            membrane_vertices(
-                self.texcoord,
-                first,
-                rows,
-                cols,
-                MEMBRANE_ACROSS,
-                MEMBRANE_ALONG,
-                self.texcoord,
-                self.normals,
-                offset,
-            )
 
         group = FieldGroup()
         self.tool_position = group.field(
@@ -331,6 +312,7 @@ class SceneMesh(ArrayMesh):
             ti.f32, self.instrument_count, vector=3, values=tools["normal"]
         )
         self.vertex_tool = group.field(ti.i32, self.instrument_count, values=tools["tool"])
+        membrane_organ = np.array([bool(o.row_length) for o in data.organs], np.int32)
         self.membrane_organ = group.field(ti.i32, len(data.organs), values=membrane_organ)
         self.tube_fields = []  # per tube: (source, points, radius, range) fields
         self.tube_spacing = []  # per tube: its points' mean rest distance [m]
@@ -350,6 +332,7 @@ class SceneMesh(ArrayMesh):
             )
         group.finalize()
         self._group = group
+        self._follow_topology()
 
     @property
     def outgrown(self) -> bool:
@@ -372,21 +355,44 @@ class SceneMesh(ArrayMesh):
         self._group.close()
         super().close()
 
+    def _follow_topology(self):
+        """The model's surface triangles (a sheet's grid left degenerate: it is drawn
+        as its membrane) and the texcoords of the surfaces and membranes, as the model's
+        topology is now."""
+        copy_surface_triangles(
+            self.model,
+            self.membrane_organ,
+            self.triangles,
+            self.triangle_material,
+            self.triangle_object,
+        )
+        surface_texcoords(self.model, self.texcoord)
+        self._draw_membranes(self.texcoord, self.texcoord)  # through the rest positions
+        self._version = self.model.topology_version
+
+    def _draw_membranes(self, points, positions):
+        """Each membrane through its sheet's rows of ``points`` (per surface vertex) into
+        its rows of ``positions``, with its normals (:func:`membrane_vertices`)."""
+        for first, rows, cols, offset in self.membranes:
+            membrane_vertices(
+                points,
+                first,
+                rows,
+                cols,
+                MEMBRANE_ACROSS,
+                MEMBRANE_ALONG,
+                positions,
+                self.normals,
+                offset,
+            )
+
     def update(self, state, control, peak=None):
         """Deformed surfaces with gathered normals, instruments at their poses,
         tubes re-tessellated; the surfaces' triangles again after a dissection. The
         surfaces' char from ``peak``, the particles' peak temperatures [°C]
         (:func:`~taichi_lap.kernels.draw_mesh.surface_char`), or zero when None."""
         if self._version != self.model.topology_version:
-            copy_surface_triangles(
-                self.model,
-                self.membrane_organ,
-                self.triangles,
-                self.triangle_material,
-                self.triangle_object,
-            )
-            surface_texcoords(self.model, self.texcoord)
-            self._version = self.model.topology_version
+            self._follow_topology()
         copy_surface(state.surface_position, self.surface_count, self.positions)
         if peak is not None:
             surface_char(self.model, peak, self.char)
@@ -395,18 +401,7 @@ class SceneMesh(ArrayMesh):
             self.char.fill(0.0)
             self._charred = False
         super().update()
-        for first, rows, cols, offset in self.membranes:
-            membrane_vertices(
-                state.surface_position,
-                first,
-                rows,
-                cols,
-                MEMBRANE_ACROSS,
-                MEMBRANE_ALONG,
-                self.positions,
-                self.normals,
-                offset,
-            )
+        self._draw_membranes(state.surface_position, self.positions)
         if self.instrument_count:
             place_instruments(
                 self.tool_position,
