@@ -440,13 +440,16 @@ class OpenHapticsDevice(HapticDevice):
         return errors
 
     def _stop_force_output(self, reason: str):
-        """Zero force and disable force output (servo thread), then record ``reason``."""
+        """Zero force and disable force output (servo thread), then log and record ``reason``.
+
+        The log record is written before ``fault`` is set, so whoever sees the fault
+        also finds it in the log."""
         self._safety.fault()
         self._lib.hd.hdMakeCurrentDevice(self.handle)
         self._lib.hd.hdDisable(HD_FORCE_OUTPUT)
         if self.fault is None:
-            self.fault = reason
             log.error("%r: force output stopped: %s", self, reason)
+            self.fault = reason
 
     def close(self):
         """Zero the force, stop servicing the device and release it (idempotent)."""
