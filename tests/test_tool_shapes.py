@@ -18,7 +18,7 @@ from taichi_lap.core.instruments import (
 )
 from taichi_lap.render.instruments import instrument_mesh
 from taichi_lap.sim import Control
-from taichi_lap.sim.control import frame_towards
+from taichi_lap.core.frames import frame_towards, turned_about_axis, twist
 
 RADIUS, LENGTH, JAW = 0.003, 0.05, 0.012
 SHAPES = (
@@ -114,3 +114,42 @@ def test_a_tool_turned_every_frame_keeps_an_orthonormal_frame_and_its_roll():
         np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
         assert np.linalg.det(frame) == pytest.approx(1.0)
         np.testing.assert_allclose(frame[:, 2], direction / np.linalg.norm(direction), atol=1e-12)
+
+
+def test_twist_is_the_turn_about_the_new_shaft_after_the_smallest_swing():
+    """For random frames and random turns up to 2 rad between them:
+    turned_about_axis(frame_towards(a, b's shaft), twist(a, b)) is b, and a pure
+    turn about the shaft is its own twist."""
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        a = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        a[:, 0] *= np.sign(np.linalg.det(a))  # right-handed
+        axis = rng.normal(size=3)
+        angle = rng.uniform(0.0, 2.0)
+        k = axis / np.linalg.norm(axis)
+        cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        b = (np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross) @ a
+        turned = turned_about_axis(frame_towards(a, b[:, 2]), twist(a, b))
+        np.testing.assert_allclose(turned, b, atol=1e-10)
+        roll = rng.uniform(-3.0, 3.0)
+        assert twist(a, turned_about_axis(a, roll)) == pytest.approx(roll, abs=1e-12)
+
+
+def test_a_rolled_tool_frame_is_the_unrolled_one_turned_by_the_roll():
+    """Control.set_tool along a path of shaft directions, once with a roll that
+    grows past 2π and once without: each frame is the other turned about the shaft
+    by the roll (the roll adds to the frame the path gives, it never drifts), and
+    the tool's shapes follow the rolled frame."""
+    plain, rolled = Control(), Control()
+    tip = np.zeros(3)
+    for k in range(120):
+        angle = 0.8 * np.sin(k * 0.05)
+        direction = np.array([np.sin(angle), np.cos(angle), 0.3 * np.sin(2 * angle)])
+        roll = 0.07 * k
+        plain.set_tool(0, tip, tip + 0.3 * direction, 0.005)
+        rolled.set_tool(0, tip, tip + 0.3 * direction, 0.005, roll=roll)
+        np.testing.assert_allclose(
+            rolled.frames[0], turned_about_axis(plain.frames[0], roll), atol=1e-9
+        )
+    np.testing.assert_allclose(rolled.tool_frame.to_numpy()[0], rolled.frames[0], atol=1e-6)
+    assert rolled.rolls[0] == pytest.approx(0.07 * 119)

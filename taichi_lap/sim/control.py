@@ -18,6 +18,7 @@ import taichi as ti
 
 from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner
+from taichi_lap.core.frames import frame_towards, turned_about_axis
 from taichi_lap.core.instruments import (
     JAW_RADIUS,
     MAX_TOOL_SHAPES,
@@ -28,35 +29,6 @@ from taichi_lap.core.instruments import (
 )
 from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.kernels.collision.tool_shapes import ToolPose, interpolate_tools, place_tool
-
-
-def frame_towards(frame: np.ndarray, direction) -> np.ndarray:
-    """``frame`` (3×3, columns) turned by the smallest rotation that takes its third
-    column onto the unit ``direction``, so a tool's roll does not jump as it turns;
-    the result is made orthonormal again (a tool turned every frame would otherwise
-    gather rounding errors that grow with each turn)."""
-    d = np.asarray(direction, dtype=np.float64)
-    d = d / np.linalg.norm(d)
-    z = frame[:, 2] / np.linalg.norm(frame[:, 2])
-    axis = np.cross(z, d)
-    s, c = np.linalg.norm(axis), float(np.dot(z, d))
-    if s < 1e-12:
-        if c > 0.0:
-            return orthonormal(frame)
-        return orthonormal(frame @ np.diag([1.0, -1.0, -1.0]))  # half turn about x
-    k = axis / s
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    rotation = np.eye(3) + s * cross + (1.0 - c) * cross @ cross
-    return orthonormal(rotation @ frame)
-
-
-def orthonormal(frame: np.ndarray) -> np.ndarray:
-    """The right-handed orthonormal frame nearest ``frame``'s third column and, in the
-    plane across it, its first (Gram-Schmidt from the third column)."""
-    z = frame[:, 2] / np.linalg.norm(frame[:, 2])
-    x = frame[:, 0] - np.dot(frame[:, 0], z) * z
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
 
 
 def shape_rows(shapes) -> tuple[np.ndarray, ...]:
@@ -78,7 +50,8 @@ class Control(FieldOwner):
     tip-to-handle); the shape table (``shape_kind``, ``shape_a``, ``shape_b``,
     ``shape_size``, :data:`MAX_TOOL_SHAPES` rows per tool, in the tool frame) and
     ``tool_reach`` [m], how far from the tip the shapes placed in the frame reach; per
-    tool on the Python side ``tips`` [m] and ``frames`` (as last placed), ``grasp``
+    tool on the Python side ``tips`` [m], ``frames`` and ``rolls`` [rad] (as last
+    placed), ``grasp``
     (jaws closed) and ``jaw_length`` [m]. Every tool
     starts as jaws and shaft (the jaws are nothing while ``tool_jaw_radius`` is 0).
 
@@ -115,6 +88,7 @@ class Control(FieldOwner):
         group.finalize()
         self._group = group
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
+        self.rolls = [0.0] * MAX_TOOLS
         self.tips = [np.zeros(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
         self.jaw_length = [0.0] * MAX_TOOLS
@@ -130,16 +104,21 @@ class Control(FieldOwner):
         *,
         grasp: bool = False,
         jaw_length: float = 0.0,
+        roll: float = 0.0,
     ):
         """Place tool ``index`` as a capsule from ``tip`` to ``tail`` [m]; its frame is
-        the previous one turned onto the new axis (the roll follows from the path of
-        the axis alone, so a replayed run rebuilds it). Jaws of ``jaw_length`` [m] (0:
-        none) collide as a capsule ahead of the tip; ``grasp`` closes them."""
+        the previous one turned onto the new axis, then about it by how much ``roll``
+        [rad] changed since the last placement (the frame follows from the path of the
+        axis and the roll alone, so a replayed run rebuilds it). Jaws of
+        ``jaw_length`` [m] (0: none) collide as a capsule ahead of the tip; ``grasp``
+        closes them."""
         if not 0 <= index < MAX_TOOLS:
             raise IndexError(f"tool index {index} outside 0..{MAX_TOOLS - 1}")
         tip, tail = np.asarray(tip, dtype=np.float64), np.asarray(tail, dtype=np.float64)
         if np.linalg.norm(tail - tip) > 0.0:
             self.frames[index] = frame_towards(self.frames[index], tail - tip)
+        self.frames[index] = turned_about_axis(self.frames[index], roll - self.rolls[index])
+        self.rolls[index] = float(roll)
         frame = self.frames[index]
         self.tips[index] = tip
         place_tool(
@@ -185,6 +164,7 @@ class Control(FieldOwner):
         closed one's Control gets only its own scene's tools)."""
         self.tool_active.fill(0)
         self.frames = [np.eye(3) for _ in range(MAX_TOOLS)]
+        self.rolls = [0.0] * MAX_TOOLS
         self.tips = [np.zeros(3) for _ in range(MAX_TOOLS)]
         self.grasp = [False] * MAX_TOOLS
         self._jump = [True] * MAX_TOOLS
