@@ -1,8 +1,8 @@
 """Input devices that place the instruments: scripted keyframes and the mouse
 (a recorded session is fed back by :class:`taichi_lap.replay.ReplayDevice`).
 
-A device gives, for each tool it drives, a pose: the tip position [m] and the
-direction from the tip towards the handle; a device with buttons also gives
+A device gives, for each tool it drives, a pose: the tip position [m], the
+direction from the tip towards the handle and the roll about that axis [rad]; a device with buttons also gives
 ``buttons(time)``, a bitmask per tool (bit k set while button k+1 is pressed).
 :func:`apply_poses` turns poses into the capsules of
 :class:`~taichi_lap.sim.control.Control`; button 1 (``GRASP_BUTTON``) closes a
@@ -16,10 +16,11 @@ Script files (``--device script:PATH``) are TOML::
     tool = "probe"        # a tool of the scene
     tip = [0.0, 0.1, 0.0] # m
     direction = [0, 1, 0] # optional, kept from the previous keyframe
+    roll = 90.0           # degrees about the shaft, optional, kept (0 at first)
     grasp = true          # optional: jaws closed from here on (kept; open at first)
     cautery = true        # optional: hook energised from here on (kept; off at first)
 
-Between keyframes the tip moves linearly; after the last it stays. The jaws and the
+Between keyframes the tip and the roll move linearly; after the last they stay. The jaws and the
 hook's current change at a keyframe's time.
 """
 
@@ -40,10 +41,14 @@ from taichi_lap.sim.control import Control
 
 @dataclass
 class Pose:
-    """Tool tip [m] and unit direction towards the handle."""
+    """Tool tip [m], unit direction towards the handle and roll [rad]: the tool's
+    turn about that axis (right-handed), unwrapped (a device that turns the tool
+    round twice gives 4π); :meth:`Control.set_tool` turns the tool's frame by how
+    much it changed."""
 
     tip: np.ndarray
     direction: np.ndarray
+    roll: float = 0.0
 
 
 class ScriptedDevice:
@@ -84,16 +89,16 @@ class ScriptedDevice:
 
     def duration(self) -> float:
         """Time [s] of the last keyframe of any tool."""
-        return max(track[-1][0] for track in self.keyframes.values())
+        return max(track[-1].time for track in self.keyframes.values())
 
     def _after(self, track, time: float) -> int:
         """How many keyframes of ``track`` lie at or before ``time``."""
-        return int(np.searchsorted([frame[0] for frame in track], time, side="right"))
+        return int(np.searchsorted([frame.time for frame in track], time, side="right"))
 
     def buttons(self, time: float) -> dict[str, int]:
         """Per tool the buttons of the last keyframe at or before ``time``."""
         return {
-            name: track[max(self._after(track, time) - 1, 0)][3]
+            name: track[max(self._after(track, time) - 1, 0)].buttons
             for name, track in self.keyframes.items()
         }
 
@@ -101,27 +106,31 @@ class ScriptedDevice:
         out = {}
         for name, track in self.keyframes.items():
             k = self._after(track, time)
-            if k == 0:
-                _, tip, direction, _ = track[0]
-            elif k == len(track):
-                _, tip, direction, _ = track[-1]
-            else:
-                (t0, a0, d0, _), (t1, a1, d1, _) = track[k - 1], track[k]
-                s = (time - t0) / (t1 - t0) if t1 > t0 else 1.0
-                tip, direction = a0 + s * (a1 - a0), unit(d0 + s * (d1 - d0))
-            out[name] = Pose(tip=tip, direction=direction)
+            if k in (0, len(track)):
+                key = track[min(k, len(track) - 1)]
+                out[name] = Pose(key.tip, key.direction, key.roll)
+                continue
+            a, b = track[k - 1], track[k]
+            s = (time - a.time) / (b.time - a.time) if b.time > a.time else 1.0
+            out[name] = Pose(
+                a.tip + s * (b.tip - a.tip),
+                unit(a.direction + s * (b.direction - a.direction)),
+                a.roll + s * (b.roll - a.roll),
+            )
         return out
 
 
 class MouseDevice:
     """Moves one tool in the camera's image plane with the cursor while the left
-    button is held; ``q`` / ``e`` push and pull it along the view direction; ``g``
+    button is held; ``q`` / ``e`` push and pull it along the view direction; ``z`` /
+    ``x`` roll it about its shaft (to orient a hook's or the scissors' blades); ``g``
     closes or opens a grasper's jaws; a hook is energised while ``c`` is held."""
 
-    def __init__(self, tool: dict, speed: float = 0.1):
+    def __init__(self, tool: dict, speed: float = 0.1, roll_speed: float = np.pi / 2):
         self.name = tool["name"]
         self.pose = Pose(tip=np.asarray(tool["tip"], float), direction=unit(tool["direction"]))
         self.speed = speed  # [m/s] along the view axis
+        self.roll_speed = roll_speed  # [rad/s]
         self.grasp = False
         self.cautery = False
         self._last_cursor = None
@@ -147,6 +156,8 @@ class MouseDevice:
             self.pose.tip = self.pose.tip + forward * self.speed * dt
         if window.is_pressed("e"):
             self.pose.tip = self.pose.tip - forward * self.speed * dt
+        turn = float(window.is_pressed("x")) - float(window.is_pressed("z"))
+        self.pose.roll += turn * self.roll_speed * dt
         self.toggle_grasp(window.is_pressed("g"))
         self.cautery = window.is_pressed("c")
 
@@ -195,6 +206,7 @@ def apply_poses(
             tool["radius"],
             grasp=tool["kind"] == "grasper" and bool(buttons.get(tool["name"], 0) & GRASP_BUTTON),
             jaw_length=tool_geometry(tool).jaw_length,
+            roll=pose.roll,
         )
 
 

@@ -126,5 +126,5 @@ class Viewer:
             renderer.view = gui.slider_int(
                 f"view: {VIEWS[renderer.view]}", renderer.view, 0, len(VIEWS) - 1
             )
-            gui.text("LMB drag: tool, q/e: tool depth, g: grasp, c (held): cautery")
+            gui.text("LMB drag: tool, q/e: tool depth, z/x: roll, g: grasp, c (held): cautery")
             gui.text("RMB drag: turn scope, w/s a/d r/f: move scope")

@@ -1,9 +1,12 @@
-"""The mouse device in a window: drag in the image plane, push along the view, grasp."""
+"""The mouse device in a window (drag in the image plane, push along the view, roll,
+grasp) and a script's roll."""
 
 import numpy as np
+import pytest
 import taichi as ti
 
-from taichi_lap.devices import CAUTERY_BUTTON, GRASP_BUTTON, MouseDevice
+from taichi_lap.core.errors import InputError
+from taichi_lap.devices import CAUTERY_BUTTON, GRASP_BUTTON, MouseDevice, ScriptedDevice
 
 TOOL = {"name": "forceps", "tip": [0.0, 0.05, 0.0], "direction": [0.0, 1.0, 0.0]}
 EYE, TARGET, FOV = [0.0, 0.05, 0.2], [0.0, 0.05, 0.0], 60.0
@@ -65,3 +68,28 @@ def test_key_c_energises_a_hook_while_held():
         mouse.update(window, EYE, TARGET, FOV, 0.016)
         states.append(mouse.buttons(0.0)["forceps"])
     assert states == [0, CAUTERY_BUTTON, CAUTERY_BUTTON | GRASP_BUTTON, GRASP_BUTTON]
+
+
+def test_keys_z_x_roll_the_tool_about_its_shaft_while_held():
+    mouse, window = MouseDevice(TOOL, roll_speed=1.5), FakeWindow()
+    rolls = []
+    for keys, dt in ((set(), 0.1), ({"x"}, 0.5), ({"x"}, 0.25), ({"z"}, 1.0), ({"z", "x"}, 1.0)):
+        window.keys = keys
+        mouse.update(window, EYE, TARGET, FOV, dt)
+        rolls.append(mouse.poses(0.0)["forceps"].roll)
+    np.testing.assert_allclose(rolls, [0.0, 0.75, 1.125, -0.375, -0.375], atol=1e-12)
+
+
+def test_a_script_rolls_a_tool_linearly_between_keyframes_and_keeps_its_roll():
+    frames = [
+        {"time": 0.0, "tool": "forceps", "tip": [0.0, 0.0, 0.0]},
+        {"time": 1.0, "tool": "forceps", "tip": [0.0, 0.0, 0.0], "roll": 90.0},
+        {"time": 2.0, "tool": "forceps", "tip": [0.01, 0.0, 0.0]},  # keeps 90°
+        {"time": 3.0, "tool": "forceps", "tip": [0.01, 0.0, 0.0], "roll": -450.0},
+    ]
+    device = ScriptedDevice.from_tables("script", frames, [TOOL])
+    rolls = [device.poses(t)["forceps"].roll for t in (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 9.0)]
+    expected = np.radians([0.0, 45.0, 90.0, 90.0, 90.0, -180.0, -450.0, -450.0])
+    np.testing.assert_allclose(rolls, expected, atol=1e-12)
+    with pytest.raises(InputError, match=r"keyframe\[0\]\.roll"):
+        ScriptedDevice.from_tables("script", [dict(frames[0], roll="left")], [TOOL])

@@ -1,12 +1,14 @@
 """Tool keyframes, as a scene's inline ``script`` or a script file holds them.
 
 Each keyframe gives a tool's tip [m] at a time [s], optionally its direction from the
-tip towards the handle (kept from the previous keyframe, first from the tool),
-whether a grasper's jaws are closed from then on and whether a hook is energised from
+tip towards the handle (kept from the previous keyframe, first from the tool), its roll
+about that axis [degrees] (kept; 0 at first), whether a grasper's jaws are closed from then on and whether a hook is energised from
 then on (both kept; off at first). The two are the stylus buttons a keyframe holds.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -19,14 +21,30 @@ KEYFRAME_PARAMS = {
     "tool": Param("str", REQUIRED, "name of a tool of the scene"),
     "tip": Param("vec3", REQUIRED, "tip position", lo=-100, hi=100, unit="m"),
     "direction": Param("vec3", None, "from the tip towards the handle", lo=-1e3, hi=1e3),
+    "roll": Param(
+        "float",
+        None,
+        "turn of the tool about its shaft (right-handed)",
+        lo=-1e5,
+        hi=1e5,
+        unit="degrees",
+    ),
     "grasp": Param("bool", None, "a grasper's jaws closed from this keyframe on"),
     "cautery": Param("bool", None, "a hook energised from this keyframe on"),
 }
 BUTTON_KEYS = {"grasp": GRASP_BUTTON, "cautery": CAUTERY_BUTTON}
 """The keyframe keys that hold a button, and its bitmask."""
 
-Keyframe = tuple[float, np.ndarray, np.ndarray, int]
-"""(time [s], tip [m], unit direction, buttons held: a bitmask)."""
+
+class Keyframe(NamedTuple):
+    """A tool's pose at a ``time`` [s]: ``tip`` [m], unit ``direction`` (tip towards
+    handle), ``buttons`` held (a bitmask) and ``roll`` about the shaft [rad]."""
+
+    time: float
+    tip: np.ndarray
+    direction: np.ndarray
+    buttons: int
+    roll: float
 
 
 def unit(v) -> np.ndarray:
@@ -53,19 +71,28 @@ def read_keyframes(source: str, frames: list, tools: list[dict]) -> dict[str, li
                 f"expected, found {frame['tool']!r}",
             )
         track = keyframes.setdefault(frame["tool"], [])
-        if track and frame["time"] < track[-1][0]:
+        if track and frame["time"] < track[-1].time:
             raise InputError(
                 source,
                 f"{key}.time",
                 f"times in increasing order were expected, "
-                f"found {frame['time']} after {track[-1][0]}",
+                f"found {frame['time']} after {track[-1].time}",
             )
         direction = frame["direction"] or (
-            track[-1][2] if track else names[frame["tool"]]["direction"]
+            track[-1].direction if track else names[frame["tool"]]["direction"]
         )
-        buttons = track[-1][3] if track else 0
+        buttons = track[-1].buttons if track else 0
         for name, bit in BUTTON_KEYS.items():
             if frame[name] is not None:
                 buttons = buttons | bit if frame[name] else buttons & ~bit
-        track.append((frame["time"], np.asarray(frame["tip"], float), unit(direction), buttons))
+        roll = np.radians(frame["roll"]) if frame["roll"] is not None else None
+        track.append(
+            Keyframe(
+                frame["time"],
+                np.asarray(frame["tip"], float),
+                unit(direction),
+                buttons,
+                float(roll if roll is not None else track[-1].roll if track else 0.0),
+            )
+        )
     return keyframes
