@@ -1,7 +1,7 @@
 """Session recording and replay: every frame's device input and every simulation
 event, appended to a ``.tlap`` file while the session runs.
 
-File format, version 1 (all numbers little-endian)::
+File format, version 2 (all numbers little-endian)::
 
     header  8 bytes magic 89 54 4C 41 50 0D 0A 1A ("\\x89TLAP\\r\\n\\x1a"), u32 version
     record  u8 tag | u32 length | payload (length bytes) | u32 CRC-32 of tag, length, payload
@@ -12,9 +12,10 @@ tag    record   payload
 ``E``  event    UTF-8 JSON object ``{"kind", "time" [s], "frame", ...fields}``
 ``F``  frame    the device input applied before a step: f64 time [s], u32 frame, f64 clock
                 [s, monotonic], u8 count, then per tool: u8 tool index, f64[3] tip [m],
-                f64[3] direction (tip towards handle), u32 buttons
+                f64[3] direction (tip towards handle), f64 roll [rad], u32 buttons
 ``T``  tick     a haptic servo tick: f64 clock [s, monotonic], u8 count, then per tool:
-                u8 tool index, f32[3] tip [m], f32[3] direction, u32 buttons, f32[3] force [N]
+                u8 tool index, f32[3] tip [m], f32[3] direction, f32 roll [rad], u32
+                buttons, f32[3] force [N]
 ``S``  stats    UTF-8 JSON ``{"time" [s], "frame", "stages": {stage: wall time [ms]},
                 "forces": {tool: [N, N, N]}, "contacts": {tool: {organ: particles}}}``
                 of the frame that just ended (after its frame record and events);
@@ -28,6 +29,9 @@ indices refer to), ``started`` (UTC) and ``clock``. Then ``device`` events, one 
 record before every step, events as they happen (``EVENT_KINDS``), a stats record
 after every frame (stage times and tool forces, for the training metrics), and last
 ``session_end`` with ``status``, ``frames`` and ``checksum`` (:func:`state_checksum`).
+
+Version 1 files (written before the tools had a roll) are read too: their frame and
+tick records lack the roll, which reads as 0.
 
 Why binary records and not JSON lines: a 1 kHz servo tick is 59 bytes here against
 about 150 as JSON; poses are stored as their f64 bits (no decimal round trip), which
@@ -73,15 +77,20 @@ from taichi_lap.devices import Pose, applied_poses
 from taichi_lap.runtime import current_arch
 
 MAGIC = b"\x89TLAP\r\n\x1a"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
 HEADER = struct.Struct("<8sI")  # magic, version
 RECORD_HEAD = struct.Struct("<BI")  # tag, payload length [bytes]
 CRC = struct.Struct("<I")
 TAG_EVENT, TAG_FRAME, TAG_TICK, TAG_STATS = b"E"[0], b"F"[0], b"T"[0], b"S"[0]
 FRAME_HEAD = struct.Struct("<dIdB")  # time [s], frame, clock [s], tool count
-FRAME_TOOL = struct.Struct("<B3d3dI")  # tool index, tip [m], direction, buttons
+FRAME_TOOL = struct.Struct("<B3d3ddI")  # tool index, tip [m], direction, roll [rad], buttons
 TICK_HEAD = struct.Struct("<dB")  # clock [s], tool count
-TICK_TOOL = struct.Struct("<B3f3fI3f")  # tool index, tip [m], direction, buttons, force [N]
+# tool index, tip [m], direction, roll [rad], buttons, force [N]
+TICK_TOOL = struct.Struct("<B3f3ffI3f")
+# the per-tool layouts of version 1 (no roll)
+FRAME_TOOL_V1 = struct.Struct("<B3d3dI")
+TICK_TOOL_V1 = struct.Struct("<B3f3fI3f")
 MAX_PAYLOAD = 1 << 24  # [bytes]; a longer length field is damage
 FSYNC_INTERVAL = 1.0  # [s]
 BUFFER_LIMIT = 1 << 16  # [bytes] of buffered ticks written without a flush call
@@ -163,7 +172,7 @@ def encode_frame(
     buttons = buttons or {}
     payload = FRAME_HEAD.pack(time, frame, clock, len(poses))
     payload += b"".join(
-        FRAME_TOOL.pack(index, *pose.tip, *pose.direction, buttons.get(name, 0))
+        FRAME_TOOL.pack(index, *pose.tip, *pose.direction, pose.roll, buttons.get(name, 0))
         for index, (name, pose) in enumerate(poses.items())
     )
     return encode_record(TAG_FRAME, payload)
@@ -252,7 +261,9 @@ class RecordStream:
         """Buffer a haptic tick: ``clock`` [s] (``time.monotonic()``) and per tool name
         its (pose, buttons, force [N]). The caller flushes when it suits its loop."""
         payload = TICK_HEAD.pack(clock, len(tools)) + b"".join(
-            TICK_TOOL.pack(self.tools.index(name), *pose.tip, *pose.direction, buttons, *force)
+            TICK_TOOL.pack(
+                self.tools.index(name), *pose.tip, *pose.direction, pose.roll, buttons, *force
+            )
             for name, (pose, buttons, force) in tools.items()
         )
         self.append(encode_record(TAG_TICK, payload))

@@ -33,8 +33,10 @@ from taichi_lap.recording import (
     TAG_STATS,
     TAG_TICK,
     TICK_HEAD,
+    FRAME_TOOL_V1,
+    READABLE_VERSIONS,
     TICK_TOOL,
-    VERSION,
+    TICK_TOOL_V1,
     run_settings,
     scene_fingerprint,
     state_checksum,
@@ -197,32 +199,38 @@ class ReplayDevice:
         return self.recording.frames[self._next - 1].buttons
 
 
-def _decode_frame(payload: bytes, tools: list[str]) -> Frame:
+def _decode_frame(payload: bytes, tools: list[str], version: int) -> Frame:
+    layout = FRAME_TOOL if version > 1 else FRAME_TOOL_V1
     _expect_size(payload, FRAME_HEAD.size, "a frame header", at_least=True)
     time, number, clock, count = FRAME_HEAD.unpack_from(payload)
-    _expect_size(payload, FRAME_HEAD.size + count * FRAME_TOOL.size, f"a frame of {count} tools")
+    _expect_size(payload, FRAME_HEAD.size + count * layout.size, f"a frame of {count} tools")
     frame = Frame(time, number, clock, {}, {})
     for k in range(count):
-        index, *values, buttons = FRAME_TOOL.unpack_from(
-            payload, FRAME_HEAD.size + k * FRAME_TOOL.size
-        )
+        index, *values, buttons = layout.unpack_from(payload, FRAME_HEAD.size + k * layout.size)
         name = _tool_name(tools, index)
-        frame.poses[name] = Pose(np.array(values[:3]), np.array(values[3:]))
+        frame.poses[name] = _pose(values, version)
         frame.buttons[name] = buttons
     return frame
 
 
-def _decode_tick(payload: bytes, tools: list[str]) -> Tick:
+def _decode_tick(payload: bytes, tools: list[str], version: int) -> Tick:
+    layout = TICK_TOOL if version > 1 else TICK_TOOL_V1
     _expect_size(payload, TICK_HEAD.size, "a tick header", at_least=True)
     clock, count = TICK_HEAD.unpack_from(payload)
-    _expect_size(payload, TICK_HEAD.size + count * TICK_TOOL.size, f"a tick of {count} tools")
+    _expect_size(payload, TICK_HEAD.size + count * layout.size, f"a tick of {count} tools")
     tick = Tick(clock, {}, {}, {})
     for k in range(count):
-        index, *values = TICK_TOOL.unpack_from(payload, TICK_HEAD.size + k * TICK_TOOL.size)
+        index, *values = layout.unpack_from(payload, TICK_HEAD.size + k * layout.size)
         name = _tool_name(tools, index)
-        tick.poses[name] = Pose(np.array(values[0:3]), np.array(values[3:6]))
-        tick.buttons[name], tick.forces[name] = values[6], np.array(values[7:10])
+        tick.poses[name] = _pose(values, version)
+        tick.buttons[name], tick.forces[name] = values[-4], np.array(values[-3:])
     return tick
+
+
+def _pose(values: list, version: int) -> Pose:
+    """A recorded tool's pose from its tip, direction and (from version 2) roll."""
+    roll = float(values[6]) if version > 1 else 0.0
+    return Pose(np.array(values[0:3]), np.array(values[3:6]), roll)
 
 
 def _decode_json(payload: bytes, expected: str):
@@ -295,8 +303,12 @@ def _read(path: str, file, ticks: bool) -> Recording:
             path, "header", f"a {HEADER.size}-byte header was expected, found {len(head)} bytes"
         )
     version = HEADER.unpack(head)[1]
-    if version != VERSION:
-        raise InputError(path, "header.version", f"version {VERSION} was expected, found {version}")
+    if version not in READABLE_VERSIONS:
+        raise InputError(
+            path,
+            "header.version",
+            f"version {' or '.join(map(str, READABLE_VERSIONS))} was expected, found {version}",
+        )
     recording, offset, index = Recording(path, version), HEADER.size, 0
     while head := file.read(RECORD_HEAD.size):
         key = f"record {index} (byte {offset})"
@@ -330,9 +342,9 @@ def _read(path: str, file, ticks: bool) -> Recording:
                     f"a session_start event was expected, found a record tagged {chr(tag)!r}"
                 )
             elif tag == TAG_FRAME:
-                recording.frames.append(_decode_frame(payload, recording.tools))
+                recording.frames.append(_decode_frame(payload, recording.tools, version))
             elif tag == TAG_TICK and ticks:
-                recording.ticks.append(_decode_tick(payload, recording.tools))
+                recording.ticks.append(_decode_tick(payload, recording.tools, version))
             elif tag == TAG_STATS:
                 recording.stats.append(_decode_stats(payload, recording.tools))
         except ValueError as exc:

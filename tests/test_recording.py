@@ -18,8 +18,17 @@ from taichi_lap.core.errors import InputError
 from taichi_lap.devices import Pose
 from taichi_lap.recording import (
     CRC,
+    FRAME_HEAD,
+    FRAME_TOOL,
+    FRAME_TOOL_V1,
     HEADER,
+    MAGIC,
     RECORD_HEAD,
+    TAG_FRAME,
+    TAG_TICK,
+    TICK_HEAD,
+    TICK_TOOL,
+    TICK_TOOL_V1,
     SessionRecorder,
     encode_event,
     encode_record,
@@ -248,7 +257,7 @@ def _damaged_middle(data: bytes) -> bytes:
             "header: a taichi-lap recording (magic 89 54 4c 41 50 0d 0a 1a) was expected, "
             "found 50 4b 03 04",
         ),
-        (_version_7, "header.version: version 1 was expected, found 7"),
+        (_version_7, "header.version: version 1 or 2 was expected, found 7"),
         (_damaged_middle, "record 10 (byte "),
     ],
 )
@@ -318,7 +327,7 @@ def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scen
                     100.0 + k * 1e-3,
                     {
                         "probe": (
-                            Pose(np.array([0.0, 0.01 * k, 0.0]), np.array([0.0, 1.0, 0.0])),
+                            Pose(np.array([0.0, 0.01 * k, 0.0]), np.array([0, 1.0, 0]), 0.25 * k),
                             1,
                             force,
                         )
@@ -359,6 +368,48 @@ def test_events_and_haptic_ticks_round_trip_and_unknown_records_are_skipped(scen
     assert last.buttons == {"probe": 1}
     np.testing.assert_array_equal(last.forces["probe"], force.astype(np.float32))
     np.testing.assert_array_equal(last.poses["probe"].tip, np.float32([0.0, 0.02, 0.0]))
+    assert last.poses["probe"].roll == 0.5
+
+
+def _as_version_1(data: bytes) -> bytes:
+    """``data`` (a version-2 recording) as version 1 wrote it: the frame and tick
+    records without the roll, their CRCs made again."""
+    out = bytearray(HEADER.pack(MAGIC, 1))
+    layouts = {
+        TAG_FRAME: (FRAME_HEAD, FRAME_TOOL, FRAME_TOOL_V1),
+        TAG_TICK: (TICK_HEAD, TICK_TOOL, TICK_TOOL_V1),
+    }
+    for start, end in record_bounds(data):
+        tag, length = RECORD_HEAD.unpack_from(data, start)
+        payload = data[start + RECORD_HEAD.size : start + RECORD_HEAD.size + length]
+        if tag in layouts:
+            head, new, old = layouts[tag]
+            count = head.unpack_from(payload)[-1]
+            tools = [new.unpack_from(payload, head.size + k * new.size) for k in range(count)]
+            payload = payload[: head.size] + b"".join(
+                old.pack(*values[:7], *values[8:]) for values in tools
+            )
+        out += encode_record(tag, payload)
+    return bytes(out)
+
+
+def test_a_version_1_recording_reads_with_roll_0_and_replays(recorded, tmp_path, capsys):
+    """Recordings written before the tools had a roll (format version 1) still read,
+    their poses with roll 0, and replay to their recorded final state."""
+    old = tmp_path / "v1.tlap"
+    old.write_bytes(_as_version_1(recorded.read_bytes()))
+    now, then = read_recording(recorded), read_recording(old)
+    assert (now.version, then.version) == (2, 1) and len(then.frames) == len(now.frames) == FRAMES
+    for a, b in zip(now.frames, then.frames):
+        for name, pose in a.poses.items():
+            np.testing.assert_array_equal(b.poses[name].tip, pose.tip)
+            np.testing.assert_array_equal(b.poses[name].direction, pose.direction)
+            assert b.poses[name].roll == pose.roll == 0.0
+    status, out, err = run_cli(
+        capsys, *RUN, "--out", str(tmp_path / "r"), "--device", f"replay:{old}"
+    )
+    assert status == 0, err
+    assert f"after {FRAMES} frames" in out
 
 
 def test_a_grasping_session_replays_to_the_same_state(tmp_path, capsys):
@@ -380,9 +431,10 @@ def test_a_grasping_session_replays_to_the_same_state(tmp_path, capsys):
 
 
 def test_a_cutting_session_replays_to_the_same_checksum(tmp_path):
-    """Scissors cut a sheet through (the sheet-cut tests' quick cut): the cuts
-    are events of the record, and replaying its poses and buttons in a new session
-    makes the same cuts and ends in the state of the recorded checksum."""
+    """Scissors, rolling about their shaft at 1 rad/s, cut a sheet through (the
+    sheet-cut tests' quick cut): the cuts are events of the record, and replaying
+    its poses (with their roll) and buttons in a new session makes the same cuts and
+    ends in the state of the recorded checksum."""
     from tests.test_sheet_cut import quick_cut_scene
 
     cutting, device = quick_cut_scene()
@@ -391,7 +443,8 @@ def test_a_cutting_session_replays_to_the_same_checksum(tmp_path):
     with SessionRecorder(path, session, device) as recorder:
         for _ in range(12):
             time = session.state.time
-            poses, buttons = device.poses(time), device.buttons(time)
+            poses = {k: Pose(p.tip, p.direction, time) for k, p in device.poses(time).items()}
+            buttons = device.buttons(time)
             recorder.record_frame(poses, buttons)
             session.step(poses, buttons)
             for event in session.events:
@@ -400,6 +453,7 @@ def test_a_cutting_session_replays_to_the_same_checksum(tmp_path):
     recording = read_recording(path)
     cuts = [e for e in recording.events if e["kind"] == "cut"]
     assert cuts and all(e["tool"] == "scissors" and e["triangles"] > 0 for e in cuts)
+    assert recording.frames[-1].poses["scissors"].roll == pytest.approx(11 * recording.start["dt"])
 
     replay = ReplayDevice(recording)
     again = Session(cutting, use_cache=False, progress=False)

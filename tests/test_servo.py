@@ -223,3 +223,21 @@ def test_refused_fifo_is_warned_once_and_the_servo_carries_on(monkeypatch, caplo
     assert len(caplog.records) == 1
     assert "SCHED_FIFO priority 80 was refused" in caplog.text
     assert servo_module._realtime(ServoSettings(fifo_priority=None)) is False
+
+
+def test_the_stylus_roll_is_summed_unwrapped_from_its_readings(snapshot):
+    """A stylus turning about its shaft at 3π rad/s: the servo's roll (feedback and
+    tick ring) grows at that rate past ±π (unwrapped), from 0 at its first tick; its
+    shaft direction stays the scene's +y."""
+    rate = 3.0 * np.pi
+    with servo_for(snapshot, [(0.0, ABOVE)], roll_rate=rate) as servo:
+        assert wait_for(lambda: servo.feedback.read() is not None)
+        time.sleep(0.8)
+        ticks, count, _ = servo.feedback.ticks_since(0)
+        tool = servo.feedback.read()
+    slope = np.polyfit(ticks["clock"], ticks["roll"], 1)[0]
+    assert slope == pytest.approx(rate, rel=0.02)
+    assert ticks["roll"][0] == 0.0 and ticks["roll"].max() > 2.0 * np.pi
+    assert np.all(np.diff(ticks["roll"]) >= 0.0)
+    assert tool.roll >= ticks["roll"][-1]
+    np.testing.assert_allclose(ticks["direction"], np.tile([0.0, 1.0, 0.0], (count, 1)), atol=1e-12)

@@ -50,6 +50,7 @@ from taichi_lap.core.errors import InputError
 from taichi_lap.core.instruments import tool_geometry
 from taichi_lap.devices import Pose
 from taichi_lap.haptics.device import WorkspaceMapping
+from taichi_lap.haptics.feedback import RING_INPUT
 from taichi_lap.haptics.proxy import ProxySettings, SurfaceClusters, grasp_edges
 from taichi_lap.haptics.servo import ServoProcess, ServoSettings
 from taichi_lap.haptics.snapshot import SceneSnapshot
@@ -145,9 +146,8 @@ class HapticBridge:
         self.surface.publish(self.snapshot, x, coupling_tip=self._coupled, **grasp)
         if self._tip is None:
             return {}
-        pose = self.feedback.graphic_pose
-        direction = pose[:3, :3][:, 2]  # the tool frame's z, from the tip to the handle
-        return {self.name: Pose(tip=self._tip, direction=direction)}
+        direction = self.feedback.graphic_pose[:3, 2]  # the tool frame's z: tip to handle
+        return {self.name: Pose(self._tip, direction, self.feedback.roll)}
 
     def _follow_surface(self):
         """Group the particles the session's surface follows now (after a dissection:
@@ -194,10 +194,8 @@ class HapticBridge:
                 self.device_label,
             )
         return [
-            (float(clock), {self.name: (Pose(tip, direction), int(buttons), force)})
-            for clock, tip, direction, buttons, force in zip(
-                ticks["clock"], ticks["tip"], ticks["direction"], ticks["buttons"], ticks["force"]
-            )
+            (float(clock), {self.name: (Pose(tip, direction, float(roll)), int(buttons), force)})
+            for clock, tip, direction, roll, buttons, force in zip(*(ticks[k] for k in RING_INPUT))
         ]
 
     def _grasp(self, x: np.ndarray) -> dict:

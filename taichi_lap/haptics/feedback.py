@@ -37,7 +37,9 @@ class ToolFeedback:
     stylus and of the non-penetrating proxy (seed 002 §3.4: q_h and q_g); ``force``
     [N] is what the device was sent (after the safety filter), ``contact_force`` and
     ``pull_force`` [N] what the proxy and the grasp asked for; the tissue receives
-    ``-contact_force``. Counters run since the servo started.
+    ``-contact_force``. ``roll`` [rad]: the stylus's turn about its shaft since the
+    first tick (the twists between its readings summed, unwrapped). Counters run
+    since the servo started.
     """
 
     tick: int
@@ -55,6 +57,7 @@ class ToolFeedback:
     qp_fallbacks: int
     qp_failures: int
     max_force_sent: float
+    roll: float = 0.0
 
 
 _INT_FIELDS = (
@@ -67,7 +70,7 @@ _INT_FIELDS = (
     "qp_fallbacks",
     "qp_failures",
 )
-_FLOAT_FIELDS = ("time", "max_force_sent")
+_FLOAT_FIELDS = ("time", "max_force_sent", "roll")
 _ARRAY_FIELDS = (
     ("haptic_pose", (4, 4)),
     ("graphic_pose", (4, 4)),
@@ -83,13 +86,14 @@ CAPACITY_WORD, STATE_WORD, FIFO_WORD, RING_WORD, MESSAGE_WORD = 2, 3, 4, 5, 6
 
 
 RING_TIMES = ("period", "compute", "qp")
-RING_INPUT = ("clock", "tip", "direction", "buttons", "force")
+RING_INPUT = ("clock", "tip", "direction", "roll", "buttons", "force")
 
 
 def _ring_fields(ticks: int):
     return [(name, np.float64, (ticks,)) for name in RING_TIMES + ("clock",)] + [
         ("tip", np.float64, (ticks, 3)),
         ("direction", np.float64, (ticks, 3)),
+        ("roll", np.float64, (ticks,)),
         ("buttons", np.int64, (ticks,)),
         ("force", np.float64, (ticks, 3)),
         ("message", np.uint8, (MESSAGE_BYTES,)),
@@ -100,8 +104,8 @@ class ServoFeedback:
     """The feedback region (one writer: the servo process).
 
     Tool state goes through two seqlock slots (:meth:`write`, :meth:`read`); every
-    tick's period, compute and QP times [s], clock [s], device tip [m] and shaft
-    direction, buttons and force sent [N] go into a ring of ``ticks`` entries
+    tick's period, compute and QP times [s], clock [s], device tip [m], shaft
+    direction and roll [rad], buttons and force sent [N] go into a ring of ``ticks`` entries
     (:meth:`record_tick`; read with :meth:`tick_history` and :meth:`ticks_since`); the
     servo state, whether SCHED_FIFO was granted and a fault message are single words.
     """
@@ -164,16 +168,18 @@ class ServoFeedback:
         direction,
         buttons: int,
         force,
+        roll: float = 0.0,
     ):
         """Append one tick to the ring: its period, compute time and QP time [s], its
-        ``clock`` [s] (``time.monotonic()``), the device's ``tip`` [m] and shaft
-        ``direction``, ``buttons`` and the ``force`` sent [N]. The count is published
-        after the entry, so a reader never sees a half-written tick."""
+        ``clock`` [s] (``time.monotonic()``), the device's ``tip`` [m], shaft
+        ``direction`` and ``roll`` [rad], ``buttons`` and the ``force`` sent [N]. The
+        count is published after the entry, so a reader never sees a half-written
+        tick."""
         count = int(self._header[RING_WORD])
         i = count % self.ticks_capacity
         extra = self._region.extra
         extra["period"][i], extra["compute"][i], extra["qp"][i] = period, compute, qp
-        extra["clock"][i], extra["buttons"][i] = clock, buttons
+        extra["clock"][i], extra["buttons"][i], extra["roll"][i] = clock, buttons, roll
         extra["tip"][i], extra["direction"][i], extra["force"][i] = tip, direction, force
         self._header[RING_WORD] = count + 1
 
@@ -191,7 +197,7 @@ class ServoFeedback:
 
     def ticks_since(self, seen: int) -> tuple[dict[str, np.ndarray], int, int]:
         """The device input of the ticks after the first ``seen`` (``clock``, ``tip``,
-        ``direction``, ``buttons``, ``force``, oldest first), the new count, and how
+        ``direction``, ``roll``, ``buttons``, ``force``, oldest first), the new count, and how
         many of those ticks the ring no longer holds (or the servo overwrote while they
         were read)."""
         count = int(self._header[RING_WORD])

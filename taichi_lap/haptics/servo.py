@@ -36,6 +36,7 @@ from typing import Callable
 
 import numpy as np
 
+from taichi_lap.core.frames import turned_about_axis, twist
 from taichi_lap.haptics.device import HapticDevice
 from taichi_lap.haptics.feedback import ServoFeedback, ServoState, ToolFeedback
 from taichi_lap.haptics.proxy import HapticProxy, ProxySettings, ProxyStatus
@@ -80,14 +81,16 @@ class ServoSettings:
 class ScriptedHapticDevice(HapticDevice):
     """A pure-Python device for tests and benchmarks: the stylus tip follows
     ``keyframes`` ``[(time [s], (x, y, z) [m]), ...]`` linearly from construction
-    (cyclically with ``loop``), with a fixed ``rotation`` (3×3). ``fail_after`` [s]
-    makes :meth:`pose` raise from then on, as a device fault would."""
+    (cyclically with ``loop``), with a ``rotation`` (3×3) turned about its own z (the
+    shaft) at ``roll_rate`` [rad/s]. ``fail_after`` [s] makes :meth:`pose` raise from
+    then on, as a device fault would."""
 
     def __init__(
         self,
         keyframes=((0.0, (0.0, 0.0, 0.0)),),
         *,
         rotation=None,
+        roll_rate: float = 0.0,
         max_force: float = 0.88,
         buttons: int = 0,
         loop: bool = False,
@@ -102,8 +105,8 @@ class ScriptedHapticDevice(HapticDevice):
             )
         self._times = times
         self._pose = np.eye(4)
-        if rotation is not None:
-            self._pose[:3, :3] = rotation
+        self._rotation = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
+        self._roll_rate = float(roll_rate)
         self._max_force, self._buttons = float(max_force), int(buttons)
         self._loop, self._fail_after = loop and times[-1] > 0, fail_after
         self.force = np.zeros(3)  # the last force set [N]
@@ -117,6 +120,7 @@ class ScriptedHapticDevice(HapticDevice):
         t = time.monotonic() - self._start
         if self._fail_after is not None and t >= self._fail_after:
             raise RuntimeError(f"scripted device fault after {self._fail_after} s")
+        self._pose[:3, :3] = turned_about_axis(self._rotation, self._roll_rate * t)
         if self._loop:
             t %= self._times[-1]
         for axis in range(3):
@@ -184,6 +188,7 @@ class _Servo:
         self.tick = self.missed = self.fallbacks = self.failures = self.buttons = 0
         self.max_sent = 0.0
         self.haptic = np.eye(4)  # the last device pose [m]
+        self.roll = 0.0  # the stylus's turn about its shaft since the first tick [rad]
         self.force = np.zeros(3)  # the last force sent [N]
         self.terminated = False  # set by SIGTERM
 
@@ -215,6 +220,7 @@ class _Servo:
                     clock=start,
                     tip=self.haptic[:3, 3],
                     direction=self.haptic[:3, 2],  # the tool frame's z: tip to handle
+                    roll=self.roll,
                     buttons=self.buttons,
                     force=self.force,
                 )
@@ -231,7 +237,10 @@ class _Servo:
         """One tick (steps 1-6 of the module docstring); the QP time [s]."""
         self.reader.poll()
         scene = self.reader.scene
-        self.haptic = haptic = self.device.pose()
+        haptic = self.device.pose()
+        if self.tick:
+            self.roll += twist(self.haptic[:3, :3], haptic[:3, :3])
+        self.haptic = haptic
         self.buttons = buttons = self.device.buttons()
         result = self.proxy.step(haptic, scene)
         stamp = -math.inf if scene is None else scene.timestamp
@@ -275,6 +284,7 @@ class _Servo:
                 qp_fallbacks=self.fallbacks,
                 qp_failures=self.failures,
                 max_force_sent=self.max_sent,
+                roll=self.roll,
             )
         )
 

@@ -30,7 +30,7 @@ import numpy as np
 
 ALIGN = 64  # [bytes] every array starts on its own cache line
 READ_RETRIES = 1000  # torn reads tolerated in one read before giving up for this tick
-SCENE_MAGIC, FEEDBACK_MAGIC, LAYOUT_VERSION = 0x5441_4C41_5053_4E50, 0x5441_4C41_5046_4442, 3
+SCENE_MAGIC, FEEDBACK_MAGIC, LAYOUT_VERSION = 0x5441_4C41_5053_4E50, 0x5441_4C41_5046_4442, 4
 HEADER_WORDS = 8
 MESSAGE_BYTES = 512
 SUCCESSOR_WORD = 5  # scene header: bytes of the successor region's name (0: none)
