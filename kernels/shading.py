@@ -12,6 +12,7 @@ channel instead of the shaded colour.
 import taichi as ti
 from taichi_lap.kernels.brdf import surface_brdf_cos
 from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
+from taichi_lap.kernels.subsurface import vessel_tint
 from taichi_lap.kernels.surface_detail import surface_detail
 from taichi_lap.scene.materials import (
     BLOOD_ALBEDO,
@@ -170,8 +171,9 @@ def shade(
     1 - c (the wound is dry), metalness kept; then towards blood (BLOOD_ALBEDO,
     BLOOD_ROUGHNESS, a full wet film) by its cover 1 - exp(-film / BLOOD_FILM), the
     G-buffer's ``blood`` film [m]. Before that the material gets its procedural detail
-    (:func:`~taichi_lap.kernels.surface_detail.surface_detail`) at the pixel's
-    rest-space point (:func:`rest_point`). With ``checkerboard`` (view 0
+    (:func:`~taichi_lap.kernels.surface_detail.surface_detail`) and the tint of the
+    vessels under it (:func:`~taichi_lap.kernels.subsurface.vessel_tint`) at the
+    pixel's rest-space point (:func:`rest_point`). With ``checkerboard`` (view 0
     only) the pixels :func:`filled` are skipped, for :func:`fill_checkerboard`."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
@@ -182,13 +184,11 @@ def shade(
         if triangle >= 0 and not skipped:
             m, c = materials.triangle_material[triangle], gbuffer.char[x, y]
             p = gbuffer.position[x, y]
+            rest = rest_point(materials, triangle, p)
             albedo, n = surface_detail(
-                materials,
-                m,
-                rest_point(materials, triangle, p),
-                materials.albedo[m],
-                gbuffer.normal[x, y],
+                materials, m, rest, materials.albedo[m], gbuffer.normal[x, y]
             )
+            albedo = vessel_tint(materials, m, rest, albedo)
             albedo = ti.math.mix(albedo, ti.Vector(CHAR_ALBEDO), c)
             roughness = ti.math.mix(materials.roughness[m], CHAR_ROUGHNESS, c)
             metalness, mucus = materials.metalness[m], materials.mucus[m] * (1.0 - c)

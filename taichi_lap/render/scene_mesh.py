@@ -35,8 +35,16 @@ from taichi_lap.kernels.membrane import membrane_vertices
 from taichi_lap.kernels.normals import vertex_normals
 from taichi_lap.preprocess.sheets import sheet_triangles
 from taichi_lap.render.instruments import instrument_arrays
+from taichi_lap.render.subsurface import TintGrid, vessel_tint_grid
 from taichi_lap.render.tubes import TubeMesh
-from taichi_lap.scene.materials import DETAIL, INSTRUMENT, PRESETS, Material, material_table
+from taichi_lap.scene.materials import (
+    INSTRUMENT,
+    PRESETS,
+    SCALARS,
+    VESSEL_APPEARANCES,
+    Material,
+    material_table,
+)
 from taichi_lap.scene import CAVITY
 from taichi_lap.scenes.anatomy.cavity import cavity_wall, plane_patch
 from taichi_lap.scenes.anatomy.tubes import environment_centreline, tube_mesh
@@ -54,6 +62,22 @@ def appearance_material(appearance: str, color) -> Material:
 def organ_material(organ) -> Material:
     """The organ's appearance preset, with its ``color`` as albedo when given."""
     return appearance_material(organ.appearance, organ.color)
+
+
+def organ_tint(scene, data) -> TintGrid:
+    """The tint grid of the vessels (organs of a :data:`VESSEL_APPEARANCES` preset)
+    under the organs whose material has ``subsurface``, from the model ``data``'s rest
+    positions of their particles as built (:func:`~taichi_lap.render.subsurface.vessel_tint_grid`)."""
+    specs = {organ.name: organ for organ in scene.organs}
+    tissue, vessels = [], []
+    for record in data.organs:
+        spec = specs[record.name]
+        particles = np.arange(record.particles[0], record.particles[1] - record.reserve)
+        if organ_material(spec).subsurface > 0.0:
+            tissue.append(particles)
+        if spec.appearance in VESSEL_APPEARANCES:
+            vessels.append((particles, organ_material(spec)))
+    return vessel_tint_grid(data.rest_position, tissue, vessels)
 
 
 def environment_arrays(scene) -> dict:
@@ -110,8 +134,10 @@ class ArrayMesh:
     its owner writes it), ``blood`` (per vertex, the thickness of the blood film on it
     [m]; zeros unless a :class:`~taichi_lap.render.blood.BloodFilm` writes it),
     ``triangles`` (flat, 3 per triangle), ``triangle_material`` and ``triangle_object``
-    (per triangle), and the material table ``albedo``, ``roughness``, ``metalness``,
-    ``mucus`` and the detail's ``mottling``, ``vessels``, ``bump``, ``scale``. Normals
+    (per triangle), the material table ``albedo`` and the
+    :data:`~taichi_lap.scene.materials.SCALARS`, and the vessels' ``tint`` grid
+    (``tint_shape``, ``tint_origin``, ``tint_cell``: a
+    :class:`~taichi_lap.render.subsurface.TintGrid`, empty by default). Normals
     of the first ``smooth_count`` vertices are gathered from their triangles (the rows of
     ``incident``, a field of :func:`~taichi_lap.core.mesh.incident_table`, built
     from ``triangles`` when not given) by :meth:`update`; the others are written by
@@ -132,6 +158,7 @@ class ArrayMesh:
         positions: np.ndarray | None = None,
         texcoords: np.ndarray | None = None,
         incident=None,
+        tint: TintGrid | None = None,
     ):
         triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
         self.vertex_count, self.smooth_count = vertex_count, smooth_count
@@ -159,9 +186,16 @@ class ArrayMesh:
             incident = group.field(ti.i32, smooth_count, columns=rows.shape[1], values=rows)
         self.incident = incident
         self.albedo = group.field(ti.f32, len(materials), vector=3, values=table["albedo"])
-        for name in ("roughness", "metalness", "mucus") + DETAIL:
+        for name in SCALARS:
             setattr(self, name, group.field(ti.f32, len(materials), values=table[name]))
+        tint = tint or TintGrid.empty()
+        self.tint = group.field(ti.f32, len(tint.tint), vector=4, values=tint.tint)
+        self.tint_shape = group.field(ti.i32, None, vector=3)
+        self.tint_origin = group.field(ti.f32, None, vector=3)
+        self.tint_cell = group.field(ti.f32, None)
         group.finalize()
+        self.tint_shape[None], self.tint_cell[None] = tint.shape.tolist(), tint.cell
+        self.tint_origin[None] = tint.origin.tolist()
         self._mesh_group = group
 
     @classmethod
@@ -204,7 +238,15 @@ class SceneMesh(ArrayMesh):
     When the model's rows were reallocated (:meth:`~taichi_lap.sim.model.Model.grow`)
     the mesh is :attr:`outgrown` and its owner makes it again (:meth:`rebuilt`)."""
 
-    def __init__(self, scene, model, *, tube_sides: int = 12, tube_max_level: int = 2):
+    def __init__(
+        self,
+        scene,
+        model,
+        *,
+        tube_sides: int = 12,
+        tube_max_level: int = 2,
+        tint: TintGrid | None = None,
+    ):
         data = model.data
         self.scene, self._tube_options = (
             scene,
@@ -216,6 +258,7 @@ class SceneMesh(ArrayMesh):
         environment = environment_arrays(scene)
         materials += environment["materials"]
         self.model = model
+        self.tint_grid = tint or organ_tint(scene, data)
         self._charred = False  # whether the surfaces' char may be non-zero
         self.surface_count = model.surface_vertex_count
         surface_triangles = model.surface_triangles.to_numpy()
@@ -293,6 +336,7 @@ class SceneMesh(ArrayMesh):
             vertex_count=base + len(environment["position"]),
             smooth_count=self.surface_count,
             incident=model.surface_incident,
+            tint=self.tint_grid,
         )
         if len(environment["position"]):  # written once: nothing else writes these rows
             for target, values in (
@@ -342,7 +386,7 @@ class SceneMesh(ArrayMesh):
     def rebuilt(self) -> SceneMesh:
         """A new mesh of the scene and model as they are now, at this mesh's tube
         settings and with its blood film; this one is closed."""
-        mesh = SceneMesh(self.scene, self.model, **self._tube_options)
+        mesh = SceneMesh(self.scene, self.model, **self._tube_options, tint=self.tint_grid)
         mesh.tube_epsilon, mesh.tube_level = self.tube_epsilon, self.tube_level
         film = mesh.blood.to_numpy()  # the blood on the surface stays where it was
         film[: self.surface_count] = self.blood.to_numpy()[: self.surface_count]

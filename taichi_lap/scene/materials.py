@@ -22,7 +22,8 @@ class Material:
     detail (:mod:`taichi_lap.kernels.surface_detail`, in rest-space coordinates):
     ``mottling`` (relative albedo variation), ``vessels`` (how dark its capillary
     lines are), ``bump`` (slope of its relief) and ``scale`` [m] (the size of its
-    features: lobules, folds)."""
+    features: lobules, folds); ``subsurface``: how strongly the vessels running
+    under its surface tint it (:mod:`taichi_lap.kernels.subsurface`)."""
 
     albedo: tuple[float, float, float]
     roughness: float
@@ -32,10 +33,11 @@ class Material:
     vessels: float = 0.0
     bump: float = 0.0
     scale: float = 0.003
+    subsurface: float = 0.0
 
 
 PRESETS: dict[str, Material] = {
-    "liver": Material((0.36, 0.075, 0.055), 0.45, 0.0, 0.65, 0.25, 0.1, 0.06, 0.004),
+    "liver": Material((0.36, 0.075, 0.055), 0.45, 0.0, 0.65, 0.25, 0.1, 0.06, 0.004, 0.8),
     "mucosa": Material((0.62, 0.24, 0.21), 0.5, 0.0, 0.8, 0.12, 0.3, 0.08, 0.005),
     "serosa": Material((0.78, 0.46, 0.40), 0.45, 0.0, 0.7, 0.1, 0.4, 0.05, 0.008),
     "fascia": Material((0.80, 0.68, 0.60), 0.55, 0.0, 0.45, 0.06, 0.2, 0.03, 0.01),
@@ -51,12 +53,26 @@ PRESETS: dict[str, Material] = {
 """Presets by name; scene organs choose one with ``appearance``. The surface detail
 is chosen by eye after laparoscopic footage: the liver's capsule mottled by its
 lobules, serosa and peritoneum threaded with capillaries, fat in lobules
-with a bumpy surface, the vessels' walls nearly smooth (not measured)."""
+with a bumpy surface, the vessels' walls nearly smooth (not measured); the liver's
+parenchyma lets the vessels under it show through."""
+
+VESSEL_APPEARANCES = ("artery", "vein", "bile_duct")
+"""The presets of the organs that tint tissue with ``subsurface`` above them."""
+
+SUBSURFACE_DEPTH = 0.0015
+"""[m] the depth over which a vessel under the surface fades from view by a factor
+e: tissue at distance d from a vessel takes exp(-d / SUBSURFACE_DEPTH) of its
+colour (weighted by the material's ``subsurface``). Liver parenchyma scatters red
+light over about a millimetre; chosen by eye so that a vessel shows through the
+last 2-3 mm above it (not measured)."""
 
 INSTRUMENT = "metal"
 
 DETAIL = ("mottling", "vessels", "bump", "scale")
 """The surface-detail parameters of a :class:`Material`."""
+
+SCALARS = ("roughness", "metalness", "mucus", "subsurface") + DETAIL
+"""The per-material scalars of the material table."""
 
 CHAR_ALBEDO = (0.05, 0.03, 0.02)
 """Linear RGB albedo of fully charred tissue: the dark brown-black of an
@@ -78,10 +94,9 @@ BLOOD_FILM = 1e-4
 
 
 def material_table(materials: list[Material]) -> dict[str, np.ndarray]:
-    """Per-material arrays for upload: ``albedo`` (M, 3), ``roughness``,
-    ``metalness``, ``mucus`` and the surface detail ``mottling``, ``vessels``,
-    ``bump``, ``scale`` (M,), all float32."""
+    """Per-material arrays for upload: ``albedo`` (M, 3) and the :data:`SCALARS`
+    (M,), all float32."""
     table = {"albedo": np.array([m.albedo for m in materials], np.float32).reshape(-1, 3)}
-    for name in ("roughness", "metalness", "mucus") + DETAIL:
+    for name in SCALARS:
         table[name] = np.array([getattr(m, name) for m in materials], np.float32)
     return table
