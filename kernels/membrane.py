@@ -5,6 +5,9 @@ masses instead of as their grid of flat triangles. The surface passes through ev
 mass, is C1 between them, and is sampled ``across`` times finer between rows and
 ``along`` times between columns; each sample's normal is the cross product of the
 surface's own partial derivatives, so the membrane shades smoothly without facets.
+It is drawn with a thickness: two layers, half of it to either side of the surface,
+facing away from each other, and a rim joining them around the border (a closed
+shell), so that its edges show as tissue and each side is lit as itself.
 
 One row beyond each edge of the grid is extrapolated quadratically (3 P_edge - 3 P_next
 + P_after), so the end spans follow the parabola through the last three rows instead
@@ -70,6 +73,41 @@ def grid_point(points: ti.template(), first, rows, cols, r, c):
     return point
 
 
+@ti.func
+def membrane_sample(points: ti.template(), first, rows, cols, across, along, i, j):
+    """Sample (i, j) of the membrane through the ``rows`` x ``cols`` grid of
+    ``points`` from ``first``: its point and partial derivatives along the rows and
+    the columns."""
+    r, c = ti.min(i // across, rows - 2), ti.min(j // along, cols - 2)
+    weights_r, slopes_r = catmull_rom(i / across - r)
+    weights_c, slopes_c = catmull_rom(j / along - c)
+    point = ti.Vector([0.0, 0.0, 0.0])
+    d_row, d_col = point, point
+    for a in ti.static(range(4)):
+        for b in ti.static(range(4)):
+            q = grid_point(points, first, rows, cols, r - 1 + a, c - 1 + b)
+            point += weights_r[a] * weights_c[b] * q
+            d_row += slopes_r[a] * weights_c[b] * q
+            d_col += weights_r[a] * slopes_c[b] * q
+    return point, d_row, d_col
+
+
+@ti.func
+def rim_sample(k, fine_rows, fine_cols):
+    """The k-th sample around the border of a fine_rows x fine_cols grid (first row
+    forwards, last column, last row backwards, first column; each corner once) and
+    the side it lies on: (i, j, side), sides 0-3 in that order."""
+    across, down = fine_cols - 1, fine_rows - 1
+    i, j, side = 0, k, 0
+    if k >= across + down + across:
+        i, j, side = down - (k - 2 * across - down), 0, 3
+    elif k >= across + down:
+        i, j, side = down, across - (k - across - down), 2
+    elif k >= across:
+        i, j, side = k - across, across, 1
+    return i, j, side
+
+
 @ti.kernel
 def membrane_vertices(
     points: ti.template(),
@@ -78,26 +116,44 @@ def membrane_vertices(
     cols: ti.i32,
     across: ti.i32,
     along: ti.i32,
+    half_thickness: ti.f32,
     positions: ti.template(),
     normals: ti.template(),
     offset: ti.i32,
 ):
     """The membrane through the ``rows`` x ``cols`` grid of ``points`` starting at
-    ``first`` (row-major) into ``positions[offset + i F + j]`` and unit ``normals``
-    there, for the ((rows - 1) ``across`` + 1) x F samples, F = (cols - 1) ``along`` + 1
-    (sample (i, j) lies i / across rows and j / along columns from the first point)."""
+    ``first`` (row-major), as a shell ``2 half_thickness`` [m] thick, into
+    ``positions`` and unit ``normals`` from ``offset``: the S = ((rows - 1) ``across`` +
+    1) x F samples, F = (cols - 1) ``along`` + 1 (sample (i, j) lies i / across rows
+    and j / along columns from the first point), moved by half_thickness along the
+    surface's normal (the front, at offset + i F + j), then moved against it with the
+    normal reversed (the back, at offset + S + i F + j), then the rim around the
+    border (:func:`rim_sample`, R samples): front corners at offset + 2 S + k, back
+    ones at offset + 2 S + R + k, each with the outward normal across the border."""
     fine_rows, fine_cols = (rows - 1) * across + 1, (cols - 1) * along + 1
+    count = fine_rows * fine_cols
     for i, j in ti.ndrange(fine_rows, fine_cols):
-        r, c = ti.min(i // across, rows - 2), ti.min(j // along, cols - 2)
-        weights_r, slopes_r = catmull_rom(i / across - r)
-        weights_c, slopes_c = catmull_rom(j / along - c)
-        point = ti.Vector([0.0, 0.0, 0.0])
-        d_row, d_col = point, point
-        for a in ti.static(range(4)):
-            for b in ti.static(range(4)):
-                q = grid_point(points, first, rows, cols, r - 1 + a, c - 1 + b)
-                point += weights_r[a] * weights_c[b] * q
-                d_row += slopes_r[a] * weights_c[b] * q
-                d_col += weights_r[a] * slopes_c[b] * q
-        positions[offset + i * fine_cols + j] = point
-        normals[offset + i * fine_cols + j] = d_row.cross(d_col).normalized(1e-12)
+        point, d_row, d_col = membrane_sample(points, first, rows, cols, across, along, i, j)
+        n = d_row.cross(d_col).normalized(1e-12)
+        positions[offset + i * fine_cols + j] = point + half_thickness * n
+        normals[offset + i * fine_cols + j] = n
+        positions[offset + count + i * fine_cols + j] = point - half_thickness * n
+        normals[offset + count + i * fine_cols + j] = -n
+    border = 2 * (fine_rows - 1) + 2 * (fine_cols - 1)
+    for k in range(border):
+        i, j, side = rim_sample(k, fine_rows, fine_cols)
+        point, d_row, d_col = membrane_sample(points, first, rows, cols, across, along, i, j)
+        n = d_row.cross(d_col).normalized(1e-12)
+        out = -d_row
+        if side == 1:
+            out = d_col
+        elif side == 2:
+            out = d_row
+        elif side == 3:
+            out = -d_col
+        out = (out - out.dot(n) * n).normalized(1e-12)
+        rim = offset + 2 * count
+        positions[rim + k] = point + half_thickness * n
+        positions[rim + border + k] = point - half_thickness * n
+        normals[rim + k] = out
+        normals[rim + border + k] = out

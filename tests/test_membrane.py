@@ -2,29 +2,47 @@
 through its masses (kernels/membrane.py) and its place in the drawn scene."""
 
 import numpy as np
+import pytest
 import taichi as ti
 
+from taichi_lap.core.mesh import inconsistent_edges, unique_edges
 from taichi_lap.kernels.membrane import membrane_vertices
-from taichi_lap.render.scene_mesh import MEMBRANE_ACROSS, MEMBRANE_ALONG, SceneMesh
+from taichi_lap.preprocess.sheets import shell_triangles, shell_vertex_count
+from taichi_lap.render.scene_mesh import (
+    MEMBRANE_ACROSS,
+    MEMBRANE_ALONG,
+    MEMBRANE_THICKNESS,
+    SceneMesh,
+)
 from tests.test_render import small_session
 
 ACROSS, ALONG = 4, 3
 
 
-def membrane(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The membrane's samples and normals through ``grid`` (rows, cols, 3), shaped
-    (fine rows, fine cols, 3)."""
+def membrane_shell(grid: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
+    """All the vertices and normals (V, 3) of the membrane shell through ``grid``
+    (rows, cols, 3), ``half`` [m] to either side."""
     rows, cols = grid.shape[:2]
     fine = ((rows - 1) * ACROSS + 1, (cols - 1) * ALONG + 1)
     points = ti.Vector.field(3, ti.f32, rows * cols + 5)
     values = np.zeros((rows * cols + 5, 3), np.float32)
     values[5:] = grid.reshape(-1, 3)  # the grid need not start at the first point
     points.from_numpy(values)
-    positions = ti.Vector.field(3, ti.f32, fine[0] * fine[1] + 7)
-    normals = ti.Vector.field(3, ti.f32, fine[0] * fine[1] + 7)
-    membrane_vertices(points, 5, rows, cols, ACROSS, ALONG, positions, normals, 7)
-    shape = (*fine, 3)
-    return positions.to_numpy()[7:].reshape(shape), normals.to_numpy()[7:].reshape(shape)
+    count = shell_vertex_count(*fine)
+    positions = ti.Vector.field(3, ti.f32, count + 7)
+    normals = ti.Vector.field(3, ti.f32, count + 7)
+    membrane_vertices(points, 5, rows, cols, ACROSS, ALONG, half, positions, normals, 7)
+    return positions.to_numpy()[7:], normals.to_numpy()[7:]
+
+
+def membrane(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The membrane's samples and normals through ``grid`` (rows, cols, 3), shaped
+    (fine rows, fine cols, 3): the front of a shell of no thickness."""
+    rows, cols = grid.shape[:2]
+    fine = ((rows - 1) * ACROSS + 1, (cols - 1) * ALONG + 1)
+    positions, normals = membrane_shell(grid, 0.0)
+    shape, count = (*fine, 3), fine[0] * fine[1]
+    return positions[:count].reshape(shape), normals[:count].reshape(shape)
 
 
 def test_the_membrane_of_an_affine_grid_is_that_plane_sampled_evenly():
@@ -75,7 +93,8 @@ def test_the_membrane_passes_through_every_mass_and_follows_a_curved_sheet_smoot
 
 def test_the_mesentery_is_drawn_as_its_membrane_and_its_grid_is_not():
     """In the intestine scene the sheet's own triangles are degenerate (not drawn) and
-    the membrane's samples are drawn as the intestine, through its masses."""
+    the membrane's shell is drawn as the intestine, its front half its thickness off
+    the surface through its masses."""
     session = small_session("intestine")
     mesh = SceneMesh(session.scene, session.model)
     mesh.update(session.state, session.control)
@@ -93,9 +112,55 @@ def test_the_mesentery_is_drawn_as_its_membrane_and_its_grid_is_not():
     drawn = np.flatnonzero(membrane_rows.all(1))
     assert len(drawn) == 2 * (fine[0] - 1) * (fine[1] - 1)
     assert (drawn_as[drawn] == 0).all()
-    positions = mesh.positions.to_numpy()
-    samples = positions[offset : offset + fine[0] * fine[1]].reshape(*fine, 3)
+    in_shell = (triangles >= offset) & (triangles < offset + shell_vertex_count(*fine))
+    shell = np.flatnonzero(in_shell.all(1))
+    np.testing.assert_array_equal(triangles[shell], shell_triangles(*fine) + offset)
+    assert (drawn_as[shell] == 0).all()  # the whole shell is drawn as the intestine
+    front = slice(offset, offset + fine[0] * fine[1])
+    samples = (
+        mesh.positions.to_numpy()[front] - 0.5 * MEMBRANE_THICKNESS * mesh.normals.to_numpy()[front]
+    )
     masses = session.state.surface_position.to_numpy()[first : first + rows * cols]
     assert np.allclose(
-        samples[::MEMBRANE_ACROSS, ::MEMBRANE_ALONG], masses.reshape(rows, cols, 3), atol=1e-6
+        samples.reshape(*fine, 3)[::MEMBRANE_ACROSS, ::MEMBRANE_ALONG],
+        masses.reshape(rows, cols, 3),
+        atol=1e-6,
     )
+
+
+def test_the_membrane_is_a_closed_shell_of_its_thickness_facing_outwards():
+    """Through the bent sheet of the test above, 2 mm thick: the front and back lie
+    1 mm to either side of the surface along its normal, facing away from each
+    other; welded where the rim meets them, the shell is closed (every edge in two
+    triangles, all turning alike) and encloses the sheet's area times its thickness;
+    each triangle faces the way its vertices' normals do (the rim's outward across
+    the border)."""
+    radius, half = 0.05, 0.001
+    angle = np.linspace(0.0, 0.5 * np.pi, 6)
+    height = np.linspace(0.0, 0.06, 4)
+    grid = np.stack(
+        np.broadcast_arrays(
+            radius * np.cos(angle)[None, :], height[:, None], radius * np.sin(angle)[None, :]
+        ),
+        -1,
+    )
+    positions, normals = membrane_shell(grid, half)
+    surface, surface_normals = membrane(grid)
+    fine = surface.shape[:2]
+    count = fine[0] * fine[1]
+    flat, flat_normals = surface.reshape(-1, 3), surface_normals.reshape(-1, 3)
+    np.testing.assert_allclose(positions[:count], flat + half * flat_normals, atol=1e-6)
+    np.testing.assert_allclose(positions[count : 2 * count], flat - half * flat_normals, atol=1e-6)
+    np.testing.assert_allclose(normals[count : 2 * count], -flat_normals, atol=1e-6)
+    triangles = shell_triangles(*fine)
+    assert triangles.max() == len(positions) - 1
+    _, weld = np.unique(np.round(positions / 1e-7).astype(np.int64), axis=0, return_inverse=True)
+    welded = weld.ravel()[triangles]
+    _, uses = unique_edges(welded, return_counts=True)
+    assert (uses == 2).all() and inconsistent_edges(welded) == 0
+    corners = positions[triangles].astype(np.float64)
+    volume = np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])).sum() / 6
+    area = 0.5 * np.pi * radius * 0.06  # a quarter cylinder 6 cm high
+    assert volume == pytest.approx(2 * half * area, rel=0.02)
+    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    assert (np.einsum("ij,ij->i", face, normals[triangles].sum(axis=1)) > 0).all()

@@ -102,3 +102,23 @@ def sheet_triangles(rows: int, cols: int) -> np.ndarray:
     a, b = index[:-1, :-1].ravel(), index[:-1, 1:].ravel()
     c, d = index[1:, :-1].ravel(), index[1:, 1:].ravel()
     return np.concatenate([np.stack([a, c, b], axis=1), np.stack([b, c, d], axis=1)])
+
+
+def shell_vertex_count(rows: int, cols: int) -> int:
+    """Vertices of the :func:`shell_triangles` of a (rows, cols) grid."""
+    return 2 * rows * cols + 4 * (rows - 1) + 4 * (cols - 1)
+
+
+def shell_triangles(rows: int, cols: int) -> np.ndarray:
+    """A sheet of a (rows, cols) grid drawn as a closed shell: its front (the grid's
+    triangles, vertex i cols + j), its back (the same turned round, from rows cols)
+    and the rim between them around the border (the R = 2 (rows - 1) + 2 (cols - 1)
+    border samples in order, front copies from 2 rows cols, back copies R later), as
+    :func:`~taichi_lap.kernels.membrane.membrane_vertices` lays them out."""
+    count, border = rows * cols, 2 * (rows - 1) + 2 * (cols - 1)
+    front = sheet_triangles(rows, cols)
+    k = np.arange(border)
+    a, b = 2 * count + k, 2 * count + (k + 1) % border  # the rim's front corners
+    c, d = b + border, a + border  # and its back ones
+    rim = np.concatenate([np.stack([a, b, c], axis=1), np.stack([a, c, d], axis=1)])
+    return np.concatenate([front, front[:, [0, 2, 1]] + count, rim])

@@ -9,8 +9,8 @@ environment]``; triangles in the same order; the environment's vertices are writ
 once. The surfaces are the model's rows, spare ones included, copied again after each
 dissection (a dead triangle is degenerate); tubes are re-tessellated every frame into a
 fixed capacity, their unused triangles degenerate. A spring sheet (the mesentery) is
-drawn as its smooth membrane (:mod:`~taichi_lap.kernels.membrane`), its own grid
-triangles left degenerate.
+drawn as its smooth membrane (:mod:`~taichi_lap.kernels.membrane`), a shell
+MEMBRANE_THICKNESS thick, its own grid triangles left degenerate.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from taichi_lap.kernels.draw_mesh import (
 )
 from taichi_lap.kernels.membrane import membrane_vertices
 from taichi_lap.kernels.normals import vertex_normals
-from taichi_lap.preprocess.sheets import sheet_triangles
+from taichi_lap.preprocess.sheets import shell_triangles, shell_vertex_count
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.subsurface import TintGrid, vessel_tint_grid
 from taichi_lap.render.tubes import TubeMesh
@@ -51,6 +51,9 @@ from taichi_lap.scenes.anatomy.tubes import environment_centreline, tube_mesh
 
 MEMBRANE_ACROSS, MEMBRANE_ALONG = 4, 2
 """Samples of a drawn membrane per span between its rows and between its columns."""
+MEMBRANE_THICKNESS = 0.0015
+"""[m] how thick a membrane is drawn: the mesentery with its fat and vessels, 1-2 mm
+(chosen by eye, not measured)."""
 
 
 def appearance_material(appearance: str, color) -> Material:
@@ -296,9 +299,9 @@ class SceneMesh(ArrayMesh):
             rows = (organ.surface_vertices[1] - organ.surface_vertices[0]) // cols
             fine = ((rows - 1) * MEMBRANE_ACROSS + 1, (cols - 1) * MEMBRANE_ALONG + 1)
             self.membranes.append((organ.surface_vertices[0], rows, cols, base))
-            membrane_triangles.append(sheet_triangles(*fine) + base)
+            membrane_triangles.append(shell_triangles(*fine) + base)
             membrane_material.append(np.full(len(membrane_triangles[-1]), index, np.int32))
-            base += fine[0] * fine[1]
+            base += shell_vertex_count(*fine)
         membrane_triangles = np.concatenate(membrane_triangles or [np.zeros((0, 3), np.int32)])
         membrane_material = np.concatenate(membrane_material or [np.zeros(0, np.int32)])
         environment_object = (
@@ -425,6 +428,7 @@ class SceneMesh(ArrayMesh):
                 cols,
                 MEMBRANE_ACROSS,
                 MEMBRANE_ALONG,
+                0.5 * MEMBRANE_THICKNESS,
                 positions,
                 self.normals,
                 offset,
