@@ -108,6 +108,7 @@ EVENT_KINDS = (
     "vessel_damage",
     "cut",
     "tear",
+    "separated",
     "excised",
 )
 CHECKSUM_FIELDS = ("x", "v", "goal", "eta", "collided")

@@ -351,12 +351,14 @@ class Session:
             start = time.perf_counter()
             sweep = Sweep.between(geometry, *before, *pose)
             x, v = self._motion()
-            for organ, change in self._sheet_cutter().cut(sweep, x, v, self.state):
+            cutter = self._sheet_cutter()
+            for organ, change in cutter.cut(sweep, x, v, self.state):
                 self._follow(change)
                 made = len(change.new_triangles)
                 self.events.append(
                     {"kind": "cut", "tool": tool["name"], "organ": organ, "triangles": made}
                 )
+            self._separated(cutter, tool["name"])
             if scissors:
                 self._cut_volumes(k, tool, pose, pose[0] - before[0], x, v)
             spent = (time.perf_counter() - start) * 1e3
@@ -411,15 +413,25 @@ class Session:
         if not any(organ.material.get("tear_strain", 0.0) > 0.0 for organ in self.scene.organs):
             return
         start = time.perf_counter()
-        torn = self._sheet_cutter().tear(*self._motion(), self.state)
+        cutter = self._sheet_cutter()
+        torn = cutter.tear(*self._motion(), self.state)
         for organ, change in torn:
             self._follow(change)
             self.events.append(
                 {"kind": "tear", "organ": organ, "triangles": len(change.new_triangles)}
             )
+        self._separated(cutter)
         if torn:
             spent = (time.perf_counter() - start) * 1e3
             self.timings["topology"] = self.timings.get("topology", 0.0) + spent
+
+    def _separated(self, cutter: SheetCutter, tool: str | None = None):
+        """Event ``separated`` (with the organ, its connected pieces now and the
+        ``tool`` that cut, none for a tear) for each sheet or truss the cutter's last
+        cut or tear parted (:attr:`SheetCutter.separations`)."""
+        for organ, pieces in cutter.separations:
+            event = {"kind": "separated", "organ": organ, "pieces": pieces}
+            self.events.append(event if tool is None else dict(event, tool=tool))
 
     def _motion(self) -> tuple[np.ndarray, np.ndarray]:
         """The particles' positions and velocities (N, 3) [m, m/s] on the host."""
@@ -526,9 +538,7 @@ class Session:
             if organ is not None:
                 triangles = triangles[slice(*data.organs[organ].triangles)]
             return np.asarray(data.surface_index).reshape(-1, 4)[triangles, 0]
-        topology = self._dissection.topology
-        rows = topology.live_triangles(organ)
-        return topology.vertices["index"][topology.triangles["vertices"][rows], 0]
+        return self._dissection.topology.live_faces(organ)
 
     def check_topology(self):
         """Run the topology validator (:mod:`taichi_lap.core.topology`) on the tissue

@@ -87,6 +87,10 @@ def test_scissors_cut_the_sheet_in_two_and_the_free_piece_falls(cut_sheet):
     session, before, events = cut_sheet
     cuts = [e for e in events if e["kind"] == "cut"]
     assert len(cuts) > 10 and all(e["tool"] == "scissors" for e in cuts)
+    # the cut that parted the sheet says so, once (the kerf's fragments are no pieces)
+    (separated,) = [e for e in events if e["kind"] == "separated"]
+    assert separated == {"kind": "separated", "organ": "fascia", "pieces": 2, "tool": "scissors"}
+    assert 0 < events.index(separated) < len(events) - 1
     session.check_topology()  # raises on any problem
     triangles = session.live_triangles()
     pieces = element_pieces(triangles)
@@ -287,6 +291,8 @@ def test_a_pulled_sheet_tears_round_the_grip_and_the_rest_lets_go():
     try:
         tears = [e for e in events if e["kind"] == "tear"]
         assert len(tears) >= 5 and all(e["organ"] == "fascia" for e in tears)
+        (separated,) = [e for e in events if e["kind"] == "separated"]
+        assert separated == {"kind": "separated", "organ": "fascia", "pieces": 2}
         session.check_topology()
         triangles = session.live_triangles()
         pieces = element_pieces(triangles)

@@ -348,6 +348,12 @@ class MutableTopology:
             live = live & (f["organ"][: f.used] == organ)
         return np.flatnonzero(live)
 
+    def live_faces(self, organ: int | None = None) -> np.ndarray:
+        """The live surface triangles (``organ``'s only, when given) as the particles of
+        their corners (F, 3)."""
+        f = self.triangles
+        return self.vertices["index"][f["vertices"][self.live_triangles(organ)], 0]
+
     def live_tets(self, organ: int) -> np.ndarray:
         """The rows of ``organ``'s live tets (a cut appends tets after every organ's)."""
         return np.flatnonzero(self.tet_alive & (self.organ_of[self.tets[:, 0]] == organ))

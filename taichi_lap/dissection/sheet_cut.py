@@ -126,18 +126,23 @@ class _Sheet:
     edge: float  # the median edge length at rest as built [m]
     struts: tuple[np.ndarray, np.ndarray, np.ndarray]
     is_sheet: bool  # a sheet (bending pairs, LRAs), not a truss (struts)
+    pieces: int  # its connected pieces of triangles now
     spent: bool = False  # whether the reserve ran out (said once)
 
 
 class SheetCutter:
     """Cuts the sheets of a session's model (module docstring). ``materials`` are the
     scene organs' material tables (``edge_stiffness``, ``bending_stiffness``,
-    ``lra_anchors`` of the cuttable ones)."""
+    ``lra_anchors`` of the cuttable ones). ``separations``: the organs the last
+    :meth:`cut` or :meth:`tear` parted into more connected pieces than they had, with
+    their pieces now (a sheet cut free of its attachment, a vessel divided: the
+    topological facts a task's phases are judged on)."""
 
     def __init__(self, dissection: DeviceTopology, materials: list[dict]):
         self.dissection = dissection
         data = dissection.model.data
         self.mass = dissection.topology.mass  # set by DeviceTopology.set_particles
+        self.separations: list[tuple[str, int]] = []
         self.sheets = []
         for k, organ in enumerate(data.organs):
             if not organ.reserve or organ.model not in CUT_SURFACES:
@@ -158,6 +163,7 @@ class SheetCutter:
                 # a sheet's constraints that are not edges are its bending pairs
                 struts=_NO_STRUTS if is_sheet else built_struts(data, k),
                 is_sheet=is_sheet,
+                pieces=len(np.unique(element_pieces(dissection.topology.live_faces(k)))),
             )
             self.sheets.append(sheet)
 
@@ -167,7 +173,7 @@ class SheetCutter:
         """Cut every sheet and truss ``sweep`` reaches, with its particles at ``x``
         moving at ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``;
         returns the organs' names and changes (none where nothing was cut)."""
-        changes = []
+        changes, self.separations = [], []
         bounds = low, high = sweep.bounds()
         for sheet in self.sheets:
             record = self.dissection.model.data.organs[sheet.organ]
@@ -197,7 +203,7 @@ class SheetCutter:
         faces = np.concatenate([local.reshape(-1, 3)[kept], cut.added])
         row_of = np.concatenate([rows[kept], np.full(len(cut.added), -1)])  # -1: made
         held = gather(state.grasp_tool, particles) != FREE
-        fragment, fragments = self._fragments(sheet, faces, particles, held)
+        fragment, fragments, piece_count = self._fragments(sheet, faces, particles, held)
         dead_triangles = np.concatenate([rows[cut.removed], row_of[fragment & (row_of >= 0)]])
         added = faces[~fragment & (row_of < 0)]
         in_use = np.zeros(count + len(cut.vertex_parents), dtype=bool)
@@ -258,7 +264,15 @@ class SheetCutter:
         )
         self.dissection.apply(change, state)
         sheet.free.extend(int(p) for p in dead_particles[::-1])
+        self._count_pieces(sheet, piece_count)
         return change
+
+    def _count_pieces(self, sheet: _Sheet, pieces: int):
+        """Take ``pieces`` as the sheet's connected pieces now; one more than before is
+        a separation (:attr:`separations`)."""
+        if pieces > sheet.pieces:
+            self.separations.append((self.dissection.model.data.organs[sheet.organ].name, pieces))
+        sheet.pieces = pieces
 
     def tear(self, x: np.ndarray, v: np.ndarray, state) -> list[tuple[str, TopologyChange]]:
         """Tearing after Müller et al. 2007 ("Position based dynamics", the tearing of
@@ -271,12 +285,12 @@ class SheetCutter:
         strain concentrates next. The physics follows as after a cut. Returns the
         organ names and changes."""
         topology = self.dissection.topology
-        out = []
+        out, self.separations = [], []
         for sheet in self.sheets:
             if sheet.tear_strain <= 0.0:
                 continue
             rows = self.dissection.topology.live_triangles(sheet.organ)
-            faces = topology.vertices["index"][topology.triangles["vertices"][rows], 0]
+            faces = topology.live_faces(sheet.organ)
             edges = unique_edges(faces)
             rest = np.maximum(pair_lengths(topology.rest, edges), SHORTEST_REST * sheet.edge)
             strain = pair_lengths(x, edges) / rest - 1.0
@@ -287,6 +301,8 @@ class SheetCutter:
                 if change is not None:
                     out.append((self.dissection.model.data.organs[sheet.organ].name, change))
                     self._write_constraints(sheet)
+                    faces = topology.live_faces(sheet.organ)
+                    self._count_pieces(sheet, len(np.unique(element_pieces(faces))))
                     break
         return out
 
@@ -351,8 +367,8 @@ class SheetCutter:
         them, the first ``len(particles)`` those of ``particles``, ``held`` those a
         grasper holds) belong to a fragment: a piece of at most
         :data:`FRAGMENT_TRIANGLES` triangles that holds no anchor and that no
-        grasper holds (a sliver left in the kerf, removed with the cut); and the
-        particle count of each fragment."""
+        grasper holds (a sliver left in the kerf, removed with the cut); the
+        particle count of each fragment; and how many pieces are left."""
         pieces = element_pieces(faces)
         sizes = np.bincount(pieces)
         known = faces < len(particles)
@@ -362,7 +378,7 @@ class SheetCutter:
         anchored[pieces[anchor.any(axis=1)]] = True
         small = (sizes <= FRAGMENT_TRIANGLES) & ~anchored
         counts = [len(np.unique(faces[pieces == k])) for k in np.flatnonzero(small)]
-        return small[pieces], counts
+        return small[pieces], counts, int((~small).sum())
 
     def _write_constraints(self, sheet: _Sheet):
         """Make the sheet's constraints in the model those of its live triangles
@@ -375,9 +391,7 @@ class SheetCutter:
         and relaxed LRAs (particles, anchors, rest distances [m]) on its live
         triangles (module docstring)."""
         topology = self.dissection.topology
-        vertices, triangles = topology.vertices, topology.triangles
-        rows = self.dissection.topology.live_triangles(sheet.organ)
-        faces = vertices["index"][triangles["vertices"][rows], 0]  # particles
+        faces = topology.live_faces(sheet.organ)
         edges = unique_edges(faces)
         bending = bending_pairs(faces) if sheet.is_sheet else np.zeros((0, 2), np.int64)
         pairs = np.concatenate([edges, bending])

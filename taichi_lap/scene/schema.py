@@ -461,7 +461,16 @@ TASK_VIEW_PARAMS = {
         unit="s",
     ),
 }
-PHASE_EVENTS = ("grasp", "cut", "tear", "dissect", "cautery", "excised", "vessel_damage")
+PHASE_EVENTS = (
+    "grasp",
+    "cut",
+    "tear",
+    "separated",
+    "dissect",
+    "cautery",
+    "excised",
+    "vessel_damage",
+)
 TASK_PHASE_PARAMS = {
     "name": Param("str", REQUIRED, "what the phase is, as the trainee reads it"),
     "event": Param("str", REQUIRED, "the event that completes it", choices=PHASE_EVENTS),

@@ -28,6 +28,7 @@ COUNTED_EVENTS = (
     "release",
     "cut",
     "tear",
+    "separated",
     "dissect",
     "fragment",
     "cautery",
