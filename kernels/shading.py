@@ -14,6 +14,7 @@ from taichi_lap.kernels.brdf import surface_brdf_cos
 from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
 from taichi_lap.kernels.subsurface import vessel_tint
 from taichi_lap.kernels.surface_detail import surface_detail
+from taichi_lap.scene.planned_plane import MARK_COLOUR
 from taichi_lap.scene.materials import (
     BLOOD_ALBEDO,
     BLOOD_FILM,
@@ -260,7 +261,6 @@ def depth_histogram(gbuffer: ti.template(), counts: ti.template(), near: ti.f32)
             ti.atomic_add(counts[k], 1)
 
 
-MARK_COLOUR = (0.1, 0.8, 0.45)  # the planned line's green, as a surgical marker's
 MARK_HALF_WIDTH = 0.0006  # [m]
 MARK_DASH = 0.004  # [m] one dash and its gap along the line
 

@@ -4,6 +4,7 @@ wound (distance, the line reached), a target held in the endoscope's view (from 
 frames' statistics), tissue removed outside the goal, time to completion, and the
 live panel following the same goal."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ from taichi_lap.scene import validate
 from taichi_lap.scene.planned_plane import PlannedPlane
 from taichi_lap.training.live import LiveScore, verdict_lines
 from taichi_lap.training.metrics import session_metrics
-from taichi_lap.training.report import report_html
+from taichi_lap.training.report import _path_plot, report_html
 from tests.test_training import DT, line, write_session
 
 ORGANS = [{"name": name} for name in ("rectum", "fascia", "polyp", "vessel", "liver")]
@@ -148,8 +149,12 @@ def test_tissue_removed_off_the_plane_or_of_another_organ_is_outside_the_goal(tm
         burn(30, [[0.0, 0.0, 0.0]], 1e-6, organ="polyp"),
     ]
     task = {"plane": PLANE, "removable": ["polyp"], "pass": {"removed_outside": 2.5}}
-    result = judged(tmp_path, "outside", task, events).task
+    metrics = judged(tmp_path, "outside", task, events)
+    result = metrics.task
     goal = result["goal"]
+    np.testing.assert_allclose(goal["plane"]["line"], [[0.0, 0.01, 0.0], [0.02, 0.01, 0.0]])
+    with_line = _path_plot(metrics)  # the report's path plots draw the planned line
+    assert with_line != _path_plot(dataclasses.replace(metrics, task=None))
     assert goal["removed"] == pytest.approx(7.0)  # ml
     assert goal["removed_outside"] == pytest.approx(1.0 + 2.0)
     assert goal["plane"]["distance_max"] == pytest.approx(0.004)

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+MARK_COLOUR = (0.1, 0.8, 0.45)
+"""The planned line's green, as a surgical marker's (in the view and the report)."""
+
 
 class PlannedPlane:
     """A planned transection: the plane through ``point`` with ``normal``, and the

@@ -55,8 +55,9 @@ def plane_result(plane: dict, events: list[dict]) -> dict:
     """The wound against a planned ``plane`` (``[task.plane]``): the removed tissue
     of its organ in the cautery and dissection events. Its mean and largest distance
     [m] from the plane (None without a wound), the fraction of the line it reached
-    (:meth:`PlannedPlane.reached`), the fraction required and the session time [s]
-    it got there (None if it did not)."""
+    (:meth:`PlannedPlane.reached`), the fraction required, the session time [s]
+    it got there (None if it did not) and the planned ``line``'s ends in the plane
+    [m] (for the report's path plots)."""
     planned = PlannedPlane(plane)
     reached = np.zeros(len(planned.samples), dtype=bool)
     distances = []
@@ -79,6 +80,7 @@ def plane_result(plane: dict, events: list[dict]) -> dict:
         "coverage": float(reached.mean()),
         "coverage_needed": plane["coverage"],
         "reached_at": at,
+        "line": [planned.start.tolist(), (planned.start + planned.length * planned.along).tolist()],
     }
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from taichi_lap import plots
 from taichi_lap.core.files import write_atomically
 from taichi_lap.replay import read_recording
+from taichi_lap.scene.planned_plane import MARK_COLOUR
 from taichi_lap.training.metrics import (
     COUNTED_EVENTS,
     SessionMetrics,
@@ -275,9 +276,13 @@ def _force_plot(m: SessionMetrics) -> bytes:
 
 def _path_plot(m: SessionMetrics) -> bytes:
     """The tips' paths seen from above (x, z) and from the front (x, y), waypoints
-    marked."""
+    marked, and the task's planned line (dashed green, as drawn on the tissue)."""
     fig, axes = plots.figure(1, 2, size=(9.0, 4.0))
+    plane = ((m.task or {}).get("goal") or {}).get("plane")
+    planned = 1e3 * np.array(plane["line"]) if plane else None
     for ax, (a, b), view in zip(axes[0], ((0, 2), (0, 1)), ("from above", "from the front")):
+        if planned is not None:
+            ax.plot(planned[:, a], planned[:, b], "--", color=MARK_COLOUR, label="planned line")
         for name, tips in m.tips.items():
             if len(tips):
                 line = ax.plot(1e3 * tips[:, a], 1e3 * tips[:, b], lw=1, label=name)[0]
