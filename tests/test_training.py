@@ -124,6 +124,22 @@ def test_a_half_circle_has_the_economy_of_its_arc_over_its_chord(tmp_path):
     assert probe.economy == pytest.approx(math.pi / 2, rel=1e-4)
 
 
+def test_a_tasks_waypoints_replace_the_stops_in_the_economy(tmp_path):
+    """A half circle whose task asks the probe to pass its apex: the straight path
+    goes from the start through the apex to the end (economy π r / (2 √2 r))."""
+    radius, segments = 0.05, 200
+    angle = np.linspace(0.0, math.pi, segments + 1)
+    tips = np.stack([radius * np.cos(angle), np.zeros_like(angle), radius * np.sin(angle)], 1)
+    apex = [0.0, 0.0, radius]
+    scene = {"tools": [{"name": "probe"}], "task": {"waypoints": {"probe": [apex]}}}
+    path = write_session(tmp_path / "a.tlap", {"probe": tips}, raw_scene=scene)
+    probe = session_metrics(read_recording(path)).instruments["probe"]
+    np.testing.assert_allclose(probe.waypoints, [tips[0], apex, tips[-1]], atol=1e-12)
+    assert probe.straight_length == pytest.approx(2 * math.sqrt(2) * radius, rel=1e-12)
+    polygon = 2 * segments * radius * math.sin(math.pi / (2 * segments))
+    assert probe.economy == pytest.approx(polygon / (2 * math.sqrt(2) * radius), rel=1e-9)
+
+
 def test_a_stop_is_a_waypoint_and_its_time_is_idle(tmp_path):
     corner = [0.05, 0.0, 0.0]
     tips = np.concatenate(
@@ -371,6 +387,8 @@ def test_a_task_passes_within_its_bounds_and_fails_naming_the_bound_it_broke(tmp
         ({"pass": {"speed": 1.0}}, "task.pass.speed", "unknown key in task.pass"),
         ({"pass": {"economy": 0.5}}, "task.pass.economy", "a value in [1, 10000]"),
         ({"time_limit": -1.0}, "task.time_limit", "a value in [0, 86400] s"),
+        ({"waypoints": {"hook": [[0, 0, 0]]}}, "task.waypoints.hook", "a tool in this scene"),
+        ({"waypoints": [[0, 0, 0]]}, "task.waypoints", "a table of tool names"),
     ],
 )
 def test_a_bad_task_table_names_its_key(task, key, message):

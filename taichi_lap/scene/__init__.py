@@ -39,6 +39,7 @@ from taichi_lap.scene.schema import (
     TASK_PHASE_PARAMS,
     TASK_PLANE_PARAMS,
     TASK_VIEW_PARAMS,
+    TASK_WAYPOINT,
     TOOL_PARAMS,
     UNITS,
 )
@@ -322,10 +323,16 @@ def check_task(
     """A ``[task]`` table (:data:`TASK_PARAMS`, its ``pass`` thresholds
     :data:`TASK_PASS_PARAMS`, its goal: a planned transection ``plane``
     :data:`TASK_PLANE_PARAMS`, ``phases`` :data:`TASK_PHASE_PARAMS` and a ``view``
-    :data:`TASK_VIEW_PARAMS`, each optional) with defaults filled in; the organs,
+    :data:`TASK_VIEW_PARAMS`; ``waypoints``, per tool the points [m] it is to visit in
+    order, :data:`TASK_WAYPOINT`; each optional) with defaults filled in; the organs,
     tools and environment tubes it names must be the scene's (``organ_names``,
     ``tool_names``, ``tube_names``)."""
-    task = check_table(source, key, table, TASK_PARAMS, ignore=("pass", "plane", "phases", "view"))
+    task = check_table(
+        source, key, table, TASK_PARAMS, ignore=("pass", "plane", "phases", "view", "waypoints")
+    )
+    task["waypoints"] = _waypoints(
+        source, f"{key}.waypoints", table.get("waypoints", {}), tool_names
+    )
     task["view"] = None
     if "view" in table:
         view = task["view"] = check_table(source, f"{key}.view", table["view"], TASK_VIEW_PARAMS)
@@ -382,6 +389,27 @@ def check_task(
                 f"found {name!r}",
             )
     return task
+
+
+def _waypoints(source: str, key: str, table: Any, tool_names: list[str]) -> dict[str, list]:
+    """A task's ``waypoints``: per tool name of the scene, its points (a
+    :data:`TASK_WAYPOINT` value)."""
+    if not isinstance(table, dict):
+        raise InputError(
+            source,
+            key,
+            f"a table of tool names to point arrays was expected, found {describe(table)}",
+        )
+    out = {}
+    for tool, points in table.items():
+        if tool not in tool_names:
+            raise InputError(
+                source,
+                f"{key}.{tool}",
+                f"the name of a tool in this scene ({', '.join(tool_names)}) was expected",
+            )
+        out[tool] = check_value(source, f"{key}.{tool}", points, TASK_WAYPOINT)
+    return out
 
 
 def _tools(source: str, tables: list[dict]) -> list[dict]:

@@ -461,6 +461,15 @@ TASK_VIEW_PARAMS = {
         unit="s",
     ),
 }
+TASK_WAYPOINT = Param(
+    "vec3list",
+    REQUIRED,
+    "the points a tool is to visit in order; its economy of motion is measured against "
+    "the straight path from its start through them to its end",
+    lo=-100,
+    hi=100,
+    unit="m",
+)
 PHASE_EVENTS = (
     "grasp",
     "cut",

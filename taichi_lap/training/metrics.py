@@ -123,11 +123,13 @@ def stacked_stages(stage_series: dict[str, np.ndarray]) -> dict[str, np.ndarray]
     return {name: parts[name] for name in sorted(parts, key=rank.get)}
 
 
-def path_metrics(time: np.ndarray, tips: np.ndarray) -> dict:
+def path_metrics(time: np.ndarray, tips: np.ndarray, task_waypoints=None) -> dict:
     """Path length, waypoints, straight length, economy and idle time of a tip moving
     through ``tips`` (n, 3) [m] at ``time`` (n,) [s]. A segment slower than
     IDLE_SPEED is idle; an idle run of STOP_TIME or longer is a stop, a waypoint at
-    the position where the tip came to rest; the start and the end are waypoints."""
+    the position where the tip came to rest; the start and the end are waypoints.
+    With ``task_waypoints`` (points [m] the task gives this tool), those are the
+    waypoints between the start and the end instead of the stops."""
     steps = np.linalg.norm(np.diff(tips, axis=0), axis=1)
     spans = np.diff(time)
     idle = steps < IDLE_SPEED * spans
@@ -142,6 +144,8 @@ def path_metrics(time: np.ndarray, tips: np.ndarray) -> dict:
         if run < STOP_TIME <= run + spans[k]:
             waypoints.append(tips[rest])
         run += spans[k]
+    if task_waypoints and len(tips):
+        waypoints = [tips[0], *np.asarray(task_waypoints, dtype=np.float64)]
     if len(tips) > 1:
         waypoints.append(tips[-1])
     points = np.array(waypoints).reshape(-1, 3)
@@ -268,6 +272,8 @@ def session_metrics(recording: Recording) -> SessionMetrics:
         inside = np.where(clocks < clock[0], time[0] + clocks - clock[0], inside)
         return np.where(clocks > clock[-1], time[-1] + clocks - clock[-1], inside)
 
+    task = recorded_task(recording)
+    waypoints = task["waypoints"] if task is not None else {}
     tips, forces, instruments = {}, {}, {}
     for tool in recording.tools:
         held = [f for f in frames if tool in f.poses]
@@ -275,7 +281,7 @@ def session_metrics(recording: Recording) -> SessionMetrics:
         moved = np.array([f.time for f in held])
         forces[tool] = tool_forces(recording, tool, session_time)
         instruments[tool] = InstrumentMetrics(
-            **path_metrics(moved, tips[tool]),
+            **path_metrics(moved, tips[tool], waypoints.get(tool)),
             force_source=forces[tool].source,
             **force_metrics(forces[tool]),
             cautery_time=cautery_time(recording.events, tool, end_time),
@@ -318,7 +324,6 @@ def session_metrics(recording: Recording) -> SessionMetrics:
         stage_series=stage_series,
         views=view_series(recording.stats),
     )
-    task = recorded_task(recording)
     if task is not None:
         metrics.task = judge_task(task, metrics, recording.events)
     return metrics
