@@ -82,7 +82,7 @@ class Viewer:
         """The trainee's panel: the task, timer, running values, and once the task is
         over its verdict; a button ends the task early."""
         gui = self.window.get_gui()
-        with gui.sub_window("task", 0.70, 0.01, 0.29, 0.36):
+        with gui.sub_window("task", 0.64, 0.01, 0.35, 0.42):
             for line in lines:
                 gui.text(line)
             if not self.finish_requested and gui.button("finish the task"):

@@ -100,9 +100,8 @@ class LiveScore:
                 f"peak {self.peak_force[tool]:.2f} N"
             )
         if self.task and self.task["forbidden"]:
-            lines.append(
-                f"contacts with {', '.join(self.task['forbidden'])}: {self.forbidden_contacts}"
-            )
+            forbidden = ", ".join(self.task["forbidden"])
+            lines += textwrap.wrap(f"contacts with {forbidden}: {self.forbidden_contacts}", 48)
         if self.goal is not None:
             lines += self._goal_lines()
         return lines
