@@ -45,6 +45,20 @@ def membrane(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return positions[:count].reshape(shape), normals[:count].reshape(shape)
 
 
+def bent_sheet(radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """A grid of 4 rows by 6 columns on a quarter cylinder of ``radius`` [m], 6 cm
+    high: the columns' angles and the grid (4, 6, 3)."""
+    angle = np.linspace(0.0, 0.5 * np.pi, 6)
+    height = np.linspace(0.0, 0.06, 4)
+    grid = np.stack(
+        np.broadcast_arrays(
+            radius * np.cos(angle)[None, :], height[:, None], radius * np.sin(angle)[None, :]
+        ),
+        -1,
+    )
+    return angle, grid
+
+
 def test_the_membrane_of_an_affine_grid_is_that_plane_sampled_evenly():
     """Catmull-Rom reproduces linear functions, and the edges are extrapolated
     linearly: an affine grid gives its plane, sampled at i / across and j / along,
@@ -69,14 +83,7 @@ def test_the_membrane_passes_through_every_mass_and_follows_a_curved_sheet_smoot
     within 0.03 mm of the cylinder and its normals within 1° of the cylinder's, where
     the flat triangles between the masses stray 0.6 mm and 9° from it."""
     radius = 0.05
-    angle = np.linspace(0.0, 0.5 * np.pi, 6)
-    height = np.linspace(0.0, 0.06, 4)
-    grid = np.stack(
-        np.broadcast_arrays(
-            radius * np.cos(angle)[None, :], height[:, None], radius * np.sin(angle)[None, :]
-        ),
-        -1,
-    )
+    angle, grid = bent_sheet(radius)
     samples, normals = membrane(grid)
     assert np.allclose(samples[::ACROSS, ::ALONG], grid, atol=1e-6)
     off_axis = np.linalg.norm(samples[..., [0, 2]], axis=-1) - radius
@@ -136,14 +143,7 @@ def test_the_membrane_is_a_closed_shell_of_its_thickness_facing_outwards():
     each triangle faces the way its vertices' normals do (the rim's outward across
     the border)."""
     radius, half = 0.05, 0.001
-    angle = np.linspace(0.0, 0.5 * np.pi, 6)
-    height = np.linspace(0.0, 0.06, 4)
-    grid = np.stack(
-        np.broadcast_arrays(
-            radius * np.cos(angle)[None, :], height[:, None], radius * np.sin(angle)[None, :]
-        ),
-        -1,
-    )
+    _, grid = bent_sheet(radius)
     positions, normals = membrane_shell(grid, half)
     surface, surface_normals = membrane(grid)
     fine = surface.shape[:2]
