@@ -37,7 +37,7 @@ def test_the_liver_expert_scores_the_line_and_the_careless_hook_burns_the_vein(t
     assert plane["coverage"] >= 0.8 and plane["distance_max"] <= 0.003
     assert 0.0 < expert["goal"]["time_to_completion"] < 7.5
 
-    careless = judged(tmp_path, "careless", "liver", 200, "--device", "script:liver-careless")
+    careless = judged(tmp_path, "careless", "liver", 300, "--device", "script:liver-careless")
     assert not careless["passed"]
     assert {"plane coverage", "time to completion", "vessel_damage"} <= failed(careless)
     assert careless["goal"]["plane"]["distance_max"] > 0.003
