@@ -294,3 +294,41 @@ def mark_plane(
             if on_plane and 0.0 <= s <= length and ti.math.mod(s, MARK_DASH) < 0.6 * MARK_DASH:
                 clear = ti.exp(-smoke * gbuffer.depth[x, y])  # what the smoke lets through
                 frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75 * clear)
+
+
+TARGET_OUTLINE = 2
+"""[pixels] how far inside a task's view target its outline reaches."""
+
+
+@ti.kernel
+def outline_target(
+    gbuffer: ti.template(),
+    materials: ti.template(),
+    frame: ti.template(),
+    target: ti.i32,
+    smoke: ti.f32,
+):
+    """Outline a task's view target (``[task.view]``, object index ``target``) in the
+    marker's colour: the pixels showing it within TARGET_OUTLINE pixels of a pixel
+    that does not (another object, the background; past the image's edge it runs on)
+    are blended
+    towards MARK_COLOUR as :func:`mark_plane` blends the planned line, veiled alike by
+    the cautery ``smoke`` [1/m]. Only what shows is outlined: the trainee sees where
+    the target is uncovered."""
+    width, height = ti.static(frame.shape)
+    for x, y in frame:
+        triangle = gbuffer.triangle[x, y]
+        if triangle >= 0 and materials.triangle_object[triangle] == target:
+            edge = False
+            for step in ti.static(range(1, TARGET_OUTLINE + 1)):
+                for d in ti.static(((1, 0), (-1, 0), (0, 1), (0, -1))):
+                    u, v = x + d[0] * step, y + d[1] * step
+                    if 0 <= u < width and 0 <= v < height:  # it runs on past the image
+                        other = gbuffer.triangle[u, v]
+                        if other < 0:
+                            edge = True
+                        elif materials.triangle_object[other] != target:
+                            edge = True
+            if edge:
+                clear = ti.exp(-smoke * gbuffer.depth[x, y])
+                frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75 * clear)

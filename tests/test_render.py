@@ -407,3 +407,56 @@ if __name__ == "__main__":
     GOLDEN.parent.mkdir(exist_ok=True)
     imageio.imwrite(GOLDEN, material_spheres()["image"])
     print(f"wrote {GOLDEN}")
+
+
+def test_a_view_target_is_outlined_where_it_shows():
+    """Two squares side by side, objects 0 and 1; with object 1 the view target, the
+    pixels of it within TARGET_OUTLINE pixels (along the axes) of a pixel that does
+    not show it turn towards the marker's green, and no other pixel changes. The
+    intestine scene's renderer outlines its task's target, the colon."""
+    from taichi_lap.kernels.shading import TARGET_OUTLINE
+    from taichi_lap.scene.planned_plane import MARK_COLOUR
+
+    squares = [
+        np.array([[x, -0.01, 0.0], [x + 0.018, -0.01, 0.0], [x + 0.018, 0.01, 0.0], [x, 0.01, 0.0]])
+        for x in (-0.02, 0.001)
+    ]
+    positions = np.concatenate(squares).astype(np.float32)
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    mesh = ArrayMesh(
+        triangles,
+        np.zeros(4, np.int32),
+        [PRESETS["liver"]],
+        vertex_count=8,
+        smooth_count=8,
+        positions=positions,
+        triangle_object=np.array([0, 0, 1, 1]),
+    )
+    renderer = Renderer(mesh, head_on(np.array([0.0, 0.0, 0.08]), 20.0), size=(160, 80))
+    renderer.render(None, None)
+    plain = renderer.image().astype(float)
+    renderer.target = 1
+    renderer.render(None, None)
+    outlined = renderer.image().astype(float)
+    triangle = np.flipud(renderer.gbuffer.triangle.to_numpy().T)
+    target = np.isin(triangle, [2, 3])
+    edge = np.zeros_like(target)
+    padded = np.pad(target, TARGET_OUTLINE, constant_values=False)
+    height, width = target.shape
+    for step in range(1, TARGET_OUTLINE + 1):
+        for dy, dx in ((0, step), (0, -step), (step, 0), (-step, 0)):
+            shifted = padded[
+                TARGET_OUTLINE + dy : TARGET_OUTLINE + dy + height,
+                TARGET_OUTLINE + dx : TARGET_OUTLINE + dx + width,
+            ]
+            edge |= target & ~shifted
+    changed = np.abs(outlined - plain).max(axis=2) > 0
+    assert edge.sum() > 100 and (target & ~edge).sum() > 100
+    assert not (changed & ~edge).any()  # nothing but the target's outline changes
+    green = np.array(MARK_COLOUR) * 255.0
+    closer = np.linalg.norm(outlined - green, axis=2) < np.linalg.norm(plain - green, axis=2)
+    assert closer[edge].all()
+
+    session = small_session("intestine")
+    scene_renderer = Renderer.for_scene(session.scene, session.model, size=(64, 48))
+    assert scene_renderer.mesh.object_names[scene_renderer.target] == "colon"

@@ -26,6 +26,7 @@ from taichi_lap.kernels.shading import (
     depth_histogram,
     fill_checkerboard,
     mark_plane,
+    outline_target,
     shade,
 )
 from taichi_lap.render.blood import BloodFilm
@@ -129,6 +130,7 @@ class Renderer:
         self._frame_tree = builder.finalize()
         self.view = 0
         self.planned: tuple[int, PlannedPlane] | None = None  # (organ, plane) to mark
+        self.target: int | None = None  # the object index of a view target to outline
         self.timings: dict[str, float] = {}
         self._alone = None  # view_of's G-buffer and triangle list, made at its first call
         self._matrix = None  # the last frame's view-projection
@@ -136,7 +138,8 @@ class Renderer:
     @classmethod
     def for_scene(cls, scene, model, *, size=(640, 480)) -> "Renderer":
         """The renderer of a scene: the organs of its ``model``, tubes and instruments
-        seen from its camera, with its task's planned transection marked."""
+        seen from its camera, with its task's planned transection marked and its view
+        target outlined."""
         renderer = cls(
             SceneMesh(scene, model),
             EndoscopeCamera.from_scene(scene.camera),
@@ -153,6 +156,9 @@ class Renderer:
         if plane is not None:
             organ = [organ.name for organ in scene.organs].index(plane["organ"])
             renderer.planned = (organ, PlannedPlane(plane))
+        view = scene.task["view"] if scene.task else None
+        if view is not None:
+            renderer.target = renderer.mesh.object_names.index(view["target"])
         return renderer
 
     def render(self, state, control, peak=None):
@@ -211,6 +217,8 @@ class Renderer:
                 plane.length,
                 self.smoke,
             )
+        if self.target is not None and self.view == 0:
+            outline_target(self.gbuffer, self.mesh, self.frame, self.target, self.smoke)
         ti.sync()
         marks.append(time.perf_counter())
         for name, a, b in zip(("vertex", "visibility", "shading"), marks, marks[1:]):
