@@ -375,6 +375,7 @@ def test_checkerboard_shading_fills_only_smooth_pixels_from_their_shaded_neighbo
     session = small_session("intestine")
     renderer = Renderer.for_scene(session.scene, session.model, size=(192, 144))
     renderer.auto_exposure, renderer.distortion, renderer.vignetting = False, 0.0, 0.0
+    renderer.target = None  # the task target's outline is drawn over the filled image
     images = {}
     for checkerboard in (False, True):
         renderer.checkerboard = checkerboard
