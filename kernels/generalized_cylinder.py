@@ -329,6 +329,25 @@ CAP_RINGS = 3
 quarter circle from the end ring to the pole."""
 
 
+def cap_size(sides: int) -> tuple[int, int]:
+    """The vertices and triangles of one rounded end cap of a tube of ``sides``: its
+    rings but the pole, the pole, and two triangles per side of each band but the
+    last, which is a fan of one per side."""
+    return (CAP_RINGS - 1) * sides + 1, (2 * CAP_RINGS - 1) * sides
+
+
+@ti.func
+def _capped(tubes: ti.template(), t, tube_count):
+    """Whether tube t is live and has rings (its two caps are drawn)."""
+    return t < tube_count and tubes.tube_ring_base[t + 1] > tubes.tube_ring_base[t]
+
+
+@ti.func
+def _end_ring(tubes: ti.template(), t, end):
+    """The ring index of tube t's first (``end`` 0) or last (1) ring."""
+    return tubes.tube_ring_base[t] if end == 0 else tubes.tube_ring_base[t + 1] - 1
+
+
 @ti.func
 def cap_vertex(tubes: ti.template(), t, end, k, spacing):
     """Vertex k of the cap at ``end`` (0: first ring, 1: last) of live tube t: (position,
@@ -336,7 +355,7 @@ def cap_vertex(tubes: ti.template(), t, end, k, spacing):
     CAP_RINGS) lies at angle θ = i · 90° / CAP_RINGS: centre + cos θ q(φ) + sin θ r
     (outward axis), q the end ring's own radius vector, the normal the sphere's; the
     texcoord continues the tube's (the distance along the axis, then the ring's)."""
-    g = tubes.tube_ring_base[t] if end == 0 else tubes.tube_ring_base[t + 1] - 1
+    g = _end_ring(tubes, t, end)
     outward = tubes.ring_center_rate[g].normalized(1e-30) * (2.0 * end - 1.0)
     ring = ti.min(k // tubes.sides + 1, CAP_RINGS)
     theta = (0.5 * math.pi / CAP_RINGS) * ring
@@ -461,8 +480,7 @@ def skin_tubes(
         for k in ti.static(range(6)):
             indices[index_offset + 6 * slot + k] = corners[k]
     sides = tubes.sides  # the rounded end caps (cap_vertex)
-    per_cap = (CAP_RINGS - 1) * sides + 1
-    triangles_per_cap = (2 * CAP_RINGS - 1) * sides
+    per_cap, triangles_per_cap = ti.static(cap_size(tubes.sides))
     for slot in range(2 * tubes.tube_capacity * per_cap):
         cap = slot // per_cap
         t, end, k = cap // 2, cap % 2, slot - cap * per_cap
@@ -471,7 +489,7 @@ def skin_tubes(
             ti.Vector.zero(ti.f32, 3),
             ti.Vector.zero(ti.f32, 3),
         )
-        if t < tube_count and tubes.tube_ring_base[t + 1] > tubes.tube_ring_base[t]:
+        if _capped(tubes, t, tube_count):
             position, normal, texcoord = cap_vertex(tubes, t, end, k, spacing)
         vertices[cap_vertex_offset + slot] = position
         normals[cap_vertex_offset + slot] = normal
@@ -480,8 +498,8 @@ def skin_tubes(
         cap = slot // triangles_per_cap
         t, end, k = cap // 2, cap % 2, slot - cap * triangles_per_cap
         corners = ti.Vector([vertex_offset] * 3)
-        if t < tube_count and tubes.tube_ring_base[t + 1] > tubes.tube_ring_base[t]:
-            g = tubes.tube_ring_base[t] if end == 0 else tubes.tube_ring_base[t + 1] - 1
+        if _capped(tubes, t, tube_count):
+            g = _end_ring(tubes, t, end)
             first = cap_vertex_offset + cap * per_cap
             band, side = k // (2 * sides), (k % (2 * sides)) // 2
             after = (side + 1) % sides

@@ -44,8 +44,11 @@ class TubeMesh:
     so with P = ``point_capacity`` and B = 2^(max_level+1) - 1:
 
     - ``ring_capacity = 3 B (P - 1) + 1``
-    - ``vertex_capacity = sides * ring_capacity``
-    - ``triangle_capacity = 2 * sides * (ring_capacity - 1)`` (index field: 3 per triangle)
+    - ``cap_vertex_start = sides * ring_capacity``
+    - ``cap_triangle_start = 2 * sides * (ring_capacity - 1)``
+    - ``vertex_capacity`` and ``triangle_capacity``: those and two end caps per tube
+      (:func:`~taichi_lap.kernels.generalized_cylinder.cap_size`; index field: 3 per
+      triangle)
     """
 
     def __init__(
@@ -68,10 +71,9 @@ class TubeMesh:
         self.cap_vertex_start = self.sides * self.ring_capacity
         self.cap_triangle_start = 2 * self.sides * (self.ring_capacity - 1)
         caps = 2 * self.tube_capacity
-        self.vertex_capacity = self.cap_vertex_start + caps * ((gc.CAP_RINGS - 1) * self.sides + 1)
-        self.triangle_capacity = (
-            self.cap_triangle_start + caps * (2 * gc.CAP_RINGS - 1) * self.sides
-        )
+        cap_vertices, cap_triangles = gc.cap_size(self.sides)
+        self.vertex_capacity = self.cap_vertex_start + caps * cap_vertices
+        self.triangle_capacity = self.cap_triangle_start + caps * cap_triangles
         samples = 3 * self.point_capacity
         g = FieldGroup()
         f32, i32 = ti.f32, ti.i32
