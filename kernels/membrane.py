@@ -76,8 +76,8 @@ def grid_point(points: ti.template(), first, rows, cols, r, c):
 @ti.func
 def membrane_sample(points: ti.template(), first, rows, cols, across, along, i, j):
     """Sample (i, j) of the membrane through the ``rows`` x ``cols`` grid of
-    ``points`` from ``first``: its point and partial derivatives along the rows and
-    the columns."""
+    ``points`` from ``first``: its point, partial derivatives along the rows and the
+    columns, and unit normal (their cross product)."""
     r, c = ti.min(i // across, rows - 2), ti.min(j // along, cols - 2)
     weights_r, slopes_r = catmull_rom(i / across - r)
     weights_c, slopes_c = catmull_rom(j / along - c)
@@ -89,7 +89,7 @@ def membrane_sample(points: ti.template(), first, rows, cols, across, along, i, 
             point += weights_r[a] * weights_c[b] * q
             d_row += slopes_r[a] * weights_c[b] * q
             d_col += weights_r[a] * slopes_c[b] * q
-    return point, d_row, d_col
+    return point, d_row, d_col, d_row.cross(d_col).normalized(1e-12)
 
 
 @ti.func
@@ -133,8 +133,7 @@ def membrane_vertices(
     fine_rows, fine_cols = (rows - 1) * across + 1, (cols - 1) * along + 1
     count = fine_rows * fine_cols
     for i, j in ti.ndrange(fine_rows, fine_cols):
-        point, d_row, d_col = membrane_sample(points, first, rows, cols, across, along, i, j)
-        n = d_row.cross(d_col).normalized(1e-12)
+        point, _, _, n = membrane_sample(points, first, rows, cols, across, along, i, j)
         positions[offset + i * fine_cols + j] = point + half_thickness * n
         normals[offset + i * fine_cols + j] = n
         positions[offset + count + i * fine_cols + j] = point - half_thickness * n
@@ -142,8 +141,7 @@ def membrane_vertices(
     border = 2 * (fine_rows - 1) + 2 * (fine_cols - 1)
     for k in range(border):
         i, j, side = rim_sample(k, fine_rows, fine_cols)
-        point, d_row, d_col = membrane_sample(points, first, rows, cols, across, along, i, j)
-        n = d_row.cross(d_col).normalized(1e-12)
+        point, d_row, d_col, n = membrane_sample(points, first, rows, cols, across, along, i, j)
         out = -d_row
         if side == 1:
             out = d_col
