@@ -265,6 +265,15 @@ MARK_HALF_WIDTH = 0.0006  # [m]
 MARK_DASH = 0.004  # [m] one dash and its gap along the line
 
 
+@ti.func
+def _mark(gbuffer: ti.template(), frame: ti.template(), x, y, smoke):
+    """Pixel (x, y) of ``frame`` blended towards MARK_COLOUR, the less the thicker the
+    cautery ``smoke`` [1/m] between it and the scope (by exp(-smoke depth), as
+    :func:`shade` veils the tissue)."""
+    clear = ti.exp(-smoke * gbuffer.depth[x, y])  # what the smoke lets through
+    frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75 * clear)
+
+
 @ti.kernel
 def mark_plane(
     gbuffer: ti.template(),
@@ -282,9 +291,8 @@ def mark_plane(
     of ``organ`` (object index) whose surface point lies within MARK_HALF_WIDTH [m] of
     the plane through ``point`` with unit ``normal``, beside the planned line (from
     ``start`` along unit ``along``, ``length`` [m]), dashed every MARK_DASH, are
-    blended towards MARK_COLOUR, the less the thicker the cautery ``smoke`` [1/m]
-    between it and the scope (by exp(-smoke depth), as :func:`shade` veils the tissue).
-    It follows the tissue as it deforms and is cut."""
+    marked in MARK_COLOUR, veiled by the cautery ``smoke`` [1/m] (:func:`_mark`). It
+    follows the tissue as it deforms and is cut."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
         if triangle >= 0 and materials.triangle_object[triangle] == organ:
@@ -292,8 +300,7 @@ def mark_plane(
             s = (p - start).dot(along)
             on_plane = ti.abs((p - point).dot(normal)) < MARK_HALF_WIDTH
             if on_plane and 0.0 <= s <= length and ti.math.mod(s, MARK_DASH) < 0.6 * MARK_DASH:
-                clear = ti.exp(-smoke * gbuffer.depth[x, y])  # what the smoke lets through
-                frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75 * clear)
+                _mark(gbuffer, frame, x, y, smoke)
 
 
 TARGET_OUTLINE = 2
@@ -311,9 +318,7 @@ def outline_target(
     """Outline a task's view target (``[task.view]``, object index ``target``) in the
     marker's colour: the pixels showing it within TARGET_OUTLINE pixels of a pixel
     that does not (another object, the background; past the image's edge it runs on)
-    are blended
-    towards MARK_COLOUR as :func:`mark_plane` blends the planned line, veiled alike by
-    the cautery ``smoke`` [1/m]. Only what shows is outlined: the trainee sees where
+    are marked as :func:`mark_plane` marks the planned line (:func:`_mark`). Only what shows is outlined: the trainee sees where
     the target is uncovered."""
     width, height = ti.static(frame.shape)
     for x, y in frame:
@@ -330,5 +335,4 @@ def outline_target(
                         elif materials.triangle_object[other] != target:
                             edge = True
             if edge:
-                clear = ti.exp(-smoke * gbuffer.depth[x, y])
-                frame[x, y] = ti.math.mix(frame[x, y], ti.Vector(MARK_COLOUR), 0.75 * clear)
+                _mark(gbuffer, frame, x, y, smoke)
