@@ -185,7 +185,7 @@ def blade(radius: float):
 
 def fascia_cut_cases(quick: bool, random_cuts: int, seed: int = 0) -> list[dict]:
     """``fascia-cut-host`` and ``random-cuts-fascia-host`` (module docstring)."""
-    from taichi_lap.core.mesh import element_pieces
+    from taichi_lap.core.mesh import piece_count
     from taichi_lap.dissection.surface_cut import Sweep, cut_surface, sheet_problems
 
     points, triangles = fascia_sheet()
@@ -210,7 +210,7 @@ def fascia_cut_cases(quick: bool, random_cuts: int, seed: int = 0) -> list[dict]
         "cut_at_z_m": round(float(z), 4),
         "vertices_after": len(points),
         "triangles_after": len(triangles),
-        "pieces": int(element_pieces(triangles).max()) + 1,
+        "pieces": piece_count(triangles),
     }
     out = [
         result("fascia-cut-host", params, "ms_per_update", times),

@@ -120,6 +120,11 @@ def element_pieces(elements: np.ndarray) -> np.ndarray:
     return np.unique(label, return_inverse=True)[1].reshape(-1)
 
 
+def piece_count(elements: np.ndarray) -> int:
+    """How many connected pieces the ``elements`` form (:func:`element_pieces`)."""
+    return int(element_pieces(elements).max(initial=-1)) + 1
+
+
 def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Signed volumes ``(T,)`` [m^3] of ``tets`` at ``points``, positive for positively
     oriented tets (corner 3 on the side of the face 0-1-2 its normal points away from,

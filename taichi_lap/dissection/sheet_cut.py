@@ -33,7 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_lap.core.geometry import TriangleMesh
-from taichi_lap.core.mesh import element_pieces, pair_lengths, rows_in, unique_edges
+from taichi_lap.core.mesh import (
+    element_pieces,
+    pair_lengths,
+    piece_count,
+    rows_in,
+    unique_edges,
+)
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
@@ -163,7 +169,7 @@ class SheetCutter:
                 # a sheet's constraints that are not edges are its bending pairs
                 struts=_NO_STRUTS if is_sheet else built_struts(data, k),
                 is_sheet=is_sheet,
-                pieces=len(np.unique(element_pieces(dissection.topology.live_faces(k)))),
+                pieces=piece_count(dissection.topology.live_faces(k)),
             )
             self.sheets.append(sheet)
 
@@ -301,8 +307,7 @@ class SheetCutter:
                 if change is not None:
                     out.append((self.dissection.model.data.organs[sheet.organ].name, change))
                     self._write_constraints(sheet)
-                    faces = topology.live_faces(sheet.organ)
-                    self._count_pieces(sheet, len(np.unique(element_pieces(faces))))
+                    self._count_pieces(sheet, piece_count(topology.live_faces(sheet.organ)))
                     break
         return out
 
