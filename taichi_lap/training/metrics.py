@@ -134,18 +134,10 @@ def path_metrics(time: np.ndarray, tips: np.ndarray, task_waypoints=None) -> dic
     spans = np.diff(time)
     idle = steps < IDLE_SPEED * spans
     waypoints = [tips[0]] if len(tips) else []
-    run, rest = 0.0, 0
-    for k, still in enumerate(idle):
-        if not still:
-            run = 0.0
-            continue
-        if run == 0.0:
-            rest = k
-        if run < STOP_TIME <= run + spans[k]:
-            waypoints.append(tips[rest])
-        run += spans[k]
     if task_waypoints and len(tips):
-        waypoints = [tips[0], *np.asarray(task_waypoints, dtype=np.float64)]
+        waypoints += list(np.asarray(task_waypoints, dtype=np.float64))
+    else:
+        waypoints += _stops(tips, spans, idle)
     if len(tips) > 1:
         waypoints.append(tips[-1])
     points = np.array(waypoints).reshape(-1, 3)
@@ -158,6 +150,22 @@ def path_metrics(time: np.ndarray, tips: np.ndarray, task_waypoints=None) -> dic
         "idle_time": float(spans[idle].sum()),
         "waypoints": points.tolist(),
     }
+
+
+def _stops(tips: np.ndarray, spans: np.ndarray, idle: np.ndarray) -> list[np.ndarray]:
+    """Where the tip came to rest in each idle run of STOP_TIME or longer (``spans``
+    the steps' durations [s], ``idle`` whether each step was idle)."""
+    stops, run, rest = [], 0.0, 0
+    for k, still in enumerate(idle):
+        if not still:
+            run = 0.0
+            continue
+        if run == 0.0:
+            rest = k
+        if run < STOP_TIME <= run + spans[k]:
+            stops.append(tips[rest])
+        run += spans[k]
+    return stops
 
 
 def force_metrics(series: ForceSeries) -> dict:
