@@ -76,10 +76,11 @@ def organ_tint(scene, data) -> TintGrid:
     for record in data.organs:
         spec = specs[record.name]
         particles = np.arange(record.particles[0], record.particles[1] - record.reserve)
-        if organ_material(spec).subsurface > 0.0:
+        material = organ_material(spec)
+        if material.subsurface > 0.0:
             tissue.append(particles)
         if spec.appearance in VESSEL_APPEARANCES:
-            vessels.append((particles, organ_material(spec)))
+            vessels.append((particles, material))
     return vessel_tint_grid(data.rest_position, tissue, vessels)
 
 

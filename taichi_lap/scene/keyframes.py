@@ -85,14 +85,18 @@ def read_keyframes(source: str, frames: list, tools: list[dict]) -> dict[str, li
         for name, bit in BUTTON_KEYS.items():
             if frame[name] is not None:
                 buttons = buttons | bit if frame[name] else buttons & ~bit
-        roll = np.radians(frame["roll"]) if frame["roll"] is not None else None
+        roll = (
+            np.radians(frame["roll"])
+            if frame["roll"] is not None
+            else (track[-1].roll if track else 0.0)
+        )
         track.append(
             Keyframe(
                 frame["time"],
                 np.asarray(frame["tip"], float),
                 unit(direction),
                 buttons,
-                float(roll if roll is not None else track[-1].roll if track else 0.0),
+                float(roll),
             )
         )
     return keyframes
