@@ -307,28 +307,26 @@ def push_out_of_tools(control: ti.template(), p, x, r):
     a tool touched it (seed 000 Alg. 1 lines 13-14 then hold its goal)."""
     hit = 0
     for k in range(MAX_TOOLS):
-        pose, last = control_pose(control, k), control.tool_last[k]
-        reach = bounding_radius(control, k, pose) + pose_motion(last, pose) + r
-        if (
-            control.tool_active[k]
-            and (p - point_segment(pose.tip, pose.tail, p)).norm_sqr() < reach * reach
-        ):
-            entry = p
-            for _ in range(MAX_TOOL_SHAPES):
-                moved = 0
-                for s in range(MAX_TOOL_SHAPES):
-                    dist, grad = swept_shape_distance(
-                        control, k * MAX_TOOL_SHAPES + s, last, pose, x, p
-                    )
-                    if dist < r:
-                        p += (r - dist) * grad
-                        moved = 1
-                hit |= moved
-                if not moved:
-                    break
-            push = p - entry
-            depth = push.norm()
-            if depth > 0.0:
-                limit = TOOL_FRICTION * depth
-                p = coulomb_friction(p, x, pose.tip - last.tip, push / depth, limit)
+        if control.tool_active[k]:  # nested: Taichi evaluates both sides of `and`
+            pose, last = control_pose(control, k), control.tool_last[k]
+            reach = bounding_radius(control, k, pose) + pose_motion(last, pose) + r
+            if (p - point_segment(pose.tip, pose.tail, p)).norm_sqr() < reach * reach:
+                entry = p
+                for _ in range(MAX_TOOL_SHAPES):
+                    moved = 0
+                    for s in range(MAX_TOOL_SHAPES):
+                        dist, grad = swept_shape_distance(
+                            control, k * MAX_TOOL_SHAPES + s, last, pose, x, p
+                        )
+                        if dist < r:
+                            p += (r - dist) * grad
+                            moved = 1
+                    hit |= moved
+                    if not moved:
+                        break
+                push = p - entry
+                depth = push.norm()
+                if depth > 0.0:
+                    limit = TOOL_FRICTION * depth
+                    p = coulomb_friction(p, x, pose.tip - last.tip, push / depth, limit)
     return p, hit
