@@ -39,6 +39,7 @@ from taichi_lap.core.fields import FieldGroup
 SH_ROWS, SH_COLUMNS = 128, 256  # latitude-longitude quadrature grid of the SH projection
 DFG_SIZE, DFG_SAMPLES = 32, 256
 PREFILTER_WIDTH, PREFILTER_HEIGHT, PREFILTER_LEVELS, PREFILTER_SAMPLES = 64, 32, 5, 512
+assert PREFILTER_WIDTH & (PREFILTER_WIDTH - 1) == 0, "columns wrap by a bit mask"
 FRESNEL_WEIGHT_MEAN = 0.048864
 """Cosine-weighted hemispherical mean of the Eq. 11 weight, 2 ∫ fresnel_weight(mu) mu dmu."""
 
@@ -204,15 +205,30 @@ def integrate_dfg(dfg: ti.template()):
 
 
 @ti.func
+def _dfg_cell(coordinate):
+    """Cell and fraction of a DFG table axis at ``coordinate`` in [0, 1] (n·v or
+    roughness; samples at (i + 0.5) / DFG_SIZE), clamped at the edges."""
+    x = ti.math.clamp(coordinate * DFG_SIZE - 0.5, 0.0, DFG_SIZE - 1.0)
+    i0 = ti.min(ti.cast(x, ti.i32), DFG_SIZE - 2)
+    return i0, x - i0
+
+
+@ti.func
 def dfg_lookup(dfg, n_dot_v, roughness):
     """(A, B) of the DFG table at n·v and roughness, bilinear, clamped at the edges."""
-    x = ti.math.clamp(n_dot_v * DFG_SIZE - 0.5, 0.0, DFG_SIZE - 1.0)
-    y = ti.math.clamp(roughness * DFG_SIZE - 0.5, 0.0, DFG_SIZE - 1.0)
-    i0, j0 = ti.min(ti.cast(x, ti.i32), DFG_SIZE - 2), ti.min(ti.cast(y, ti.i32), DFG_SIZE - 2)
-    fx, fy = x - i0, y - j0
+    i0, fx = _dfg_cell(n_dot_v)
+    j0, fy = _dfg_cell(roughness)
     row0 = ti.math.mix(dfg[j0 * DFG_SIZE + i0], dfg[j0 * DFG_SIZE + i0 + 1], fx)
     row1 = ti.math.mix(dfg[(j0 + 1) * DFG_SIZE + i0], dfg[(j0 + 1) * DFG_SIZE + i0 + 1], fx)
     return ti.math.mix(row0, row1, fy)
+
+
+@ti.func
+def dfg_row_lookup(row, n_dot_v):
+    """(A, B) of one roughness's row of the DFG table (``row[i]`` at n·v = (i + 0.5) /
+    DFG_SIZE) at n·v, linear, clamped at the edges."""
+    i0, fx = _dfg_cell(n_dot_v)
+    return ti.math.mix(row[i0], row[i0 + 1], fx)
 
 
 @ti.kernel
@@ -238,57 +254,75 @@ def prefilter_environment(environment: ti.template(), intensity: ti.f32, maps: t
 
 
 @ti.func
-def latlong_texel(d):
-    """Continuous texel coordinates (column, row) of unit direction ``d`` in the
-    prefiltered maps (texel centres at integers; rows clamped, columns unwrapped)."""
+def latlong_taps(d):
+    """The bilinear taps of the prefiltered maps along unit direction ``d``: columns
+    c0, c1 (wrapped in phi), the upper row r0 (rows r0, r0 + 1; clamped in theta) and
+    the fractions (fx, fy) towards c1 and r0 + 1. Texel centres lie at integers."""
     theta = ti.acos(ti.math.clamp(d.y, -1.0, 1.0))
     phi = ti.atan2(d.z, d.x)
     phi = ti.select(phi < 0.0, phi + 2.0 * PI, phi)
-    return ti.Vector(
-        [
-            phi * (PREFILTER_WIDTH / (2.0 * PI)) - 0.5,
-            ti.math.clamp(theta * (PREFILTER_HEIGHT / PI) - 0.5, 0.0, PREFILTER_HEIGHT - 1.0),
-        ]
+    x = phi * (PREFILTER_WIDTH / (2.0 * PI)) - 0.5
+    y = ti.math.clamp(theta * (PREFILTER_HEIGHT / PI) - 0.5, 0.0, PREFILTER_HEIGHT - 1.0)
+    x0 = ti.floor(x)
+    c0 = ti.cast(x0, ti.i32) & (PREFILTER_WIDTH - 1)  # wraps: the width is a power of two
+    r0 = ti.min(ti.cast(y, ti.i32), PREFILTER_HEIGHT - 2)
+    return c0, (c0 + 1) & (PREFILTER_WIDTH - 1), r0, x - x0, y - r0
+
+
+@ti.func
+def latlong_sample(maps, level, taps):
+    """Bilinear sample of level ``level`` of latitude-longitude ``maps`` at ``taps``
+    (from :func:`latlong_taps`)."""
+    c0, c1, r0, fx, fy = taps
+    top = (level * PREFILTER_HEIGHT + r0) * PREFILTER_WIDTH
+    bottom = top + PREFILTER_WIDTH
+    return ti.math.mix(
+        ti.math.mix(maps[top + c0], maps[top + c1], fx),
+        ti.math.mix(maps[bottom + c0], maps[bottom + c1], fx),
+        fy,
     )
 
 
 @ti.func
-def latlong_sample(maps, level, texel):
-    """Bilinear sample of level ``level`` of the prefiltered maps at ``texel`` (from
-    :func:`latlong_texel`; wraps in phi, clamps in theta)."""
-    x0 = ti.floor(texel.x)
-    fx = texel.x - x0
-    c0 = (ti.cast(x0, ti.i32) + PREFILTER_WIDTH) % PREFILTER_WIDTH
-    c1 = (c0 + 1) % PREFILTER_WIDTH
-    r0 = ti.min(ti.cast(texel.y, ti.i32), PREFILTER_HEIGHT - 2)
-    fy = texel.y - r0
-    base = level * PREFILTER_HEIGHT
-    top = ti.math.mix(
-        maps[(base + r0) * PREFILTER_WIDTH + c0], maps[(base + r0) * PREFILTER_WIDTH + c1], fx
-    )
-    bottom = ti.math.mix(
-        maps[(base + r0 + 1) * PREFILTER_WIDTH + c0],
-        maps[(base + r0 + 1) * PREFILTER_WIDTH + c1],
-        fx,
-    )
-    return ti.math.mix(top, bottom, fy)
-
-
-@ti.func
-def prefiltered_at(maps, texel, roughness):
-    """Prefiltered environment radiance at ``texel`` for ``roughness`` in [0, 1]:
+def prefiltered_at(maps, taps, roughness):
+    """Prefiltered environment radiance at ``taps`` for ``roughness`` in [0, 1]:
     bilinear in the map, linear between the two nearest levels."""
     level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
     k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
     return ti.math.mix(
-        latlong_sample(maps, k0, texel), latlong_sample(maps, k0 + 1, texel), level - k0
+        latlong_sample(maps, k0, taps), latlong_sample(maps, k0 + 1, taps), level - k0
     )
 
 
 @ti.func
 def prefiltered_radiance(maps, direction, roughness):
     """Prefiltered environment radiance along unit ``direction`` for ``roughness``."""
-    return prefiltered_at(maps, latlong_texel(direction), roughness)
+    return prefiltered_at(maps, latlong_taps(direction), roughness)
+
+
+@ti.kernel
+def fix_roughness(
+    prefiltered: ti.template(),
+    dfg: ti.template(),
+    roughness: ti.f32,
+    map_out: ti.template(),
+    dfg_out: ti.template(),
+):
+    """The maps and DFG table of one ``roughness`` (the mucus film's): ``map_out``
+    the prefiltered levels mixed as :func:`prefiltered_at` mixes them (one level,
+    read with :func:`latlong_sample` at level 0), ``dfg_out`` the table's rows mixed
+    as :func:`dfg_lookup` mixes them (read with :func:`dfg_row_lookup`). Sampling
+    these equals sampling the full tables at that roughness (both are linear in the
+    texels), with half the taps."""
+    level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
+    k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
+    size = PREFILTER_HEIGHT * PREFILTER_WIDTH
+    for texel in range(size):
+        lower, upper = prefiltered[k0 * size + texel], prefiltered[(k0 + 1) * size + texel]
+        map_out[texel] = ti.math.mix(lower, upper, level - k0)
+    j0, fy = _dfg_cell(roughness)
+    for i in range(DFG_SIZE):
+        dfg_out[i] = ti.math.mix(dfg[j0 * DFG_SIZE + i], dfg[(j0 + 1) * DFG_SIZE + i], fy)
 
 
 @ti.func
@@ -317,15 +351,13 @@ def ibl_specular(lighting, n, v, albedo, roughness, metalness, mucus):
     same for the water film (F0 = 0.02, roughness 0.08). RGB, the environment's units."""
     n_dot_v = ti.max(n.dot(v), N_DOT_MIN)
     r = 2.0 * n.dot(v) * n - v
-    texel = latlong_texel(r)
+    taps = latlong_taps(r)
     ab = dfg_lookup(lighting.dfg, n_dot_v, roughness)
-    base = prefiltered_at(lighting.prefiltered, texel, roughness) * (
+    base = prefiltered_at(lighting.prefiltered, taps, roughness) * (
         specular_f0(albedo, metalness) * ab[0] + ab[1]
     )
-    coat_ab = dfg_lookup(lighting.dfg, n_dot_v, MUCUS_ROUGHNESS)
-    coat = prefiltered_at(lighting.prefiltered, texel, MUCUS_ROUGHNESS) * (
-        MUCUS_F0 * coat_ab[0] + coat_ab[1]
-    )
+    coat_ab = dfg_row_lookup(lighting.coat_dfg, n_dot_v)
+    coat = latlong_sample(lighting.coat_map, 0, taps) * (MUCUS_F0 * coat_ab[0] + coat_ab[1])
     film = 1.0 - mucus * mucus_fresnel(n_dot_v)
     return film * film * base + mucus * coat
 
@@ -341,6 +373,8 @@ class ImageLighting:
       n·v column i), read with :func:`dfg_lookup`;
     - ``prefiltered``: PREFILTER_LEVELS * PREFILTER_HEIGHT * PREFILTER_WIDTH x vec3 f32 at
       ``(level * HEIGHT + row) * WIDTH + col``, read with :func:`prefiltered_radiance`;
+    - ``coat_map`` (PREFILTER_HEIGHT * PREFILTER_WIDTH x vec3) and ``coat_dfg``
+      (DFG_SIZE x vec2): both at the mucus film's roughness (:func:`fix_roughness`);
     - ``sh_row_sums``: SH_ROWS * 9 x vec3 f32, scratch of the projection.
 
     Pass the object to a kernel as ``lighting: ti.template()`` and call
@@ -355,7 +389,10 @@ class ImageLighting:
         self.prefiltered = group.field(
             ti.f32, PREFILTER_LEVELS * PREFILTER_HEIGHT * PREFILTER_WIDTH, vector=3
         )
+        self.coat_map = group.field(ti.f32, PREFILTER_HEIGHT * PREFILTER_WIDTH, vector=3)
+        self.coat_dfg = group.field(ti.f32, DFG_SIZE, vector=2)
         group.finalize()
         project_sh9(environment, float(intensity), self.sh_row_sums, self.sh_coeffs)
         integrate_dfg(self.dfg)
         prefilter_environment(environment, float(intensity), self.prefiltered)
+        fix_roughness(self.prefiltered, self.dfg, MUCUS_ROUGHNESS, self.coat_map, self.coat_dfg)

@@ -193,10 +193,12 @@ def shade(
             albedo = ti.math.mix(albedo, ti.Vector(CHAR_ALBEDO), c)
             roughness = ti.math.mix(materials.roughness[m], CHAR_ROUGHNESS, c)
             metalness, mucus = materials.metalness[m], materials.mucus[m] * (1.0 - c)
-            blood = 1.0 - ti.exp(-gbuffer.blood[x, y] / BLOOD_FILM)  # the film's cover
-            albedo = ti.math.mix(albedo, ti.Vector(BLOOD_ALBEDO), blood)
-            roughness = ti.math.mix(roughness, BLOOD_ROUGHNESS, blood)
-            mucus = ti.math.mix(mucus, 1.0, blood)
+            blood = 0.0
+            if gbuffer.blood[x, y] > 0.0:  # most pixels: no exp
+                blood = 1.0 - ti.exp(-gbuffer.blood[x, y] / BLOOD_FILM)  # the film's cover
+                albedo = ti.math.mix(albedo, ti.Vector(BLOOD_ALBEDO), blood)
+                roughness = ti.math.mix(roughness, BLOOD_ROUGHNESS, blood)
+                mucus = ti.math.mix(mucus, 1.0, blood)
             to_eye = light.eye[None] - p
             distance = to_eye.norm(1e-9)
             v = to_eye / distance
@@ -211,8 +213,10 @@ def shade(
                     lighting, n, v, albedo, roughness, metalness, mucus
                 )
                 lit = (direct + light.ambient[None] * ambient) * light.exposure[None]
-                haze = 1.0 - ti.exp(-light.smoke[None] * distance)  # Beer-Lambert
-                colour = tone_map(ti.math.mix(lit, ti.Vector(SMOKE_RADIANCE), haze))
+                if light.smoke[None] > 0.0:
+                    haze = 1.0 - ti.exp(-light.smoke[None] * distance)  # Beer-Lambert
+                    lit = ti.math.mix(lit, ti.Vector(SMOKE_RADIANCE), haze)
+                colour = tone_map(lit)
                 colour *= ti.max(1.0 - light.vignetting[None] * edge_distance2(x, y, frame), 0.0)
             elif view == 1:
                 colour = albedo

@@ -7,14 +7,17 @@ import math
 import numpy as np
 import pytest
 import taichi as ti
-from taichi_lap.kernels.brdf import fresnel_weight, surface_brdf_cos
+from taichi_lap.kernels.brdf import MUCUS_ROUGHNESS, fresnel_weight, surface_brdf_cos
 from taichi_lap.kernels.ibl import (
     FRESNEL_WEIGHT_MEAN,
     ImageLighting,
     dfg_lookup,
+    dfg_row_lookup,
     environment_radiance,
     ibl_diffuse,
     ibl_specular,
+    latlong_sample,
+    latlong_taps,
     prefiltered_radiance,
     sh9_irradiance,
     tangent_frame,
@@ -189,6 +192,36 @@ def test_prefiltered_map_at_roughness_zero_reproduces_environment(cavity):
     out = np.zeros((len(dirs), 2, 3), np.float32)
     sample_maps(cavity.prefiltered, dirs, 0.0, out)
     assert np.abs(out[:, 0] / out[:, 1] - 1.0).max() < 0.015
+
+
+@ti.kernel
+def film_lookups(
+    lighting: ti.template(), dirs: ti.types.ndarray(), cosines: ti.types.ndarray(),
+    out: ti.types.ndarray(),
+):
+    """out[c] = (the full maps and table at the film's roughness, the fixed ones): the
+    radiance along dirs[c] and (A, B) at n·v = cosines[c], packed in 5 columns."""
+    for c in range(dirs.shape[0]):
+        d = as_vector(dirs, c)
+        full = prefiltered_radiance(lighting.prefiltered, d, MUCUS_ROUGHNESS)
+        fixed = latlong_sample(lighting.coat_map, 0, latlong_taps(d))
+        ab = dfg_lookup(lighting.dfg, cosines[c], MUCUS_ROUGHNESS)
+        row = dfg_row_lookup(lighting.coat_dfg, cosines[c])
+        for k in ti.static(range(3)):
+            out[c, 0, k], out[c, 1, k] = full[k], fixed[k]
+        out[c, 0, 3], out[c, 0, 4], out[c, 1, 3], out[c, 1, 4] = ab[0], ab[1], row[0], row[1]
+
+
+def test_film_roughness_tables_sample_as_the_full_tables(cavity):
+    """The coat's one-level map and one-row DFG table (fix_roughness) give what the full
+    tables give at the mucus film's roughness, to f32 rounding: 500 directions and n·v
+    from 0 to 1, past both clamped ends."""
+    dirs = fibonacci_directions(500)
+    cosines = np.linspace(-0.1, 1.1, len(dirs)).astype(np.float32)
+    out = np.zeros((len(dirs), 2, 5), np.float32)
+    film_lookups(cavity, dirs, cosines, out)
+    np.testing.assert_allclose(out[:, 1], out[:, 0], rtol=1e-5, atol=1e-6)
+    assert np.ptp(out[:, 0, 3]) > 0.1  # the cosines cross the table, not one cell
 
 
 def test_constant_environment_prefilters_to_itself_at_every_roughness():
