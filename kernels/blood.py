@@ -19,6 +19,11 @@ corners) by their slope w(u -> v) = max(0, down · ê):
 (a pool). Every edge is enumerated as often from each of its ends (once per triangle
 holding it), so what u sends is what its neighbours take: the sum of the film over
 the vertices is kept.
+
+Where the surface faces down, the film does not stay: :func:`drop_landings` finds
+where a drop falling from such a vertex meets the surface below (another organ, or
+the same one lower down), and the drawing moves the film there
+(:class:`~taichi_lap.render.blood.BloodFilm`), so blood drips from organ to organ.
 """
 
 import taichi as ti
@@ -117,3 +122,44 @@ def drain(
                     sent += share[v] * _slope(positions, v, n, down)
                     taken += share[n] * _slope(positions, n, v, down)
         drained[v] = film[v] - sent + taken
+
+
+@ti.kernel
+def drop_landings(
+    positions: ti.template(),
+    triangles: ti.template(),
+    triangle_count: ti.i32,
+    sources: ti.types.ndarray(),
+    down: ti.types.vector(3, ti.f32),
+    gap: ti.f32,
+    hit_triangle: ti.types.ndarray(),
+    hit: ti.types.ndarray(),
+):
+    """Where a drop falling from each vertex ``sources[d]`` along unit ``down`` lands:
+    the nearest triangle its ray crosses farther than ``gap`` [m] (Möller & Trumbore
+    1997), none of whose corners is the source, into ``hit_triangle[d]`` (-1 for none)
+    and ``hit[d]`` = (distance [m], the weights of its second and third corners). One
+    thread per drop walks every triangle: no atomics, the same landing on every
+    backend."""
+    for d in range(sources.shape[0]):
+        source = sources[d]
+        origin = positions[source]
+        best, best_triangle, best_u, best_v = 1e30, -1, 0.0, 0.0
+        for t in range(triangle_count):
+            i0, i1, i2 = triangles[3 * t], triangles[3 * t + 1], triangles[3 * t + 2]
+            if i0 != source and i1 != source and i2 != source:
+                v0 = positions[i0]
+                e1, e2 = positions[i1] - v0, positions[i2] - v0
+                p = down.cross(e2)
+                det = e1.dot(p)
+                if ti.abs(det) > 1e-20:
+                    offset = origin - v0
+                    u = offset.dot(p) / det
+                    q = offset.cross(e1)
+                    v = down.dot(q) / det
+                    distance = e2.dot(q) / det
+                    if u >= 0.0 and v >= 0.0 and u + v <= 1.0:
+                        if gap < distance < best:
+                            best, best_triangle, best_u, best_v = distance, t, u, v
+        hit_triangle[d] = best_triangle
+        hit[d, 0], hit[d, 1], hit[d, 2] = best, best_u, best_v

@@ -6,7 +6,7 @@ import pytest
 
 from taichi_lap.core.bleeding import BLEED_RATE, CLOTTING_TIME, bleed_rate, blood_lost
 from taichi_lap.kernels.blood import bleed, drain, film_shares
-from taichi_lap.render.blood import FILM_RESIDUE, BloodFilm
+from taichi_lap.render.blood import DRIP_FILM, FILM_RESIDUE, MAX_DRIPS, BloodFilm
 from taichi_lap.render.scene_mesh import ArrayMesh
 from taichi_lap.scene.materials import PRESETS
 from tests.archrun import COMPARE_ARCH, run_on_arch
@@ -86,6 +86,95 @@ def test_blood_pools_in_a_valley():
     assert film[floor].sum() > 0.9 * film.sum()
 
 
+def grid(size: int, y: float, facing_down: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A ``size`` x ``size`` grid 2 mm apart in x and z at height ``y``, its triangles
+    wound to face down or up: (positions, faces)."""
+    t = (np.arange(size) - size // 2) * SPACING
+    x, z = np.meshgrid(t, t, indexing="ij")
+    positions = np.stack([x, np.full_like(x, y), z], -1).reshape(-1, 3)
+    index = np.arange(size * size).reshape(size, size)
+    a, b, c, d = index[:-1, :-1], index[1:, :-1], index[:-1, 1:], index[1:, 1:]
+    faces = np.concatenate([np.stack([a, b, d], -1), np.stack([a, d, c], -1)]).reshape(-1, 3)
+    return positions, faces if facing_down else faces[:, ::-1]
+
+
+def roof_and_floor(roof_faces_down: bool, floor: bool = True) -> ArrayMesh:
+    """An 11 x 11 roof 2 cm above a 31 x 31 floor facing up (or no floor), one mesh, a
+    2 mm-thick film poured on the roof's middle."""
+    parts = [grid(11, 0.02, roof_faces_down)] + ([grid(31, 0.0, False)] if floor else [])
+    offsets = np.cumsum([0] + [len(p) for p, _ in parts])
+    positions = np.concatenate([p for p, _ in parts]).astype(np.float32)
+    faces = np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
+    mesh = ArrayMesh.of_material(faces, positions, PRESETS["liver"])
+    mesh.update()  # the normals the drops are shed by
+    bleed(mesh.positions, 121, (0.0, 0.02, 0.0), 0.004, 2e-3, mesh.blood)
+    return mesh
+
+
+def dripped(mesh: ArrayMesh, seconds: float, dt: float = 0.02) -> BloodFilm:
+    """The drops of ``seconds`` of frames ``dt`` apart."""
+    film = BloodFilm()
+    for step in range(int(round(seconds / dt))):
+        film.drip(mesh, step * dt)
+    return film
+
+
+def test_blood_drips_from_a_roof_onto_the_floor_below_keeping_its_volume():
+    """From a roof facing down, the film above the residue falls as drops, the thickest
+    first (MAX_DRIPS a frame), onto the floor straight below them after √(2 h / g) (h = 2
+    cm: 64 ms): what the roof loses the floor gains, with nothing spilled."""
+    mesh = roof_and_floor(roof_faces_down=True)
+    poured = mesh.blood.to_numpy()
+    sources = np.flatnonzero(poured > DRIP_FILM)
+    assert len(sources) > MAX_DRIPS and sources.max() < 121  # more than a frame's drops
+    film = dripped(mesh, 0.04)  # two frames: drops released, none landed yet
+    after = mesh.blood.to_numpy()
+    assert len(film.falling) == 2 * MAX_DRIPS and after[121:].max() == 0.0
+    thickest = np.sort(poured)[::-1][: 2 * MAX_DRIPS]
+    assert sorted(d.film for d in film.falling) == pytest.approx(sorted(thickest - FILM_RESIDUE))
+    in_flight = sum(d.film for d in film.falling)
+    assert after.sum() + in_flight == pytest.approx(poured.sum(), rel=1e-5)
+    mesh = roof_and_floor(roof_faces_down=True)
+    film = dripped(mesh, 1.0)
+    assert not film.falling and film.spilled == 0.0
+    after, positions = mesh.blood.to_numpy(), mesh.positions.to_numpy()
+    assert after.sum() == pytest.approx(poured.sum(), rel=1e-5)
+    np.testing.assert_allclose(after[sources], FILM_RESIDUE, rtol=1e-6)
+    landed = after[121:]
+    assert landed.sum() == pytest.approx((poured[sources] - FILM_RESIDUE).sum(), rel=1e-5)
+    wet = positions[121:][landed > 0.0]
+    assert np.abs(wet[:, [0, 2]]).max() <= 0.004 + SPACING  # straight under the pour
+
+
+def test_blood_stays_on_a_surface_facing_up_and_spills_where_nothing_is_below():
+    """The same film on the roof turned up stays on it (no drop); from a roof facing
+    down over no floor, every drop spills off the drawn tissue and is counted."""
+    mesh = roof_and_floor(roof_faces_down=False)
+    poured = mesh.blood.to_numpy()
+    film = dripped(mesh, 0.2)
+    assert not film.falling and film.spilled == 0.0
+    np.testing.assert_array_equal(mesh.blood.to_numpy(), poured)
+    mesh = roof_and_floor(roof_faces_down=True, floor=False)
+    film = dripped(mesh, 0.2)
+    assert not film.falling
+    assert mesh.blood.to_numpy().sum() + film.spilled == pytest.approx(poured.sum(), rel=1e-5)
+    assert film.spilled == pytest.approx((poured[poured > DRIP_FILM] - FILM_RESIDUE).sum())
+
+
+def roof_drips() -> dict[str, np.ndarray]:
+    """The film of the roof and floor after a second of drips."""
+    mesh = roof_and_floor(roof_faces_down=True)
+    dripped(mesh, 1.0)
+    return {"film": mesh.blood.to_numpy()}
+
+
+@pytest.mark.vulkan
+def test_drops_land_alike_on_vulkan_and_the_cpu():
+    cpu = roof_drips()["film"]
+    other = run_on_arch(COMPARE_ARCH, "tests.test_blood:roof_drips")["film"]
+    assert np.allclose(other, cpu, rtol=1e-4, atol=1e-9)
+
+
 def test_blood_lost_is_the_integral_of_the_clotting_bleeds():
     """blood_lost sums each bleed's rate from its damage to the end (trapezoid check),
     nothing before its damage; a place loses at most rate × clotting time."""
@@ -100,8 +189,8 @@ def test_blood_lost_is_the_integral_of_the_clotting_bleeds():
 def test_a_damaged_vessel_bleeds_on_the_drawn_tissue_and_the_blood_runs_down():
     """A vessel_damage event (made by hand) in the rectum scene starts a bleed beside
     the vessel, on the tissue it lies on: the film appears on the surface around the
-    outlet, beside the damage, the blood view shows it, and as frames
-    pass its volume grows with the bleed and its centre sinks."""
+    outlet, beside the damage, the blood view shows it, and as frames pass its volume
+    (with the drops falling and spilled) grows with the bleed and its centre sinks."""
     from taichi_lap.render.renderer import Renderer
 
     session = small_session("rectum")
@@ -126,9 +215,9 @@ def test_a_damaged_vessel_bleeds_on_the_drawn_tissue_and_the_blood_runs_down():
     for frame in range(1, 90):
         renderer.update_blood([], session.state, session.data, frame * dt, dt)
         blood = mesh.blood.to_numpy()[: mesh.smooth_count]
-        volumes.append(blood.sum())
+        volumes.append(blood.sum() + sum(d.film for d in film.falling) + film.spilled)
         heights.append((blood * positions[:, 1]).sum() / blood.sum())
-    assert np.all(np.diff(volumes) > 0.0)
+    assert np.all(np.diff(volumes) > 0.0)  # with the drops falling and spilled
     assert heights[-1] < heights[0] - 1e-4
     renderer.camera.target = outlet  # look down at the bleeding place from 6 cm
     renderer.camera.eye = outlet + np.array([-0.02, 0.05, -0.03])

@@ -2,20 +2,24 @@
 vessel damage starts a bleed where the tissue around the damaged vessel is open
 (:meth:`BloodFilm._outlet`), which follows the tissue as it moves; every stepped
 frame each bleed pours its flow (:func:`~taichi_lap.core.bleeding.bleed_rate`) onto
-the surface around it and the film drains one step downhill. The film is the drawn mesh's ``blood`` (thickness [m] per
+the surface around it and the film drains one step downhill. Where the film gathers
+on a surface facing down it drips: a drop falls along gravity onto the surface
+below (:func:`~taichi_lap.kernels.blood.drop_landings`) and joins the film there when
+its fall is over. The film is the drawn mesh's ``blood`` (thickness [m] per
 surface vertex), which the G-buffer interpolates and the shading draws as wet, dark
 red blood."""
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
 
 from taichi_lap.core.bleeding import bleed_rate
 from taichi_lap.core.fields import FieldGroup
-from taichi_lap.kernels.blood import bleed, drain, film_shares
+from taichi_lap.kernels.blood import bleed, drain, drop_landings, film_shares
 
 BLEED_RADIUS = 0.004
 """[m] the patch of surface a bleed pours onto, around its source."""
@@ -24,6 +28,28 @@ BLOOD_SPEED = 0.02
 chosen by eye: a trickle, not a jet)."""
 FILM_RESIDUE = 5e-5
 """[m] the film blood leaves behind as it runs on (a stain along its trail)."""
+DRIP_FILM = 4e-4
+"""[m] the film a surface facing down holds before a drop falls from it (a hanging
+drop about 1 mm across; chosen by eye)."""
+DRIP_FACING = 0.5
+"""A vertex sheds drops where its normal turns more than 60° from up to down
+(normal · gravity's direction above this)."""
+MAX_DRIPS = 4
+"""Drops released per frame at most, the thickest films first (each one's landing
+tests every drawn triangle)."""
+DRIP_GAP = 2e-4
+"""[m] a drop lands only on a surface farther than this below its vertex (not on the
+triangles beside it)."""
+
+
+class Drop(NamedTuple):
+    """A falling drop: when it lands [s], the corners of the triangle it lands on and
+    their weights, and how much film it carries (thickness [m] at one vertex)."""
+
+    lands: float
+    corners: tuple[int, int, int]
+    weights: tuple[float, float, float]
+    film: float
 
 
 class BloodFilm:
@@ -34,14 +60,18 @@ class BloodFilm:
         g = np.asarray(gravity, np.float64)
         down = g / np.linalg.norm(g) if np.linalg.norm(g) > 0.0 else np.array([0.0, -1.0, 0.0])
         self.down = tuple(float(c) for c in down)
+        self.gravity = float(np.linalg.norm(g))  # [m/s²]; 0: drops land at once
         self.bleeds: list[tuple[int, float]] = []  # (particle followed, time it began [s])
+        self.falling: list[Drop] = []
+        self.spilled = 0.0  # film [m] of the drops that fell off the drawn tissue
         self._scratch = None  # (mesh, share, drained, group) for the mesh last drained
 
     def update(self, events: list[dict], state, data, time: float, dt: float, mesh):
         """After a stepped frame ending at ``time`` [s]: a bleed for each new
         ``vessel_damage`` event (at its outlet, :meth:`_outlet`; ``data`` the model's
         :class:`~taichi_lap.core.topology.ModelData`), then each bleed's flow over
-        ``dt`` [s] poured onto ``mesh``'s surface and one drainage step."""
+        ``dt`` [s] poured onto ``mesh``'s surface, one drainage step and the drops
+        (:meth:`drip`)."""
         for event in (e for e in events if e["kind"] == "vessel_damage"):
             self.bleeds.append((self._outlet(event, state, data, mesh), time))
         if not self.bleeds:
@@ -57,6 +87,58 @@ class BloodFilm:
         film_shares(*args, BLOOD_SPEED * dt, FILM_RESIDUE, mesh.blood, share)
         drain(*args, share, mesh.blood, drained)
         mesh.blood.copy_from(drained)
+        self.drip(mesh, time)
+
+    def drip(self, mesh, time: float):
+        """At ``time`` [s]: the drops whose fall is over join the film where they
+        land (spread over the triangle's corners by where they hit it); then from each
+        of the :data:`MAX_DRIPS` vertices with the most film above :data:`DRIP_FILM`
+        whose normal faces down (:data:`DRIP_FACING`) the film above the residue falls
+        as a drop, landing where :func:`drop_landings` finds the surface below, after
+        √(2 h / g). A drop that meets nothing drawn, or what holds no film (the
+        cavity's wall, whose triangles are too coarse to draw a drop's stain, or an
+        instrument), adds to :attr:`spilled`. The film's sum over the vertices, plus the
+        falling drops and the spilled film, is kept."""
+        film = mesh.blood.to_numpy()
+        landed = [d for d in self.falling if d.lands <= time]
+        for drop in landed:
+            for corner, weight in zip(drop.corners, drop.weights):
+                film[corner] += drop.film * weight
+        self.falling = [d for d in self.falling if d.lands > time]
+        count = mesh.smooth_count
+        facing = mesh.normals.to_numpy()[:count] @ np.asarray(self.down)
+        hanging = np.flatnonzero((film[:count] > DRIP_FILM) & (facing > DRIP_FACING))
+        sources = hanging[np.argsort(-film[hanging], kind="stable")[:MAX_DRIPS]].astype(np.int32)
+        if not landed and not len(sources):
+            return
+        if len(sources):
+            hit_triangle = np.zeros(len(sources), np.int32)
+            hit = np.zeros((len(sources), 3), np.float32)
+            drop_landings(
+                mesh.positions,
+                mesh.triangles,
+                mesh.triangle_count,
+                sources,
+                self.down,
+                DRIP_GAP,
+                hit_triangle,
+                hit,
+            )
+            for source, triangle, (height, u, v) in zip(sources, hit_triangle, hit):
+                amount = float(film[source] - FILM_RESIDUE)
+                film[source] = FILM_RESIDUE
+                corners = (
+                    tuple(int(mesh.triangles[3 * triangle + k]) for k in range(3))
+                    if triangle >= 0
+                    else None
+                )
+                if corners is None or max(corners) >= count:  # onto nothing that holds film
+                    self.spilled += amount
+                    continue
+                fall = math.sqrt(2.0 * height / self.gravity) if self.gravity > 0.0 else 0.0
+                weights = (float(1.0 - u - v), float(u), float(v))
+                self.falling.append(Drop(time + fall, corners, weights, amount))
+        mesh.blood.from_numpy(film)
 
     @staticmethod
     def _outlet(event: dict, state, data, mesh) -> int:
