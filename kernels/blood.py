@@ -27,6 +27,7 @@ the same one lower down), and the drawing moves the film there
 """
 
 import taichi as ti
+from taichi_lap.kernels.raster import ray_barycentrics
 
 
 @ti.kernel
@@ -137,10 +138,10 @@ def drop_landings(
 ):
     """Where a drop falling from each vertex ``sources[d]`` along unit ``down`` lands:
     the nearest triangle its ray crosses farther than ``gap`` [m] (Möller & Trumbore
-    1997), none of whose corners is the source, into ``hit_triangle[d]`` (-1 for none)
-    and ``hit[d]`` = (distance [m], the weights of its second and third corners). One
-    thread per drop walks every triangle: no atomics, the same landing on every
-    backend."""
+    1997, :func:`~taichi_lap.kernels.raster.ray_barycentrics`), none of whose corners
+    is the source, into ``hit_triangle[d]`` (-1 for none) and ``hit[d]`` = (distance
+    [m], the weights of its second and third corners). One thread per drop walks every
+    triangle: no atomics, the same landing on every backend."""
     for d in range(sources.shape[0]):
         source = sources[d]
         origin = positions[source]
@@ -148,18 +149,8 @@ def drop_landings(
         for t in range(triangle_count):
             i0, i1, i2 = triangles[3 * t], triangles[3 * t + 1], triangles[3 * t + 2]
             if i0 != source and i1 != source and i2 != source:
-                v0 = positions[i0]
-                e1, e2 = positions[i1] - v0, positions[i2] - v0
-                p = down.cross(e2)
-                det = e1.dot(p)
-                if ti.abs(det) > 1e-20:
-                    offset = origin - v0
-                    u = offset.dot(p) / det
-                    q = offset.cross(e1)
-                    v = down.dot(q) / det
-                    distance = e2.dot(q) / det
-                    if u >= 0.0 and v >= 0.0 and u + v <= 1.0:
-                        if gap < distance < best:
-                            best, best_triangle, best_u, best_v = distance, t, u, v
+                u, v, distance = ray_barycentrics(positions, triangles, origin, down, t)
+                if u >= 0.0 and v >= 0.0 and u + v <= 1.0 and gap < distance < best:
+                    best, best_triangle, best_u, best_v = distance, t, u, v
         hit_triangle[d] = best_triangle
         hit[d, 0], hit[d, 1], hit[d, 2] = best, best_u, best_v

@@ -396,7 +396,7 @@ def _visible(visibility: ti.template(), pixel):
 
 
 @ti.func
-def _ray_barycentrics(positions: ti.template(), triangles: ti.template(), eye, ray, triangle):
+def ray_barycentrics(positions: ti.template(), triangles: ti.template(), eye, ray, triangle):
     """(u, v, t): where the ray from ``eye`` along unit ``ray`` meets the plane of
     ``triangle`` (Möller-Trumbore in f32, vertices taken relative to the eye), as the
     weights of its second and third corners and the distance t [m]; (1/3, 1/3, inf)
@@ -449,7 +449,7 @@ def resolve_gbuffer(
     crosses (or background, also past the image at the corners; through a lens, when
     the ray misses t, the nearest triangle of the four pixel centres around that point
     that it crosses, unless it lies behind t's plane: a silhouette keeps what is in
-    front), intersected with the ray from ``eye`` [m] (:func:`_ray_barycentrics`;
+    front), intersected with the ray from ``eye`` [m] (:func:`ray_barycentrics`;
     barycentrics clamped to [0, 1] and
     renormalised, so slivers and edge-on hits stay on the triangle). Writes
     ``gbuffer_depth`` = |hit - eye| [m] (BACKGROUND_DEPTH if none), ``gbuffer_position``
@@ -480,7 +480,7 @@ def resolve_gbuffer(
             ray = plane_x.xyz.cross(plane_y.xyz).normalized()
             if ray.dot(row_w.xyz) < 0.0:
                 ray = -ray
-            u, v, reach = _ray_barycentrics(positions, triangles, eye, ray, triangle)
+            u, v, reach = ray_barycentrics(positions, triangles, eye, ray, triangle)
         if distortion != 0.0 and seen and (triangle < 0 or not _inside(u, v)):
             # a bent ray need not cross the triangle at its pixel's centre: the nearest
             # triangle of the four centres around it that it crosses, not behind the
@@ -490,7 +490,7 @@ def resolve_gbuffer(
             for k in ti.static(range(4)):
                 other = _visible(visibility, corner + ti.Vector([k % 2, k // 2]))
                 if other >= 0:
-                    ou, ov, hit_at = _ray_barycentrics(positions, triangles, eye, ray, other)
+                    ou, ov, hit_at = ray_barycentrics(positions, triangles, eye, ray, other)
                     if _inside(ou, ov) and 0.0 < hit_at < nearest_hit:
                         triangle, u, v, nearest_hit = other, ou, ov, hit_at
         depth = BACKGROUND_DEPTH

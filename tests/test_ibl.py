@@ -196,7 +196,9 @@ def test_prefiltered_map_at_roughness_zero_reproduces_environment(cavity):
 
 @ti.kernel
 def film_lookups(
-    lighting: ti.template(), dirs: ti.types.ndarray(), cosines: ti.types.ndarray(),
+    lighting: ti.template(),
+    dirs: ti.types.ndarray(),
+    cosines: ti.types.ndarray(),
     out: ti.types.ndarray(),
 ):
     """out[c] = (the full maps and table at the film's roughness, the fixed ones): the
