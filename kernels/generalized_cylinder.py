@@ -17,9 +17,11 @@ A tube is a range [start, end) of ``points`` [m] with a ``radius`` [m] per point
    16 golden-section steps (to ~6e-5 of the segment). A sample closer than KNOT_GAP to a
    knot is dropped (m at a knot: the knot is already a sample). So a segment holds 1 to
    3 samples: capacity is fixed.
-3. §5.2 Eq. 12. Frames (t, k, b) at the samples, t = p'/|p'|: Frenet frame at the first
-   sample, then rotation-minimising frames by double reflection (Wang et al. 2008, ACM
-   TOG 27(1)). Eq. 12 (b_j = t_j × k_{j-1}, k_j = b_j × t_j) is the projection method: it
+3. §5.2 Eq. 12. Frames (t, k, b) at the samples, t = p'/|p'|: at the first sample the
+   last call's first normal turned onto the new tangent (rotation-minimising in time,
+   so the tube's detail does not spin about it as its first bend turns; the Frenet
+   frame on the first call), then rotation-minimising frames by double reflection
+   (Wang et al. 2008, ACM TOG 27(1)). Eq. 12 (b_j = t_j × k_{j-1}, k_j = b_j × t_j) is the projection method: it
    is singular when t_j is parallel to k_{j-1}, a turn of 90° between two samples, which
    the Eq. 11 samples at sharp bends produce. Serial along a tube, parallel across tubes.
 4. §5.2 Eq. 1, 13, 14. Each interval between samples j, j+1 is the cylinder x² + y² = 1,
@@ -56,6 +58,10 @@ SCAN_POINTS = 16  # curvature scan intervals before the golden-section search
 GOLDEN_STEPS = 16
 GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)  # golden-section ratio
 PLANE_MARGIN = 0.25  # fraction of the ring-centre clearance a vertex keeps to neighbour planes
+START_NORMAL_KEPT = 0.5
+"""The last call's first normal is kept (turned onto the new first tangent) while at
+least this much of it lies across that tangent; less (no last call, or the tube's
+start turned onto it) starts from the Frenet frame."""
 FIRST_RING, LAST_RING = 1, 2  # ring_flags bits
 
 
@@ -273,20 +279,24 @@ def sample_tubes(
                 tubes.sample_position[s + k] = spline_point(C, u)
                 tubes.sample_tangent[s + k] = spline_velocity(C, u).normalized(1e-20)
                 tubes.sample_radius[s + k] = (1.0 - u) * radius[i] + u * radius[i + 1]
-    for t in range(tube_count):  # Eq. 12: Frenet first, then double reflection (serial)
+    for t in range(tube_count):  # Eq. 12: the first frame, then double reflection (serial)
         s0, count = tubes.tube_sample_start[t], tubes.tube_sample_count[t]
         if count >= 2:
             start, end = tube_range[t][0], tube_range[t][1]
-            C = spline_segment(points, start, end, start, tau)
             t0 = tubes.sample_tangent[s0]
-            k = spline_acceleration(C, 0.0)
+            k = tubes.tube_start_normal[t]  # the last call's, turned onto t0
             k -= k.dot(t0) * t0
-            if k.norm() <= 1e-3 * spline_velocity(C, 0.0).norm():  # straight start: any normal
-                axis = ti.Vector([1.0, 0.0, 0.0])
-                if ti.abs(t0[0]) > 0.5:
-                    axis = ti.Vector([0.0, 1.0, 0.0])
-                k = axis - axis.dot(t0) * t0
+            if k.norm() < START_NORMAL_KEPT:  # Frenet
+                C = spline_segment(points, start, end, start, tau)
+                k = spline_acceleration(C, 0.0)
+                k -= k.dot(t0) * t0
+                if k.norm() <= 1e-3 * spline_velocity(C, 0.0).norm():  # straight: any normal
+                    axis = ti.Vector([1.0, 0.0, 0.0])
+                    if ti.abs(t0[0]) > 0.5:
+                        axis = ti.Vector([0.0, 1.0, 0.0])
+                    k = axis - axis.dot(t0) * t0
             k = k.normalized()
+            tubes.tube_start_normal[t] = k
             tubes.sample_normal[s0] = k
             for j in range(s0, s0 + count - 1):
                 v1 = tubes.sample_position[j + 1] - tubes.sample_position[j]

@@ -87,6 +87,7 @@ class TubeMesh:
         self.sample_tangent = g.field(f32, samples, vector=3)
         self.sample_normal = g.field(f32, samples, vector=3)
         self.sample_radius = g.field(f32, samples)  # [m]
+        self.tube_start_normal = g.field(f32, self.tube_capacity, vector=3)  # last call's
         self.tube_sample_start = g.field(i32, self.tube_capacity)
         self.tube_sample_count = g.field(i32, self.tube_capacity)
         self.tube_ring_base = g.field(i32, self.tube_capacity + 1)
@@ -136,7 +137,8 @@ class TubeMesh:
         Writes ``vertices``/``normals``/``texcoords`` (vec3 f32; a texcoord is (``spacing``
         [m] × the point parameter along the tube, the radius × (cos φ, sin φ)): the
         tube's material, moving with it) from ``vertex_offset`` and ``indices`` (i32)
-        from ``index_offset`` (see the module docstring for the layout)."""
+        from ``index_offset`` (see the module docstring for the layout). Each tube's
+        first frame continues the last call's (:meth:`forget_frames`)."""
         level = self.max_level if level is None else int(level)
         if not 0 <= level <= self.max_level:
             raise ValueError(f"level must be in [0, {self.max_level}], got {level}")
@@ -172,6 +174,12 @@ class TubeMesh:
             index_offset + 3 * self.cap_triangle_start,
             float(spacing),
         )
+
+
+    def forget_frames(self):
+        """Start the next :meth:`update`'s tubes from their Frenet frames, as tubes
+        never drawn before (their first frames otherwise continue the last call's)."""
+        self.tube_start_normal.fill(0.0)
 
 
 class TessellationController:
