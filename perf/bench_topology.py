@@ -61,6 +61,8 @@ Seed 002 reports 98.3 ms per topology update on one CPU thread; the targets of t
 project are a median of at most 10 ms, p95 20 ms, no validator failure and frames
 while cutting at most 1.5 times frames without.
 
+``--quick``: smaller and shorter cases, without the session's (:data:`QUICK`).
+
 Usage: python perf/bench_topology.py [--quick] [--arch cpu] [--json OUT]
        [--cases cautery,removals,fascia,polyp,session]
 """
@@ -73,9 +75,16 @@ import numpy as np
 
 from taichi_lap.perf.common import arguments, report, result
 
+QUICK = {"detail": 0.3, "events": 20, "cautery_seconds": 9.5, "polyp_cuts": 2}
+"""``--quick`` (a smoke run): the liver at detail 0.3, the cautery script's first 9.5 s
+(its first three removals, at 4.3, 6.4 and 9.0 s; the first compiles), 20 random
+removals and fascia cuts, 2 random polyp cuts, and not the session case (the rectum
+script's 12 s)."""
 
-def cautery_cases(detail: float) -> list[dict]:
-    """``liver-cautery`` at ``detail`` (module docstring)."""
+
+def cautery_cases(detail: float, seconds: float | None = None) -> list[dict]:
+    """``liver-cautery`` at ``detail`` (module docstring), the script's first
+    ``seconds`` (None: all of it)."""
     from taichi_lap import scene as scene_mod
     from taichi_lap.devices import ScriptedDevice
     from taichi_lap.session import Session
@@ -83,7 +92,7 @@ def cautery_cases(detail: float) -> list[dict]:
     session = Session(scene_mod.load("liver", {"scene.detail": detail}), progress=False)
     script = scene_mod.resolve_script("liver-deep-transection")
     device = ScriptedDevice.from_file(script, session.scene.tools)
-    frames = int(round(device.duration() / session.dt))
+    frames = int(round(min(device.duration(), seconds or np.inf) / session.dt))
     session.step()  # compile
     updates, cutting, plain, removed, alive = [], [], [], 0, 0
     for cut in (True, False):
@@ -388,18 +397,18 @@ def main():
     from taichi_lap import runtime
 
     runtime.init(args.arch)
-    detail = 0.3 if args.quick else 1.0
-    events = 100 if args.quick else (args.runs or 1000)
+    detail = QUICK["detail"] if args.quick else 1.0
+    events = QUICK["events"] if args.quick else (args.runs or 1000)
     results = []
     if "cautery" in args.cases:
-        results += cautery_cases(detail)
+        results += cautery_cases(detail, QUICK["cautery_seconds"] if args.quick else None)
     if "removals" in args.cases:
         results += random_removal_cases(detail, events)
     if "fascia" in args.cases:
         results += fascia_cut_cases(args.quick, events)
     if "polyp" in args.cases:
-        results += random_polyp_cut_cases(events)
-    if "session" in args.cases:
+        results += random_polyp_cut_cases(QUICK["polyp_cuts"] if args.quick else events)
+    if "session" in args.cases and not args.quick:
         results += rectum_cut_cases()
     report("topology", args.arch, results, args.json)
 
