@@ -13,6 +13,12 @@ Cases
   Gauss-Seidel solver at 5-40 iterations per step: ``ms_per_step`` and the edge
   strain after one second of hanging (``mean_strain``, ``p99_strain``), to compare
   convergence per millisecond.
+* ``kernel-launch``: what one launch of a kernel doing almost nothing costs
+  (``us_per_launch``, 2000 launches): a top-level loop of 16 items run in parallel
+  (the default on the CPU backend: its thread pool is woken), the same loop with
+  ``ti.loop_config(parallelize=1)`` (one thread, no pool) and a kernel without a
+  loop. A step launches about 17 parallel loops per substep, so on a 2-core CPU
+  this, not the arithmetic, bounds the small cases.
 * ``cold-start`` / ``cached-start``: seconds from launch to the first stepped frame
   of the full liver scene as it runs (its 2 s settling and tissue collision included;
   params ``model_build_s``, ``settle_s``) with empty caches, then with the model cache
@@ -257,6 +263,42 @@ def startup_cases(arch: str) -> list[dict]:
     return out
 
 
+def launch_cases(launches: int = 2000) -> list[dict]:
+    """``kernel-launch`` (module docstring)."""
+    import taichi as ti
+
+    values = ti.field(ti.f32, 16)
+
+    @ti.kernel
+    def parallel():
+        for i in range(16):
+            values[i] += 1.0
+
+    @ti.kernel
+    def one_thread():
+        ti.loop_config(parallelize=1)
+        for i in range(16):
+            values[i] += 1.0
+
+    @ti.kernel
+    def without_loop():
+        values[0] += 1.0
+
+    rows = []
+    kernels = (("parallel", parallel), ("parallelize=1", one_thread), ("no loop", without_loop))
+    for name, kernel in kernels:
+        kernel()
+        ti.sync()
+        samples = []
+        for _ in range(launches):
+            start = time.perf_counter()
+            kernel()
+            samples.append((time.perf_counter() - start) * 1e6)
+        ti.sync()
+        rows.append(result("kernel-launch", {"loop": name, "items": 16}, "us_per_launch", samples))
+    return rows
+
+
 def main():
     if "--startup-probe" in sys.argv:
         startup_probe(*sys.argv[sys.argv.index("--startup-probe") + 1 :][:2])
@@ -266,7 +308,7 @@ def main():
 
     runtime.init(args.arch)
     runs = args.runs or (5 if args.quick else 20)
-    results = deform_cases(args.quick, runs) + fascia_cases(args.quick, runs)
+    results = deform_cases(args.quick, runs) + fascia_cases(args.quick, runs) + launch_cases()
     if not args.quick:
         results += startup_cases(args.arch)
     report("deform", args.arch, results, args.json)

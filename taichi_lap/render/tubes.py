@@ -175,7 +175,6 @@ class TubeMesh:
             float(spacing),
         )
 
-
     def forget_frames(self):
         """Start the next :meth:`update`'s tubes from their Frenet frames, as tubes
         never drawn before (their first frames otherwise continue the last call's)."""
