@@ -233,6 +233,7 @@ def sample_tubes(
                     tubes.segment_peak[i] = m
                     extra = peak_samples(m)[2]
                     tubes.segment_sample_count[i] = 1 + extra
+    ti.loop_config(serialize=True)  # one thread, without the CPU's thread-pool launch
     for _ in range(1):  # serial prefix sums: sample slots, rings and bands per tube
         bands_per_interval = (1 << (level + 1)) - 1
         cursor, ring, band = 0, 0, 0

@@ -348,7 +348,8 @@ def rasterize_visibility_by_pixel(
         for p in range(k * block, ti.min(k * block + block, parts)):
             total = _add_counts(total, box_pixels.count[p])
         box_pixels.block_start[k] = total
-    for _ in range(1):  # one thread
+    ti.loop_config(serialize=True)  # one thread, without the CPU's thread-pool launch
+    for _ in range(1):
         running = 0
         for k in range(blocks):
             running, box_pixels.block_start[k] = (

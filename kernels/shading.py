@@ -255,6 +255,7 @@ def depth_histogram(gbuffer: ti.template(), counts: ti.template(), near: ti.f32)
     log2(d / near)), clamped to the :data:`DEPTH_BINS`; the background is not
     counted."""
     width, height = ti.static(gbuffer.depth.shape)
+    ti.loop_config(serialize=True)  # 64 bins: less than a thread-pool launch
     for k in range(DEPTH_BINS):
         counts[k] = 0
     for i, j in ti.ndrange((width + 1) // 2, (height + 1) // 2):

@@ -224,6 +224,7 @@ def compact(
     for c in range(n):
         valid = ti.i32(src_a[c] >= 0)
         ti.atomic_add(cd.bucket_count[ti.max(src_a[c], 0)], valid)
+    ti.loop_config(serialize=True)  # one thread, without the CPU's thread-pool launch
     for _ in range(1):
         total = 0
         for a in range(cd.segment_count):
@@ -254,6 +255,7 @@ def compact(
                 unique += 1
                 last = src_b[cd.sorted_source[i]]
         cd.bucket_unique[a] = unique
+    ti.loop_config(serialize=True)  # one thread, without the CPU's thread-pool launch
     for _ in range(1):
         total = 0
         for a in range(cd.segment_count):

@@ -81,6 +81,7 @@ def exclusive_scan(
         for b in range(blk * block, ti.min(blk * block + block, n)):
             total += count[b]
         block_start[blk] = total
+    ti.loop_config(serialize=True)  # one thread, without the CPU's thread-pool launch
     for _ in range(1):
         running = 0
         for blk in range(n_blocks):

@@ -112,6 +112,7 @@ def interpolate_tools(control: ti.template(), begin: ti.f32, end: ti.f32):
     """A substep from fraction ``begin`` to ``end`` of the way between each tool's
     ``tool_start`` and ``tool_goal``: ``tool_last`` where it starts, the Control entry
     where it ends (the goal at ``end`` = 1)."""
+    ti.loop_config(serialize=True)  # four tools: less than a thread-pool launch
     for k in range(MAX_TOOLS):
         start, goal = control.tool_start[k], control.tool_goal[k]
         control.tool_last[k] = pose_between(start, goal, begin)
