@@ -450,6 +450,7 @@ class TissueCollision:
         tissue pairs are tested once, the contact that holds :data:`TOOL_PASSES` times.
         ``tissue=False`` leaves out the tissue pairs (tools only), e.g. for all but the
         last shape-matching pass of a substep."""
+        start = None
         if self.timing:
             ti.sync()
             start = self._mark = time.perf_counter()
@@ -459,6 +460,9 @@ class TissueCollision:
         if tissue:
             self._refresh_pairs()
             broad_phase.mark_active(self, self.rows)
+        if self.active_count[None] == 0:  # nothing near any triangle: no sphere, no contact
+            self._finish(start)
+            return
         spheres.update_spheres(self.model, state, self, False)
         self._lap("spheres")
         if tissue and self.tools and not self.method_tools:  # tissue first: the tools win
@@ -470,7 +474,12 @@ class TissueCollision:
             for _ in range(TOOL_PASSES - 1):
                 response.detect_and_respond(self.model, state, control, self, self.rows, 0, 2)
         self._lap("detect")
-        if self.timing:
+        self._finish(start)
+
+    def _finish(self, start: float | None):
+        """The step's time into :attr:`last_ms` and the totals (``start``: when it began,
+        None when not timing)."""
+        if start is not None:
             self.last_ms = (time.perf_counter() - start) * 1e3
             self.total_ms += self.last_ms
             self.calls += 1
