@@ -21,9 +21,10 @@ A tube is a range [start, end) of ``points`` [m] with a ``radius`` [m] per point
    last call's first normal turned onto the new tangent (rotation-minimising in time,
    so the tube's detail does not spin about it as its first bend turns; the Frenet
    frame on the first call), then rotation-minimising frames by double reflection
-   (Wang et al. 2008, ACM TOG 27(1)). Eq. 12 (b_j = t_j × k_{j-1}, k_j = b_j × t_j) is the projection method: it
-   is singular when t_j is parallel to k_{j-1}, a turn of 90° between two samples, which
-   the Eq. 11 samples at sharp bends produce. Serial along a tube, parallel across tubes.
+   (Wang et al. 2008, ACM TOG 27(1)). Eq. 12 (b_j = t_j × k_{j-1}, k_j = b_j × t_j) is
+   the projection method: it is singular when t_j is parallel to k_{j-1}, a turn of 90°
+   between two samples, which the Eq. 11 samples at sharp bends produce. Serial along a
+   tube, parallel across tubes.
 4. §5.2 Eq. 1, 13, 14. Each interval between samples j, j+1 is the cylinder x² + y² = 1,
    z in [0, 1] (Eq. 13), at level n cut by 2^(n+1) rings (§5.2: "2^(n+1) sections";
    the end rings are shared with the neighbouring intervals), skinned by

@@ -284,14 +284,20 @@ def latlong_sample(maps, level, taps):
 
 
 @ti.func
+def _prefilter_level(roughness):
+    """The lower of the two prefiltered levels nearest ``roughness`` (clamped to [0,
+    1]) and the fraction towards the upper one."""
+    level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
+    k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
+    return k0, level - k0
+
+
+@ti.func
 def prefiltered_at(maps, taps, roughness):
     """Prefiltered environment radiance at ``taps`` for ``roughness`` in [0, 1]:
     bilinear in the map, linear between the two nearest levels."""
-    level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
-    k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
-    return ti.math.mix(
-        latlong_sample(maps, k0, taps), latlong_sample(maps, k0 + 1, taps), level - k0
-    )
+    k0, f = _prefilter_level(roughness)
+    return ti.math.mix(latlong_sample(maps, k0, taps), latlong_sample(maps, k0 + 1, taps), f)
 
 
 @ti.func
@@ -314,12 +320,11 @@ def fix_roughness(
     as :func:`dfg_lookup` mixes them (read with :func:`dfg_row_lookup`). Sampling
     these equals sampling the full tables at that roughness (both are linear in the
     texels), with half the taps."""
-    level = ti.math.clamp(roughness, 0.0, 1.0) * (PREFILTER_LEVELS - 1)
-    k0 = ti.min(ti.cast(level, ti.i32), PREFILTER_LEVELS - 2)
+    k0, f = _prefilter_level(roughness)
     size = PREFILTER_HEIGHT * PREFILTER_WIDTH
     for texel in range(size):
         lower, upper = prefiltered[k0 * size + texel], prefiltered[(k0 + 1) * size + texel]
-        map_out[texel] = ti.math.mix(lower, upper, level - k0)
+        map_out[texel] = ti.math.mix(lower, upper, f)
     j0, fy = _dfg_cell(roughness)
     for i in range(DFG_SIZE):
         dfg_out[i] = ti.math.mix(dfg[j0 * DFG_SIZE + i], dfg[(j0 + 1) * DFG_SIZE + i], fy)

@@ -323,15 +323,15 @@ def outline_target(
     """Outline a task's view target (``[task.view]``, object index ``target``) in the
     marker's colour: the pixels showing it within TARGET_OUTLINE pixels of a pixel
     that does not (another object, the background; past the image's edge it runs on)
-    are marked as :func:`mark_plane` marks the planned line (:func:`_mark`). Only what shows is outlined: the trainee sees where
-    the target is uncovered."""
+    are marked as :func:`mark_plane` marks the planned line (:func:`_mark`). Only what
+    shows is outlined: the trainee sees where the target is uncovered."""
     width, height = ti.static(frame.shape)
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
         if triangle >= 0 and materials.triangle_object[triangle] == target:
             edge = False
             for step in ti.static(range(1, TARGET_OUTLINE + 1)):
-                for d in ti.static(((1, 0), (-1, 0), (0, 1), (0, -1))):
+                for d in ti.static(_NEIGHBOURS):
                     u, v = x + d[0] * step, y + d[1] * step
                     if 0 <= u < width and 0 <= v < height:  # it runs on past the image
                         other = gbuffer.triangle[u, v]
