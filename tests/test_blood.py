@@ -15,14 +15,21 @@ from tests.test_render import small_session
 SPACING = 0.002  # [m] between grid points
 
 
-def grid_mesh(height) -> ArrayMesh:
-    """A 31 x 31 grid 2 mm apart in x and z, at y = ``height(x, z)``."""
-    t = (np.arange(31) - 15) * SPACING
+def grid(size: int, height, facing_down: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """A ``size`` x ``size`` grid 2 mm apart in x and z, centred, at y = ``height(x,
+    z)``, its triangles wound to face down (on flat ground) or up: (positions, faces)."""
+    t = (np.arange(size) - size // 2) * SPACING
     x, z = np.meshgrid(t, t, indexing="ij")
     positions = np.stack([x, height(x, z), z], -1).reshape(-1, 3).astype(np.float32)
-    index = np.arange(31 * 31).reshape(31, 31)
+    index = np.arange(size * size).reshape(size, size)
     a, b, c, d = index[:-1, :-1], index[1:, :-1], index[:-1, 1:], index[1:, 1:]
     faces = np.concatenate([np.stack([a, b, d], -1), np.stack([a, d, c], -1)]).reshape(-1, 3)
+    return positions, faces if facing_down else faces[:, ::-1]
+
+
+def grid_mesh(height) -> ArrayMesh:
+    """A 31 x 31 grid 2 mm apart in x and z, at y = ``height(x, z)``."""
+    positions, faces = grid(31, height)
     return ArrayMesh.of_material(faces, positions, PRESETS["liver"])
 
 
@@ -86,24 +93,13 @@ def test_blood_pools_in_a_valley():
     assert film[floor].sum() > 0.9 * film.sum()
 
 
-def grid(size: int, y: float, facing_down: bool) -> tuple[np.ndarray, np.ndarray]:
-    """A ``size`` x ``size`` grid 2 mm apart in x and z at height ``y``, its triangles
-    wound to face down or up: (positions, faces)."""
-    t = (np.arange(size) - size // 2) * SPACING
-    x, z = np.meshgrid(t, t, indexing="ij")
-    positions = np.stack([x, np.full_like(x, y), z], -1).reshape(-1, 3)
-    index = np.arange(size * size).reshape(size, size)
-    a, b, c, d = index[:-1, :-1], index[1:, :-1], index[:-1, 1:], index[1:, 1:]
-    faces = np.concatenate([np.stack([a, b, d], -1), np.stack([a, d, c], -1)]).reshape(-1, 3)
-    return positions, faces if facing_down else faces[:, ::-1]
-
-
 def roof_and_floor(roof_faces_down: bool, floor: bool = True) -> ArrayMesh:
     """An 11 x 11 roof 2 cm above a 31 x 31 floor facing up (or no floor), one mesh, a
     2 mm-thick film poured on the roof's middle."""
-    parts = [grid(11, 0.02, roof_faces_down)] + ([grid(31, 0.0, False)] if floor else [])
+    roof = grid(11, lambda x, z: np.full_like(x, 0.02), roof_faces_down)
+    parts = [roof] + ([grid(31, lambda x, z: np.zeros_like(x), facing_down=False)] if floor else [])
     offsets = np.cumsum([0] + [len(p) for p, _ in parts])
-    positions = np.concatenate([p for p, _ in parts]).astype(np.float32)
+    positions = np.concatenate([p for p, _ in parts])
     faces = np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
     mesh = ArrayMesh.of_material(faces, positions, PRESETS["liver"])
     mesh.update()  # the normals the drops are shed by
