@@ -382,7 +382,7 @@ class Session:
         for organ, change in cuts:
             self._follow(change)
             self.events.append(
-                {"kind": "cut", "tool": tool["name"], "organ": organ, "tets": len(change.dead_tets)}
+                {"kind": "cut", "tool": tool["name"], "organ": organ, "tets": change.split_tets}
             )
         if cuts:
             self._loose = self._volume_cutter.loose_pieces()

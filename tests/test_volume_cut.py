@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from taichi_lap import scene
 from taichi_lap.core.instruments import GRASP_BUTTON
@@ -15,13 +17,14 @@ from taichi_lap.core.mesh import element_pieces, tet_volumes
 from taichi_lap.core.topology import assert_valid
 from taichi_lap.devices import Pose
 from taichi_lap.dissection.removal import MutableTopology
-from taichi_lap.dissection.tet_cut import cut_tets
+from taichi_lap.dissection.tet_cut import SNAP_FRACTION, cut_tets
+from taichi_lap.preprocess import organs
 from taichi_lap.preprocess.assemble import assemble
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.session import Session
 from tests.archrun import COMPARE_ARCH, run_on_arch
 from tests.blocks import block
-from tests.test_tet_cut import assert_closed_pieces, slice_path
+from tests.test_tet_cut import assert_closed_pieces, edge_lengths, slice_path
 
 STALK_CUT = 0.0245
 """Height [m] at rest of the cut through the polyp's stalk (its foot at 0.02, its
@@ -97,10 +100,11 @@ def test_a_cut_through_the_stalk_parts_the_polyps_tets_and_clusters():
     pieces = live_pieces(topology, k)
     assert len(pieces) == 2
     head, foot = sorted(pieces, key=lambda p: -topology.rest[p, 1].max())
-    # the cut's vertices lie on their edges, EDGE_MARGIN (5 %) of a 1.8 mm edge at most
-    # from where the plane crosses them
-    assert topology.rest[head, 1].min() >= STALK_CUT - 1e-4
-    assert topology.rest[foot, 1].max() <= STALK_CUT + 1e-4
+    # the cut runs through the vertices snapped onto it, SNAP_FRACTION of an edge at
+    # most from where the plane crosses it
+    reach = SNAP_FRACTION * edge_lengths(topology.rest, topology.tets[tets]).max()
+    assert topology.rest[head, 1].min() >= STALK_CUT - reach
+    assert topology.rest[foot, 1].max() <= STALK_CUT + reach
     for c in np.flatnonzero(topology.cluster_alive):
         members = topology.cluster_members[c]
         assert not (np.isin(members, head).any() and np.isin(members, foot).any())
@@ -113,23 +117,78 @@ def test_a_cut_through_the_stalk_parts_the_polyps_tets_and_clusters():
     assert np.isin(rows, np.concatenate(topology.cluster_members)).all()  # new ones shape-match
 
 
+_POLYP_SCENE = []
+
+
+def roomy_rectum():
+    """The rectum scene built with 8 times the polyp's particles in reserve rows (room
+    for several cuts through all of it), built once for the examples of a property
+    test."""
+    if not _POLYP_SCENE:
+        kept, organs.VOLUME_CUT_RESERVE = organs.VOLUME_CUT_RESERVE, 8.0
+        try:
+            _POLYP_SCENE.append(assemble(scene.load("rectum")))
+        finally:
+            organs.VOLUME_CUT_RESERVE = kept
+    return _POLYP_SCENE[0]
+
+
+@settings(max_examples=8, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda n: np.linalg.norm(n) > 0.1),
+            st.tuples(*[st.floats(0.0, 1.0)] * 3),
+        ),
+        min_size=1,
+        max_size=3,
+    )
+)
+def test_random_plane_cuts_through_the_polyp_keep_a_valid_topology(cuts):
+    """Planes of random directions through random points of the polyp cut it one after
+    the other (later ones cross earlier ones' sub-tets and twins) until its reserve
+    rows run out: the topology validator passes after each."""
+    data = roomy_rectum()
+    k, built = polyp(data)
+    topology = MutableTopology(data)
+    low, high = topology.rest[built].min(axis=0), topology.rest[built].max(axis=0)
+    free = list(
+        range(data.organs[k].particles[1] - data.organs[k].reserve, data.organs[k].particles[1])
+    )
+    for normal, where in cuts:
+        tets = topology.live_tets(k)
+        path = slice_path(low + np.multiply(where, high - low), normal, size=0.03, frames=4)
+        cut = cut_tets(topology.rest, topology.tets[tets], path)
+        if len(cut.vertex_parents) > len(free):
+            break
+        rows = np.array([free.pop() for _ in range(len(cut.vertex_parents))], dtype=np.int64)
+        topology.split_tets(cut, tets, rows)
+        assert_valid(topology.topology())
+
+
 def test_tets_kept_whole_leave_the_cut_partial_around_them():
     """``keep_whole``: a tet kept whole is not split, nor its neighbours on the edges
     it shares where that would leave the mesh non-conforming: a plane cut through
-    the block waits as a whole (each tet it stops at stops its neighbours), the block
-    stays one conforming piece; a tet kept whole away from the cut changes nothing."""
+    the block waits where a tet it stops at stops its neighbours (it goes on only
+    beyond vertices snapped onto it), the block stays one conforming piece; a tet
+    kept whole away from the cut changes nothing."""
     b = block(3)
     points, tets = b["rest_positions"], b["tets"]
     path = slice_path(np.array([0.013, 0.015, 0.014]), [1.0, 0.2, 0.1], size=0.04, frames=12)
     whole = cut_tets(points, tets, path)
     on_cut = np.zeros(len(tets), dtype=bool)
-    on_cut[whole.removed[0]] = True
+    on_cut[whole.split[0]] = True
     cut = cut_tets(points, tets, path, keep_whole=on_cut)
-    assert len(cut.removed) == 0 and len(cut.deferred) > 0
+    assert len(cut.deferred) > 0 and len(cut.split) < len(whole.split) / 2
+    assert whole.split[0] not in cut.removed
     assert_closed_pieces(*cut.apply(points, tets), 1, tet_volumes(points, tets).sum())
     away = np.zeros(len(tets), dtype=bool)
-    away[np.setdiff1d(np.arange(len(tets)), whole.removed)[0]] = True
-    assert cut_tets(points, tets, path, keep_whole=away).removed.tolist() == whole.removed.tolist()
+    normal = np.array([1.0, 0.2, 0.1]) / np.linalg.norm([1.0, 0.2, 0.1])
+    above = np.abs((points[tets] - [0.013, 0.015, 0.014]) @ normal).min(axis=1)
+    away[np.argmax(above)] = True
+    kept_away = cut_tets(points, tets, path, keep_whole=away)
+    assert kept_away.removed.tolist() == whole.removed.tolist()
+    assert (kept_away.added == whole.added).all()
 
 
 def test_the_camera_sees_what_lies_in_its_view():

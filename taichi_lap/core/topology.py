@@ -14,8 +14,9 @@ built model has every one alive); :func:`check_topology` lists every
 * no degenerate, duplicate or inverted elements: tets of positive rest volume,
   triangles of non-zero area, no element listed twice;
 * each tet organ's live surface is closed and edge-manifold (every edge in exactly
-  two triangles), its triangles agree in orientation and point outwards (the volume
-  they enclose is positive);
+  two triangles), its triangles agree in orientation and point outwards at rest (the
+  volume they enclose there is positive: a surface the simulation turns inside out,
+  as a crushed stalk, is the physics' fault, not the mesh's);
 * no orphans: every live particle of a tet organ is in a live tet, every surface
   vertex of a live triangle's organ is used by one;
 * cluster membership: every live particle of an organ with clusters is in a live
@@ -98,7 +99,10 @@ class Topology:
     there, or at ``surface_position`` (V, 3) [m] when given: a vertex a dissection
     made sits at its kept particle plus a rest offset its cluster rotates, not at
     the weighted particles alone),
-    ``rest_positions`` (N, 3) [m] where they were built (tet volumes);
+    ``rest_positions`` (N, 3) [m] where they were built (tet volumes), and
+    ``rest_surface_position`` (V, 3) [m] where the surface vertices sit at rest
+    (default: where the particles' rest positions put them; the surface's outward
+    orientation is checked there);
     ``removed_volume`` [m^3] is the tet volume the dissection reports it removed;
     the first ``built_tets`` tets are those the model was built with (default: all),
     the others a cut's.
@@ -123,6 +127,7 @@ class Topology:
     triangle_organ: np.ndarray | None = None
     vertex_organ: np.ndarray | None = None
     surface_position: np.ndarray | None = None
+    rest_surface_position: np.ndarray | None = None
     removed_volume: float = 0.0
     built_tets: int | None = None
 
@@ -182,8 +187,18 @@ class Topology:
         """(V, 3) [m]: each surface vertex where its particles put it (or as given)."""
         if self.surface_position is not None:
             return np.asarray(self.surface_position, dtype=np.float64)
-        index = np.clip(self.surface_index, 0, len(self.positions) - 1)
-        return (self.surface_weight[..., None] * self.positions[index]).sum(axis=1)
+        return self._bound(self.positions)
+
+    def rest_surface(self) -> np.ndarray:
+        """(V, 3) [m]: each surface vertex where it sits at rest."""
+        if self.rest_surface_position is not None:
+            return np.asarray(self.rest_surface_position, dtype=np.float64)
+        return self._bound(self.rest_positions)
+
+    def _bound(self, positions: np.ndarray) -> np.ndarray:
+        """(V, 3) [m]: each surface vertex where the particle ``positions`` put it."""
+        index = np.clip(self.surface_index, 0, len(positions) - 1)
+        return (self.surface_weight[..., None] * positions[index]).sum(axis=1)
 
 
 def check_topology(topology: Topology) -> list[TopologyProblem]:
@@ -237,7 +252,7 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
     report("duplicate", "tets", _duplicates(t.tets, t.tet_alive), "live tets")
     report("duplicate", "triangles", _duplicates(t.triangles, t.triangle_alive), "live triangles")
 
-    surface = t.surface_positions()
+    surface, rest_surface = t.surface_positions(), t.rest_surface()
     degenerate = np.zeros(len(t.triangles), dtype=bool)
     degenerate[t.triangle_alive] = degenerate_triangles(surface, t.triangles[t.triangle_alive])
     report("degenerate triangle", "triangles", degenerate, "live triangles")
@@ -263,7 +278,7 @@ def check_topology(topology: Topology) -> list[TopologyProblem]:
             t.particle_alive[particles] & ~in_tet[particles],
             "live particles in no live tet",
         )
-        problems.extend(_surface_problems(organ, surface, t.triangles[live]))
+        problems.extend(_surface_problems(organ, rest_surface, t.triangles[live]))
         used = np.zeros(v, dtype=bool)
         used[t.triangles[live].ravel()] = True
         report(
@@ -305,10 +320,10 @@ def _listed(check: str, where: str, bad: np.ndarray, what: str) -> list[Topology
 
 
 def _surface_problems(
-    organ: OrganRecord, surface: np.ndarray, triangles: np.ndarray
+    organ: OrganRecord, rest_surface: np.ndarray, triangles: np.ndarray
 ) -> list[TopologyProblem]:
-    """Closed, edge-manifold, consistently and outward oriented (one tet organ's live
-    triangles)."""
+    """Closed, edge-manifold, consistently and (at rest) outward oriented (one tet
+    organ's live triangles)."""
     where = f"organ {organ.name}"
     out = []
     if not len(triangles):
@@ -327,7 +342,7 @@ def _surface_problems(
                 "orientation", where, f"{flipped} edges whose two triangles run them alike"
             )
         )
-    elif not open_edges and not fins and enclosed_volume(surface, triangles) <= 0.0:
+    elif not open_edges and not fins and enclosed_volume(rest_surface, triangles) <= 0.0:
         out.append(TopologyProblem("orientation", where, "the surface's normals point inwards"))
     return out
 

@@ -168,6 +168,7 @@ class TopologyChange:
     )  # (cluster, new member)
     memberships_rebuilt: bool = False  # particle -> clusters rows made again
     fragments: list[int] = field(default_factory=list)  # particles of each fragment
+    split_tets: int = 0  # tets a volume cut split (of dead_tets; the rest took twins)
 
     @property
     def empty(self) -> bool:
@@ -380,11 +381,15 @@ class MutableTopology:
         wound set its ``surface_position`` to the skinned surface."""
         v, f = self.vertices, self.triangles
         sizes = [len(m) for m in self.cluster_members]
-        positions = self.rest if positions is None else positions
         index, weight = v["index"][: v.used], v["weight"][: v.used]
-        surface = (weight[..., None] * positions[index]).sum(axis=1)
         wound = v["cluster"][: v.used] >= 0
-        surface[wound] = v["rest"][: v.used][wound]
+        at_rest = (weight[..., None] * self.rest[index]).sum(axis=1)
+        at_rest[wound] = v["rest"][: v.used][wound]
+        if positions is None:
+            positions, surface = self.rest, at_rest
+        else:
+            surface = (weight[..., None] * positions[index]).sum(axis=1)
+            surface[wound] = at_rest[wound]
         return Topology(
             rest_positions=self.rest,
             positions=positions,
@@ -403,6 +408,7 @@ class MutableTopology:
             triangle_organ=f["organ"][: f.used],
             vertex_organ=v["organ"][: v.used],
             surface_position=surface,
+            rest_surface_position=at_rest,
             removed_volume=self.removed_volume,
             built_tets=len(self.data.tets),
         )
@@ -508,13 +514,16 @@ class MutableTopology:
             rebound_vertices=rebound,
             joined=np.stack([joined_cluster, joined_particle], 1).astype(np.int64),
             memberships_rebuilt=True,
+            split_tets=len(cut.split),
             **surface,
         )
 
     def _surface_of_cut(self, dead_tets: np.ndarray, new_tets: np.ndarray) -> dict:
         """Step 3 of :meth:`split_tets`: the triangles on the faces of ``dead_tets``
-        go, the faces of ``new_tets`` no other live tet shares come, each corner the
-        vertex its particle is bound to (made where it has none)."""
+        go, the faces of ``new_tets`` no other live tet shares come, and so do those of
+        live tets that a dead tet shared and none does now (where the cut runs along a
+        face, through snapped vertices), each corner the vertex its particle is bound
+        to (made where it has none)."""
         f, v = self.triangles, self.vertices
 
         def keys(faces):
@@ -523,19 +532,18 @@ class MutableTopology:
         live = self.live_triangles()
         own = (v["kept"][f["vertices"][live]] < 0).all(axis=1)  # not a wound's
         live = live[own & self.dissectable[f["organ"][live]]]
-        on_parent = np.isin(
-            keys(v["index"][f["vertices"][live], 0]),
-            keys(self.tets[dead_tets][:, TET_FACES].reshape(-1, 3)),
-        )
+        parent_keys = keys(self.tets[dead_tets][:, TET_FACES].reshape(-1, 3))
+        on_parent = np.isin(keys(v["index"][f["vertices"][live], 0]), parent_keys)
         dead = live[on_parent]
-        corners = np.unique(self.tets[new_tets])
+        corners = np.unique(self.tets[np.concatenate([new_tets, dead_tets])])
         near = np.unique(self.particle_tet[rows_of(self.tet_start, corners)])
         near = near[self.tet_alive[near]]
         faces = self.tets[near][:, TET_FACES].reshape(-1, 3)
         near_keys = keys(faces)
         distinct, count = np.unique(near_keys, return_counts=True)
         single = count[np.searchsorted(distinct, near_keys)] == 1
-        from_new = np.repeat(np.isin(near, new_tets), 4)
+        # a face of a tet the cut kept that a dead tet shared: the cut runs along it
+        from_new = np.repeat(np.isin(near, new_tets), 4) | np.isin(near_keys, parent_keys)
         faces = faces[single & from_new]
 
         f["alive"][dead] = False

@@ -139,7 +139,15 @@ class VolumeCutter:
         if not len(tets):
             return None
         keep_whole = np.isin(tets, list(stroke.made)) | topology.beside_wound(tets)
-        cut = cut_tets(x, topology.tets[tets], path, rest=topology.rest, keep_whole=keep_whole)
+        given = np.bincount(topology.tets[tets].ravel(), minlength=len(topology.rest))
+        cut = cut_tets(
+            x,
+            topology.tets[tets],
+            path,
+            rest=topology.rest,
+            keep_whole=keep_whole,
+            open_vertices=given < topology.live_tets_of,
+        )
         if cut.empty:
             return None
         count = len(cut.vertex_parents)
