@@ -6,9 +6,9 @@ Cases
   to compile the kernels, then frame after frame, and publishes the surface clusters
   and particles to the servo after every frame, driving the probe with the servo's graphical tool; the servo process runs
   its 1 kHz loop with a scripted device pressing the probe into the liver top and
-  lifting it again (contact, QP, safety filter every tick). 30 s (``--quick``: 5 s).
+  lifting it again (contact, QP, safety filter every tick). 30 s (``--quick``: 3 s).
 * ``idle``: the same servo while this process only republishes the snapshot at
-  60 Hz, without stepping (10 s; ``--quick``: 2 s).
+  60 Hz, without stepping (10 s; ``--quick``: 1 s).
 * ``<load case>-alone``: the same scene stepped for as long without a servo, its probe
   at the scripted stylus's pose (the servo's graphical tool is the proxy's, held on
   the surface; this one goes 8 mm in, which the contact resists).
@@ -209,7 +209,7 @@ def main():
     for _ in range(WARMUP_FRAMES):  # compile the kernels
         session.step()
     load_case = "liver-small-load" if args.quick else "liver-full-load"
-    duration = 5.0 if args.quick else 30.0
+    duration = 3.0 if args.quick else 30.0
     session.reset()
     (alone_row,) = run_alone(f"{load_case}-alone", session, duration)
     session.reset()
@@ -223,7 +223,7 @@ def main():
         f"({loaded / alone:.2f}x)",
         flush=True,
     )
-    results += run_case("idle", session, 2.0 if args.quick else 10.0, step=False)
+    results += run_case("idle", session, 1.0 if args.quick else 10.0, step=False)
     report("haptics", args.arch, results, args.json)
     for r in results:
         if "p99" in r:
