@@ -158,10 +158,12 @@ def intersection_codes(
     tet_edges = edge_of.reshape(-1, 6)
     hit, t = segment_crossings(points[edges[:, 0]], points[edges[:, 1]], path.triangles)
     count = hit.sum(axis=1)
-    t_edge = np.full(len(edges), np.nan)
-    for e in np.flatnonzero(count % 2 == 1):
-        t_edge[e] = float(np.median(t[e][hit[e]]))
     crossed_at = np.where(count > 0, np.argmax(hit, axis=1), -1)
+    t_edge = np.full(len(edges), np.nan)
+    once = np.flatnonzero(count == 1)
+    t_edge[once] = t[once, crossed_at[once]]
+    for e in np.flatnonzero((count % 2 == 1) & (count > 1)):
+        t_edge[e] = float(np.median(t[e][hit[e]]))
     edge_code = _edge_codes(np.isfinite(t_edge), tet_edges)
 
     boundary = path.boundary
