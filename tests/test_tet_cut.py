@@ -237,3 +237,35 @@ def test_cut_after_cut_keeps_closed_pieces_and_snapping_keeps_sub_tets_from_shri
     monkeypatch.setattr(tet_cut, "SNAP_FRACTION", 0.0)
     monkeypatch.setattr(tet_cut, "EDGE_MARGIN", 0.05)  # as before snapping
     assert snapped > 1000.0 * cut_eight()
+
+
+def test_a_cut_of_the_tets_near_the_blade_snaps_no_vertex_whose_tets_are_not_all_given():
+    """As a session cuts, only some tets given (here those the plane crosses;
+    ``open_vertices`` the vertices with other tets): the cut, applied to the whole
+    block, leaves two closed pieces of its volume; without ``open_vertices`` a vertex
+    snapped at the edge of the tets given takes its twin into only some of its tets,
+    and the surface is open there."""
+    b = block(3)
+    points, tets = b["rest_positions"], b["tets"]
+    volume = tet_volumes(points, tets).sum()
+    normal = np.array([1.0, 0.2, 0.1]) / np.linalg.norm([1.0, 0.2, 0.1])
+    centre = np.array([0.0131, 0.015, 0.014])
+    above = (points[tets] - centre) @ normal
+    near = np.flatnonzero((above.max(axis=1) > 0.0) & (above.min(axis=1) < 0.0))  # crossed
+    given = np.bincount(tets[near].ravel(), minlength=len(points))
+    open_vertices = given < np.bincount(tets.ravel(), minlength=len(points))
+    path = slice_path(centre, normal, size=0.04, frames=4)
+
+    def whole_block(cut) -> tuple[np.ndarray, np.ndarray]:
+        keep = np.ones(len(tets), dtype=bool)
+        keep[near[cut.removed]] = False
+        return cut.apply(points, np.concatenate([tets[keep], tets[near]]))[0], np.concatenate(
+            [tets[keep], cut.added]
+        )
+
+    cut = cut_tets(points, tets[near], path, open_vertices=open_vertices)
+    assert_closed_pieces(*whole_block(cut), 2, volume)
+    careless = cut_tets(points, tets[near], path)
+    twins = careless.vertex_parents[careless.vertex_parents[:, 0] == careless.vertex_parents[:, 1]]
+    assert open_vertices[twins[:, 0]].any()
+    assert edge_defects(boundary_faces(whole_block(careless)[1])) != (0, 0)
