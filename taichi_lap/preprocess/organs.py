@@ -195,12 +195,15 @@ tet edge a cut crosses: a cut through the polyp's stalk takes about 10 %)."""
 
 
 def cut_reserve(organ: OrganSpec, parts: OrganParts, tools: list[dict]) -> float:
-    """The fraction of reserve rows ``organ`` keeps for cuts: a sheet, or a truss where
-    scissors or a hook can cut it (:data:`CUT_RESERVE`), or a directly bound tet organ
-    where scissors can cut it (:data:`VOLUME_CUT_RESERVE`); 0 for others."""
-    if organ.model in CUTTABLE_SHEETS:
+    """The fraction of reserve rows ``organ`` keeps for cuts: a sheet or a truss where
+    scissors or a hook can cut it, or a sheet that tears (:data:`CUT_RESERVE`), or a
+    directly bound tet organ where scissors can cut it (:data:`VOLUME_CUT_RESERVE`); 0
+    for others (the solver's loops run over reserve rows too: a 128 x 128 sheet's step
+    took 14.0 ms with them, 8.5 ms without)."""
+    cutting = any(cutting_geometry(tool) is not None for tool in tools)
+    if organ.model in CUTTABLE_SHEETS and (cutting or organ.material.get("tear_strain", 0.0) > 0):
         return CUT_RESERVE
-    if organ.model == "truss" and any(cutting_geometry(tool) is not None for tool in tools):
+    if organ.model == "truss" and cutting:
         return CUT_RESERVE
     direct = len(parts.tets) and bool(np.all(parts.surface_weight[:, 0] == 1.0))
     if direct and any(tool["kind"] == "scissors" for tool in tools):
