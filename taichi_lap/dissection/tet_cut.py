@@ -235,7 +235,7 @@ def cut_tets(
 
     t_edge = np.clip(t_edge, EDGE_MARGIN, 1.0 - EDGE_MARGIN)
     while True:  # snapped vertices where the cut does not part the mesh cleanly unsnap
-        crossed, code, partial = _crossings(raw, snapped, edges, tet_edges, tets)
+        crossed, code, on_cut, side, partial = _crossings(raw, snapped, edges, tet_edges, tets)
         stars, failed = _stars(
             np.flatnonzero(snapped), star_start, star_tet, snapped, tets, crossed[tet_edges], above
         )
@@ -247,7 +247,7 @@ def cut_tets(
         split_tets = np.flatnonzero(code != 0)
         touched = np.union1d(split_tets, np.array(moved, dtype=np.int64))
         for tet in touched.tolist():
-            pieces.tet(tet, int(code[tet]))
+            pieces.tet(tet, int(on_cut[tet]), int(side[tet]))
         pinched = pieces.pinched(touched, star_start, star_tet)
         if not pinched:
             break
@@ -310,13 +310,12 @@ class _Split:
             return c
         return self._new_vertex((-1, c), (c, c), (1.0, 0.0), c)
 
-    def tet(self, tet: int, code: int) -> None:
-        """Add the sub-tets of ``tet`` (edge ``code``): Mor and Kanade's for a tet
-        the cut separates, one or two fewer where corners are on the cut, the tet
-        itself with its snapped corners' twins where the cut only touches it."""
+    def tet(self, tet: int, on_cut: int, side: int) -> None:
+        """Add the sub-tets of ``tet`` (its corners ``on_cut`` and the ``side`` of the
+        others, :data:`SIDES`): Mor and Kanade's for a tet the cut separates, one or
+        two fewer where corners are on the cut, the tet itself with its snapped
+        corners' twins where the cut only touches it."""
         c = self.tets[tet]
-        on_cut = int((self.snapped[c] * (1 << np.arange(4))).sum())
-        side = int(SIDES[on_cut, code])
         free = [k for k in range(4) if not on_cut >> k & 1]
         one = [k for k in free if side >> k & 1]
         other = [k for k in free if not side >> k & 1]
@@ -384,20 +383,21 @@ EDGE_OF_CORNERS = _edge_of_corners()
 
 
 def _crossings(raw, snapped, edges, tet_edges, tets):
-    """The edges a cut crosses, the tets' edge codes and the tets it leaves whole
-    because it ends inside them: ``raw`` crossings, less those through a snapped
-    vertex, less those of every tet whose code does not part its corners off the cut
-    (:data:`SIDES`), until every code does."""
+    """The edges a cut crosses, the tets' edge codes, their corners on the cut and the
+    side of each (bit masks, :data:`SIDES`), and the tets it leaves whole because it
+    ends inside them: ``raw`` crossings, less those through a snapped vertex, less
+    those of every tet whose code does not part its corners off the cut, until every
+    code does."""
     crossed = raw & ~snapped[edges].any(axis=1)
     on_cut = (snapped[tets] * (1 << np.arange(4))).sum(axis=1)
     partial = np.zeros(len(tets), dtype=bool)
     while True:
         code = _edge_codes(crossed, tet_edges)
-        parted = SIDES[on_cut, code] < 0
-        if not parted.any():
-            return crossed, code, partial
-        partial |= parted
-        crossed[tet_edges[parted]] = False
+        side = SIDES[on_cut, code]
+        if not (side < 0).any():
+            return crossed, code, on_cut, side, partial
+        partial |= side < 0
+        crossed[tet_edges[side < 0]] = False
 
 
 @dataclass
