@@ -121,14 +121,13 @@ def cautery_cases(detail: float, seconds: float | None = None, plain: bool = Tru
         "triangles_alive": alive,
     }
     session.close()
-    return [
+    rows = [
         result("liver-cautery", params, "ms_per_update", updates[1:]),
         result("liver-cautery", dict(params, cutting=True), "ms_per_frame", cutting),
-    ] + (
-        [result("liver-cautery", dict(params, cutting=False), "ms_per_frame", uncut)]
-        if plain
-        else []
-    )
+    ]
+    if plain:
+        rows.append(result("liver-cautery", dict(params, cutting=False), "ms_per_frame", uncut))
+    return rows
 
 
 def time_ms() -> float:
