@@ -35,6 +35,8 @@ import math
 import numpy as np
 import taichi as ti
 
+from taichi_lap.core.fields import FieldGroup
+
 SUBPIXEL_BITS = 8
 SUBPIXEL = 1 << SUBPIXEL_BITS  # snapping grid: 1/256 px
 GUARD_BAND = float(2**20)  # [px] from the image centre
@@ -537,18 +539,18 @@ class GBuffer:
         if by_pixel is None:
             by_pixel = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
         self.by_pixel, self.box_pixels = by_pixel, None
-        self.visibility = ti.field(ti.i64)
-        self.depth = ti.field(ti.f32)
-        self.position = ti.Vector.field(3, ti.f32)
-        self.normal = ti.Vector.field(3, ti.f32)
-        self.char = ti.field(ti.f32)
-        self.blood = ti.field(ti.f32)
-        self.triangle = ti.field(ti.i32)
-        builder = ti.FieldsBuilder()  # the i64 field last (see BoxPixels)
-        fields = (self.depth, self.position, self.normal, self.char, self.blood, self.triangle)
-        for f in fields + (self.visibility,):
-            builder.dense(ti.ij, (self.width, self.height)).place(f)
-        self.tree = builder.finalize()
+        group = FieldGroup()  # the i64 field last (see BoxPixels)
+        for name, dtype, vector in (
+            ("depth", ti.f32, 0),
+            ("position", ti.f32, 3),
+            ("normal", ti.f32, 3),
+            ("char", ti.f32, 0),
+            ("blood", ti.f32, 0),
+            ("triangle", ti.i32, 0),
+            ("visibility", ti.i64, 0),
+        ):
+            setattr(self, name, group.field(dtype, self.width, vector=vector, columns=self.height))
+        group.finalize()
 
     def render(
         self,

@@ -144,6 +144,15 @@ def available_backends() -> list[str]:
 def kernel_compilations() -> int:
     """Kernel instances Taichi has compiled in this process: each kernel once per
     distinct object or field it is given as a template argument."""
-    from taichi.lang import impl
-
     return impl.get_runtime().get_num_compiled_functions()
+
+
+SNODE_TREE_LIMIT = 512
+"""The SNode trees a Taichi program can hold (its LLVM runtime's table of tree roots:
+a CPU process that built 560 trees crashed, one of 506 did not)."""
+
+
+def snode_trees() -> int:
+    """The SNode tree ids the Taichi program has handed out: the trees alive and those
+    freed (Taichi gives a freed id to the next tree before a new one)."""
+    return impl.get_runtime().prog.get_snode_tree_size()

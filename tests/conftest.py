@@ -89,6 +89,30 @@ def pytest_runtest_call(item):
         made, _made_in_test = _made_in_test or [], None
         for session in made:
             session.close()
+        free_kept_sessions_near_the_tree_limit()
+
+
+TREE_BUDGET = 384
+"""SNode tree ids a test process may hand out before it frees the sessions it keeps
+(Taichi holds at most :data:`~taichi_lap.runtime.SNODE_TREE_LIMIT` trees; a worker of
+a two-worker run reached 428 with every session kept, and a CI run crashed there).
+The room left is for a test file's trees that no session holds (renderers, test
+objects): the most one took was 124."""
+
+_freed_at = 0
+"""The tree ids handed out when the kept sessions were last freed."""
+
+
+def free_kept_sessions_near_the_tree_limit():
+    """Free the sessions kept for reuse (their kernels compile again) once the tree
+    ids handed out pass :data:`TREE_BUDGET` and grew since the last time: Taichi
+    gives the freed ids to new trees first, so the count grows again only when they
+    are spent."""
+    global _freed_at
+    trees = runtime.snode_trees()
+    if trees >= TREE_BUDGET and trees > _freed_at:
+        session_mod.release_parked()
+        _freed_at = trees
 
 
 LONGEST_FILES_FIRST = (

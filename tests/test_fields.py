@@ -1,9 +1,15 @@
 """Field groups and the bulk copies between host arrays and fields (core.fields)."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import taichi as ti
 
+from taichi_lap import runtime
 from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup
 from taichi_lap.runtime import kernel_compilations
@@ -107,3 +113,45 @@ def round_trip() -> dict:
 def test_vulkan_round_trip_matches_cpu():
     cpu = assert_backend_matches_cpu("tests.test_fields:round_trip", 0.0)
     assert cpu["integers"].any() and cpu["matrix"].any()
+
+
+TREES_TO_THE_LIMIT = """
+import taichi as ti
+from taichi_lap import runtime
+from taichi_lap.core.fields import FieldGroup
+
+runtime.init("cpu")
+groups = []
+try:
+    while True:
+        group = FieldGroup()
+        f = group.field(ti.f32, 4, values=[1.0, 2.0, 3.0, 4.0])
+        group.finalize()
+        groups.append((group, f))
+except RuntimeError as error:
+    print("refused", len(groups), runtime.snode_trees(), error)
+print("sum", sum(float(f.to_numpy().sum()) for _, f in groups))
+"""
+
+
+def test_a_tree_past_taichis_limit_is_refused_with_an_error_instead_of_crashing(tmp_path):
+    """In a fresh process: groups are built until Taichi's limit on SNode trees; the
+    next one raises an error that says so (building a tree past the limit corrupts
+    Taichi's runtime and crashes the process) and every group built is still read
+    right."""
+    done = subprocess.run(
+        [sys.executable, "-c", TREES_TO_THE_LIMIT],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=Path(__file__).parents[1],
+        env={**os.environ, "TAICHI_LAP_CACHE": str(tmp_path)},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    lines = dict(line.split(" ", 1) for line in done.stdout.splitlines() if " " in line)
+    built, handed_out, message = lines["refused"].split(" ", 2)
+    # the runtime's own tree (Taichi's root of fields made outside groups) comes first
+    assert int(handed_out) == runtime.SNODE_TREE_LIMIT
+    assert int(built) == runtime.SNODE_TREE_LIMIT - 1
+    assert "as many as Taichi can hold" in message
+    assert float(lines["sum"]) == 10.0 * int(built)

@@ -101,24 +101,26 @@ class SpatialHash(FieldOwner):
     """Counting-sort spatial hash over at most ``capacity`` points.
 
     ``table_size`` buckets, cells of ``cell_size`` [m]; kernels query it with
-    :meth:`ball_span`, :meth:`span_visit` and :meth:`in_visit` (module docstring).
+    :meth:`ball_span`, :meth:`span_visit` and :meth:`in_visit` (module docstring). The
+    fields go in ``group`` when given (:meth:`FieldOwner._declare_in`).
     """
 
-    def __init__(self, capacity: int, table_size: int, cell_size: float):
+    def __init__(
+        self, capacity: int, table_size: int, cell_size: float, group: FieldGroup | None = None
+    ):
         if capacity < 1 or table_size < 1 or not cell_size > 0:
             raise ValueError("capacity and table_size must be >= 1, cell_size > 0")
         self.capacity, self.table_size, self.cell_size = capacity, table_size, float(cell_size)
         self.inv_cell = float(np.float32(1.0 / cell_size))  # x * inv_cell: exact on every backend
         self.block = max(64, math.isqrt(table_size - 1) + 1)  # prefix-sum block of buckets
         self.n_blocks = (table_size + self.block - 1) // self.block
-        group = FieldGroup()
+        group = self._declare_in(group)
         self.point_bucket = group.field(ti.i32, capacity)
         self.sorted_index = group.field(ti.i32, capacity)
         self.bucket_count = group.field(ti.i32, table_size)  # counts, then scatter cursors
         self.bucket_start = group.field(ti.i32, table_size + 1)
         self.block_start = group.field(ti.i32, self.n_blocks)
-        group.finalize()
-        self._group = group
+        self._finalize()
         self.count = 0  # points in the last build
         # Vulkan: no atomic inside the candidate loops (see the module docstring).
         self.reserve_per_point = ti.lang.impl.current_cfg().arch == ti.vulkan

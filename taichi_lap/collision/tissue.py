@@ -171,7 +171,8 @@ class TissueCollision:
         self.rescan_drift = self.pair_margin / 3.0
         self._body = organ_bodies(data)
         tables = triangle_corner_tables(data)
-        self._init_fields(data, triangles, tables, rest_sphere, rest_normal)
+        group = FieldGroup()  # one SNode tree: the tables, the hash and the pair lists
+        self._init_fields(group, data, triangles, tables, rest_sphere, rest_normal)
         self._retired = []  # pair lists outgrown, freed with the rest by close()
         self.grid = self.rows = self.spare = self.found = None  # tissue pairs only
         if tissue_pairs:
@@ -179,22 +180,25 @@ class TissueCollision:
                 largest = max(float(rest_sphere[:, 3].max(initial=0.0)), 1e-5)
                 cell_size = CELL_REACHES * (largest + self.pair_margin + self.hash_slack)
             f = max(self.triangle_count, 1)
-            self.grid = SpatialHash(f, 1 << max(4, int(2 * f).bit_length()), cell_size)
-            self.rows = PairRows(f, ROW_CAPACITY * f)
-            self.spare = PairRows(f, ROW_CAPACITY * f)
-            self.found = FoundPairs(ROW_CAPACITY // 2 * f)
+            self.grid = SpatialHash(f, 1 << max(4, int(2 * f).bit_length()), cell_size, group)
+            self.rows = PairRows(f, ROW_CAPACITY * f, group)
+            self.spare = PairRows(f, ROW_CAPACITY * f, group)
+            self.found = FoundPairs(ROW_CAPACITY // 2 * f, group)
+        group.finalize()
+        self._set_rows_in_use(len(triangles), len(data.surface_index))
         self._swapped = False  # rows and spare trade places at every listing
         self.reset(pairs=True)
 
     def _init_fields(
         self,
+        group: FieldGroup,
         data,
         triangles: np.ndarray,
         tables: dict,
         rest_sphere: np.ndarray,
         rest_normal: np.ndarray,
     ):
-        f, v, group = self.triangle_count, self.vertex_count, FieldGroup()
+        f, v = self.triangle_count, self.vertex_count
         self._group = group
         n = len(data.pinned)
         organ = np.zeros(len(triangles), dtype=np.int32)
@@ -289,8 +293,6 @@ class TissueCollision:
         self.corner_delta = group.field(ti.f32, 3 * f, vector=3)
         self.corner_count = group.field(ti.i32, 3 * f)
         self.counter = group.field(ti.i32, len(spheres.COUNTERS))
-        group.finalize()
-        self._set_rows_in_use(len(triangles), len(data.surface_index))
 
     def close(self):
         """Free the fields of the tables, the hash and the pair lists (Taichi then

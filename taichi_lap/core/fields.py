@@ -16,6 +16,7 @@ from taichi.lang.struct import StructType
 from taichi.lang.matrix import MatrixField
 from taichi.lang.util import to_numpy_type
 
+from taichi_lap import runtime
 from taichi_lap.kernels import transfer
 
 _BATCHED = {ti.f32: False, ti.i32: True}
@@ -107,9 +108,18 @@ def padded_rows(values: np.ndarray, rows: int, fill=0) -> np.ndarray:
 
 class FieldGroup:
     """Declare fields with :meth:`field`, then :meth:`finalize` builds the tree and
-    uploads the values given at declaration."""
+    uploads the values given at declaration. A group is refused (an error) where
+    Taichi has handed out as many tree ids as it can hold trees
+    (:data:`~taichi_lap.runtime.SNODE_TREE_LIMIT`: building one more corrupts its
+    runtime and crashes the process), even if some were freed since."""
 
     def __init__(self):
+        if runtime.snode_trees() >= runtime.SNODE_TREE_LIMIT:
+            raise RuntimeError(
+                f"this process made {runtime.SNODE_TREE_LIMIT} Taichi SNode trees, as many "
+                "as Taichi can hold: close the sessions, renderers or collisions no longer "
+                "used before more are made"
+            )
         self._builder = ti.FieldsBuilder()
         self._uploads: list = []
         self._specs: dict[int, tuple] = {}  # id(field) -> (dtype, vector, matrix, columns)
@@ -213,10 +223,24 @@ class FieldGroup:
 
 
 class FieldOwner:
-    """Base of objects whose fields live in one :class:`FieldGroup`, ``self._group``."""
+    """Base of objects whose fields live in one :class:`FieldGroup`, ``self._group``:
+    their own, or that of an owner that holds them (one SNode tree for both)."""
 
     _group: FieldGroup
 
+    def _declare_in(self, group: FieldGroup | None) -> FieldGroup:
+        """The group to declare the fields in: ``group``, which its owner finalizes
+        and closes, or (None) a group of this object's own (:meth:`_finalize`)."""
+        self._group = FieldGroup() if group is None else group
+        self._owns_group = group is None
+        return self._group
+
+    def _finalize(self):
+        """Build the tree once the fields are declared, when the group is this
+        object's own."""
+        if self._owns_group:
+            self._group.finalize()
+
     def close(self):
-        """Free the object's fields (:meth:`FieldGroup.close`)."""
+        """Free the object's fields (:meth:`FieldGroup.close`: all of its group)."""
         self._group.close()

@@ -61,10 +61,9 @@ class ShadingParams:
     """0-D fields the shading kernel reads: the camera (``eye``, ``forward`` [m]),
     the headlight (``intensity`` [W/sr], cone cosines), IBL scale ``ambient``,
     ``exposure``, ``far`` [m], the ``smoke`` density [1/m], the lens's ``vignetting``
-    and the ``background`` colour."""
+    and the ``background`` colour; declared in the renderer's ``group``."""
 
-    def __init__(self):
-        group = FieldGroup()
+    def __init__(self, group: FieldGroup):
         self.eye = group.field(ti.f32, None, vector=3)
         self.forward = group.field(ti.f32, None, vector=3)
         self.background = group.field(ti.f32, None, vector=3)
@@ -79,7 +78,22 @@ class ShadingParams:
             "vignetting",
         ):
             setattr(self, name, group.field(ti.f32, None))
-        group.finalize()
+
+
+_lighting: tuple | None = None
+"""The Taichi program and the image-based lighting its renderers share."""
+
+
+def shared_lighting() -> ImageLighting:
+    """The cavity's image-based lighting (:class:`ImageLighting`), computed once per
+    Taichi program and shared by every renderer in it: one SNode tree, and the shading
+    kernel compiled once for it (Taichi compiles a kernel again for every object it is
+    given), instead of one of each per renderer."""
+    global _lighting
+    program = ti.lang.impl.get_runtime().prog
+    if _lighting is None or _lighting[0] is not program:
+        _lighting = (program, ImageLighting())
+    return _lighting[1]
 
 
 class Renderer:
@@ -109,8 +123,12 @@ class Renderer:
         self.mesh = mesh
         self.camera = camera
         self.gbuffer = GBuffer(self.width, self.height)
-        self.lighting = ImageLighting()
-        self.params = ShadingParams()
+        self.lighting = shared_lighting()
+        group = FieldGroup()  # one SNode tree: the parameters, the image, the histogram
+        self.params = ShadingParams(group)
+        self.frame = group.field(ti.f32, self.width, vector=3, columns=self.height)
+        self._depths = group.field(ti.i32, DEPTH_BINS) if auto_exposure else None
+        group.finalize()
         self.params.intensity[None] = headlight
         self.params.cos_inner[None] = math.cos(math.radians(0.6 * spot_angle))
         self.params.cos_outer[None] = math.cos(math.radians(spot_angle))
@@ -118,16 +136,11 @@ class Renderer:
         self.params.exposure[None] = exposure
         self.exposure, self.auto_exposure = exposure, auto_exposure
         self._adapted = None  # the exposure automatic exposure reached (None: none yet)
-        self._depths = ti.field(ti.i32, DEPTH_BINS) if auto_exposure else None
         self.distortion, self.vignetting = distortion, vignetting  # the lens (0 0: none)
         self.params.background[None] = BACKGROUND
         self.checkerboard = checkerboard  # shade half the smooth pixels, fill the rest
         self.blood = BloodFilm(gravity)  # bleeds of damaged vessels, drawn on the surface
         self.smoke_rate, self.smoke = smoke * SMOKE_RATE, 0.0  # [1/m per s], [1/m]
-        builder = ti.FieldsBuilder()
-        self.frame = ti.Vector.field(3, ti.f32)
-        builder.dense(ti.ij, (self.width, self.height)).place(self.frame)
-        self._frame_tree = builder.finalize()
         self.view = 0
         self.planned: tuple[int, PlannedPlane] | None = None  # (organ, plane) to mark
         self.target: int | None = None  # the object index of a view target to outline
