@@ -38,10 +38,14 @@ def parse_list(option: str, text: str, choices: tuple[str, ...]) -> list[str]:
 
 
 def run_benchmarks(
-    arches: list[str], out: Path, *, quick: bool = False, benchmarks=BENCHMARKS
+    arches: list[str], out: Path, *, quick: bool = False, benchmarks=BENCHMARKS, jobs: int = 1
 ) -> dict[str, dict[str, str]]:
-    """Run ``benchmarks`` on each of ``arches`` into ``out``; per backend, per
-    benchmark: ``ok``, ``failed (exit N, see LOG)`` or ``backend not available``."""
+    """Run ``benchmarks`` on each of ``arches`` into ``out``, ``jobs`` processes at a
+    time (1: each alone, as timings should be; more shorten a smoke run, whose
+    timings are then those of a shared machine); per backend, per benchmark: ``ok``,
+    ``failed (exit N, see LOG)`` or ``backend not available``."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from tqdm import tqdm
 
     from taichi_lap import runtime
@@ -54,31 +58,39 @@ def run_benchmarks(
             status[arch] = {name: "backend not available" for name in benchmarks}
             print(f"{arch}: not available on this machine, skipped", flush=True)
     bar = tqdm(total=len(runnable) * len(benchmarks), unit="benchmark")
+
+    def run(arch: str, name: str):
+        bar.set_description(f"{arch} {name}")
+        log = out / arch / f"bench_{name}.log"
+        command = [
+            sys.executable,
+            "-m",
+            f"taichi_lap.perf.bench_{name}",
+            "--arch",
+            arch,
+            "--json",
+            str(out / arch / f"bench_{name}.json"),
+        ]
+        with open(log, "w") as stream:
+            code = subprocess.run(
+                command + (["--quick"] if quick else []),
+                stdout=stream,
+                stderr=subprocess.STDOUT,
+                env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="false"),
+            ).returncode
+        status[arch][name] = "ok" if code == 0 else f"failed (exit {code}, see {log})"
+        bar.update()
+
     for arch in runnable:
         status[arch] = {}
         (out / arch).mkdir(parents=True, exist_ok=True)
-        for name in benchmarks:
-            bar.set_description(f"{arch} {name}")
-            log = out / arch / f"bench_{name}.log"
-            command = [
-                sys.executable,
-                "-m",
-                f"taichi_lap.perf.bench_{name}",
-                "--arch",
-                arch,
-                "--json",
-                str(out / arch / f"bench_{name}.json"),
-            ]
-            with open(log, "w") as stream:
-                code = subprocess.run(
-                    command + (["--quick"] if quick else []),
-                    stdout=stream,
-                    stderr=subprocess.STDOUT,
-                    env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="false"),
-                ).returncode
-            status[arch][name] = "ok" if code == 0 else f"failed (exit {code}, see {log})"
-            bar.update()
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        runs = [pool.submit(run, arch, name) for arch in runnable for name in benchmarks]
+        for done in runs:
+            done.result()
     bar.close()
+    for arch in runnable:  # in the order asked, whichever finished first
+        status[arch] = {name: status[arch][name] for name in benchmarks}
     return status
 
 
@@ -129,13 +141,18 @@ def _number(value: float | None) -> str:
     return "—" if value is None else f"{value:.4g}"
 
 
-def summary_markdown(results: dict, status: dict[str, dict[str, str]]) -> str:
+def summary_markdown(results: dict, status: dict[str, dict[str, str]], jobs: int = 1) -> str:
     """``summary.md``: the machine, then per benchmark a table of medians per backend
-    and each GPU backend's ratio to the CPU's (below 1: faster, for timings)."""
+    and each GPU backend's ratio to the CPU's (below 1: faster, for timings); says
+    when the benchmarks ran ``jobs`` at a time."""
     lines = ["# Benchmark summary", ""]
     for arch, per_benchmark in status.items():
         notes = sorted({text for text in per_benchmark.values() if text != "ok"})
         lines.append(f"- {arch}: " + ("all ran" if not notes else "; ".join(notes)))
+    if jobs > 1:
+        lines.append(
+            f"- {jobs} benchmarks ran at a time: their timings are those of a shared machine"
+        )
     for name, per_arch in results.items():
         arches, rows = comparison(per_arch)
         machine = next(iter(per_arch.values()))["machine"]
@@ -264,13 +281,16 @@ def bar_chart(results: dict, path: Path) -> bool:
     return True
 
 
-def write_summary(out: Path, arches: list[str], status: dict[str, dict[str, str]]) -> Path:
+def write_summary(
+    out: Path, arches: list[str], status: dict[str, dict[str, str]], jobs: int = 1
+) -> Path:
     """``summary.md`` (written atomically), ``summary.png`` and ``scaling.png`` of what
-    ``out`` holds."""
+    ``out`` holds (run ``jobs`` benchmarks at a time)."""
     results = load_results(out, arches)
     series = scaling_series(results)
     growth = "".join(line + "\n" for line in scaling_markdown(series))
-    path = write_atomically(out / "summary.md", summary_markdown(results, status) + growth)
+    text = summary_markdown(results, status, jobs) + growth
+    path = write_atomically(out / "summary.md", text)
     bar_chart(results, out / "summary.png")
     scaling_chart(series, out / "scaling.png")
     return path

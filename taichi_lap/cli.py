@@ -102,6 +102,13 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument(
         "--only", default=None, help="comma-separated benchmarks (default: all of them)"
     )
+    bench.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="benchmarks run at a time (default 1, each alone; more shorten a smoke run, "
+        "its timings then those of a shared machine)",
+    )
 
     report = sub.add_parser(
         "report", help="score recorded sessions: an HTML page with plots, and the numbers"
@@ -402,9 +409,11 @@ def cmd_bench(args) -> int:
 
     arches = bench.parse_list("--arch", args.arch, bench.ARCHES)
     chosen = bench.parse_list("--only", args.only, BENCHMARKS) if args.only else BENCHMARKS
+    if args.jobs < 1:
+        raise InputError("--jobs", str(args.jobs), "a whole number of 1 or more was expected")
     out = Path(args.out)
-    status = bench.run_benchmarks(arches, out, quick=args.quick, benchmarks=chosen)
-    print(f"wrote {bench.write_summary(out, arches, status)}")
+    status = bench.run_benchmarks(arches, out, quick=args.quick, benchmarks=chosen, jobs=args.jobs)
+    print(f"wrote {bench.write_summary(out, arches, status, args.jobs)}")
     failed = [
         f"{arch} {name}: {text}"
         for arch, per_benchmark in status.items()

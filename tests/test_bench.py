@@ -48,12 +48,15 @@ def test_summary_has_a_column_per_backend_and_the_ratio_to_the_cpu(tmp_path):
         "metal": {"deform": "backend not available"},
     }
     text = bench.write_summary(tmp_path, ["cpu", "cuda", "metal"], status).read_text()
+    assert "at a time" not in text
     assert "- metal: backend not available" in text
     assert "GPU cuda: Test GPU, driver 1" in text
     assert "| case | metric | cpu | cuda | cuda/cpu | params |" in text
     assert "| sheet | ms_per_step | 20 | 5 | 0.25 | solver=gauss_seidel |" in text
     assert "| sheet | ms_per_step | 10 | — | — | solver=jacobi |" in text  # cpu only
     assert "| big | ms_per_step | — | 1 | — |  |" in text
+    shared = bench.write_summary(tmp_path, ["cpu", "cuda"], status, jobs=2).read_text()
+    assert "- 2 benchmarks ran at a time: their timings are those of a shared machine" in shared
     labels = [
         label for label, _ in bench.timing_rows(bench.load_results(tmp_path, ["cpu"]))["deform"]
     ]
@@ -107,6 +110,8 @@ def test_unknown_backend_or_benchmark_is_a_clear_error(tmp_path, capsys):
     assert (
         "error: --only: render,speed: a comma-separated list of deform" in capsys.readouterr().err
     )
+    assert main(["bench", "--jobs", "0", "--out", str(tmp_path)]) == 2
+    assert "error: --jobs: 0: a whole number of 1 or more" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
 
 
