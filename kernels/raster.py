@@ -426,6 +426,30 @@ def _inside(u, v):
     return u >= 0.0 and v >= 0.0 and u + v <= 1.0
 
 
+@ti.func
+def lens_ndc(x, y, half, distortion):
+    """The rectilinear image point (NDC) the wide-angle lens shows at the centre of
+    pixel ``(x, y)`` of an image of ``half`` its size (:func:`resolve_gbuffer`)."""
+    ndc = ti.Vector([(x + 0.5) / half[0] - 1.0, (y + 0.5) / half[1] - 1.0])
+    if distortion != 0.0:
+        edge = half[0] / half.norm()
+        keep_edges = 1.0 / (1.0 + distortion * edge * edge)
+        ndc *= keep_edges * (1.0 + distortion * (ndc * half).norm_sqr() / half.norm_sqr())
+    return ndc
+
+
+@ti.func
+def ray_of(view_projection, ndc):
+    """The unit direction from the eye through the image point ``ndc``: the cross
+    product of the clip planes x = ndc_x w and y = ndc_y w, towards increasing w."""
+    row_x, row_y, row_w = view_projection[0, :], view_projection[1, :], view_projection[3, :]
+    plane_x, plane_y = row_x - ndc[0] * row_w, row_y - ndc[1] * row_w
+    ray = plane_x.xyz.cross(plane_y.xyz).normalized()
+    if ray.dot(row_w.xyz) < 0.0:
+        ray = -ray
+    return ray
+
+
 @ti.kernel
 def resolve_gbuffer(
     positions: ti.template(),
@@ -463,26 +487,19 @@ def resolve_gbuffer(
     ``gbuffer_triangle`` = t (-1). The ray direction is the cross product of the
     clip planes x = ndc_x w and y = ndc_y w, pointing to increasing w."""
     width, height = ti.static(visibility.shape)
-    row_x, row_y, row_w = view_projection[0, :], view_projection[1, :], view_projection[3, :]
     half = ti.Vector([0.5 * width, 0.5 * height])
-    edge = half[0] / half.norm()
-    keep_edges = 1.0 / (1.0 + distortion * edge * edge)
     for x, y in visibility:
-        ndc = ti.Vector([(x + 0.5) * (2.0 / width) - 1.0, (y + 0.5) * (2.0 / height) - 1.0])
+        ndc = lens_ndc(x, y, half, distortion)
         triangle, seen = _visible(visibility, ti.Vector([x, y])), True
         source = ti.Vector([x + 0.5, y + 0.5])  # where the ray crosses the rectilinear image
         if distortion != 0.0:
-            ndc *= keep_edges * (1.0 + distortion * (ndc * half).norm_sqr() / half.norm_sqr())
             source = (ndc + 1.0) * half
             seen = 0.0 <= source[0] < width and 0.0 <= source[1] < height
             triangle = _visible(visibility, ti.cast(ti.floor(source), ti.i32))
         ray = ti.Vector([0.0, 0.0, 1.0])
         u, v, reach = 1.0 / 3.0, 1.0 / 3.0, BACKGROUND_DEPTH
         if triangle >= 0 or (distortion != 0.0 and seen):
-            plane_x, plane_y = row_x - ndc[0] * row_w, row_y - ndc[1] * row_w
-            ray = plane_x.xyz.cross(plane_y.xyz).normalized()
-            if ray.dot(row_w.xyz) < 0.0:
-                ray = -ray
+            ray = ray_of(view_projection, ndc)
             u, v, reach = ray_barycentrics(positions, triangles, eye, ray, triangle)
         if distortion != 0.0 and seen and (triangle < 0 or not _inside(u, v)):
             # a bent ray need not cross the triangle at its pixel's centre: the nearest
@@ -522,6 +539,49 @@ def resolve_gbuffer(
         gbuffer_triangle[x, y], gbuffer_depth[x, y] = triangle, depth
         gbuffer_position[x, y], gbuffer_normal[x, y] = position, normal
         gbuffer_char[x, y], gbuffer_blood[x, y] = charred, bloody
+
+
+@ti.kernel
+def draw_spheres(
+    centres: ti.template(),
+    sphere_triangle: ti.template(),
+    count: ti.i32,
+    radius: ti.f32,
+    film: ti.f32,
+    eye: ti.math.vec3,
+    view_projection: ti.math.mat4,
+    distortion: ti.f32,
+    gbuffer_depth: ti.template(),
+    gbuffer_position: ti.template(),
+    gbuffer_normal: ti.template(),
+    gbuffer_char: ti.template(),
+    gbuffer_blood: ti.template(),
+    gbuffer_triangle: ti.template(),
+):
+    """The first ``count`` spheres of ``radius`` [m] at ``centres`` (falling drops of
+    blood) into a resolved G-buffer, where the pixel's ray (through the same lens as
+    :func:`resolve_gbuffer`) meets one nearer than what the pixel holds: the depth and
+    position of the hit, the sphere's normal there, no char, a blood film ``film`` [m]
+    and the triangle ``sphere_triangle[k]`` (whose material the film covers)."""
+    width, height = ti.static(gbuffer_depth.shape)
+    half = ti.Vector([0.5 * width, 0.5 * height])
+    for x, y in gbuffer_depth:
+        ray = ray_of(view_projection, lens_ndc(x, y, half, distortion))
+        nearest, sphere = gbuffer_depth[x, y], -1
+        for k in range(count):
+            towards = centres[k] - eye
+            along = towards.dot(ray)
+            reach = along * along - towards.norm_sqr() + radius * radius
+            if reach >= 0.0:
+                hit_at = along - ti.sqrt(reach)
+                if 0.0 < hit_at < nearest:
+                    nearest, sphere = hit_at, k
+        if sphere >= 0:
+            hit = eye + nearest * ray
+            gbuffer_depth[x, y], gbuffer_position[x, y] = nearest, hit
+            gbuffer_normal[x, y] = (hit - centres[sphere]).normalized()
+            gbuffer_char[x, y], gbuffer_blood[x, y] = 0.0, film
+            gbuffer_triangle[x, y] = sphere_triangle[sphere]
 
 
 class GBuffer:
@@ -593,6 +653,37 @@ class GBuffer:
             self.visibility,
             np.asarray(eye, np.float32),
             matrix,
+            float(distortion),
+            self.depth,
+            self.position,
+            self.normal,
+            self.char,
+            self.blood,
+            self.triangle,
+        )
+
+    def add_spheres(
+        self,
+        centres,
+        triangles,
+        count: int,
+        radius: float,
+        film: float,
+        eye,
+        view_projection,
+        distortion: float = 0.0,
+    ) -> None:
+        """Draw the first ``count`` spheres of ``centres`` into the resolved G-buffer
+        (:func:`draw_spheres`; ``eye``, ``view_projection`` and ``distortion`` those
+        :meth:`render` was given)."""
+        draw_spheres(
+            centres,
+            triangles,
+            int(count),
+            float(radius),
+            float(film),
+            np.asarray(eye, np.float32),
+            np.asarray(view_projection, dtype=np.float32),
             float(distortion),
             self.depth,
             self.position,

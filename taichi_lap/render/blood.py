@@ -42,11 +42,20 @@ DRIP_GAP = 2e-4
 triangles beside it)."""
 
 
-class Drop(NamedTuple):
-    """A falling drop: when it lands [s], the corners of the triangle it lands on and
-    their weights, and how much film it carries (thickness [m] at one vertex)."""
+DROP_RADIUS = 7e-4
+"""[m] a falling drop's radius as drawn (the hanging drop of :data:`DRIP_FILM`)."""
 
+
+class Drop(NamedTuple):
+    """A falling drop: where [m] and when [s] it fell from, how far it falls [m] and
+    when it lands [s], the triangle it lands on, its corners and their weights, and how
+    much film it carries (thickness [m] at one vertex)."""
+
+    start: tuple[float, float, float]
+    released: float
+    height: float
     lands: float
+    triangle: int
     corners: tuple[int, int, int]
     weights: tuple[float, float, float]
     film: float
@@ -64,6 +73,7 @@ class BloodFilm:
         self.bleeds: list[tuple[int, float]] = []  # (particle followed, time it began [s])
         self.falling: list[Drop] = []
         self.spilled = 0.0  # film [m] of the drops that fell off the drawn tissue
+        self.time = 0.0  # [s] the end of the frame last updated
         self._scratch = None  # (mesh, share, drained, group) for the mesh last drained
 
     def update(self, events: list[dict], state, data, time: float, dt: float, mesh):
@@ -72,6 +82,7 @@ class BloodFilm:
         :class:`~taichi_lap.core.topology.ModelData`), then each bleed's flow over
         ``dt`` [s] poured onto ``mesh``'s surface, one drainage step and the drops
         (:meth:`drip`)."""
+        self.time = time
         for event in (e for e in events if e["kind"] == "vessel_damage"):
             self.bleeds.append((self._outlet(event, state, data, mesh), time))
         if not self.bleeds:
@@ -112,6 +123,7 @@ class BloodFilm:
         if not landed and not len(sources):
             return
         if len(sources):
+            starts = mesh.positions.to_numpy()[sources]
             hit_triangle = np.zeros(len(sources), np.int32)
             hit = np.zeros((len(sources), 3), np.float32)
             drop_landings(
@@ -124,7 +136,7 @@ class BloodFilm:
                 hit_triangle,
                 hit,
             )
-            for source, triangle, (height, u, v) in zip(sources, hit_triangle, hit):
+            for source, start, triangle, (height, u, v) in zip(sources, starts, hit_triangle, hit):
                 amount = float(film[source] - FILM_RESIDUE)
                 film[source] = FILM_RESIDUE
                 corners = (
@@ -137,8 +149,35 @@ class BloodFilm:
                     continue
                 fall = math.sqrt(2.0 * height / self.gravity) if self.gravity > 0.0 else 0.0
                 weights = (float(1.0 - u - v), float(u), float(v))
-                self.falling.append(Drop(time + fall, corners, weights, amount))
+                self.falling.append(
+                    Drop(
+                        tuple(float(c) for c in start),
+                        time,
+                        float(height),
+                        time + fall,
+                        int(triangle),
+                        corners,
+                        weights,
+                        amount,
+                    )
+                )
         mesh.blood.from_numpy(film)
+
+    def in_flight(self) -> tuple[np.ndarray, np.ndarray]:
+        """The drops still falling at the end of the frame last updated: their centres
+        (D, 3) [m], fallen from rest under gravity, and the triangles they land on
+        (D,)."""
+        falling = [d for d in self.falling if d.lands > self.time]
+        centres = [
+            np.asarray(d.start)
+            + np.asarray(self.down)
+            * min(0.5 * self.gravity * (self.time - d.released) ** 2, d.height)
+            for d in falling
+        ]
+        return (
+            np.array(centres, np.float32).reshape(-1, 3),
+            np.array([d.triangle for d in falling], np.int32),
+        )
 
     @staticmethod
     def _outlet(event: dict, state, data, mesh) -> int:

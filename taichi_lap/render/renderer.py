@@ -12,7 +12,8 @@ import time
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core import fields
+from taichi_lap.core.fields import FieldGroup, padded_rows
 from taichi_lap.kernels.ibl import ImageLighting
 from taichi_lap.kernels.raster import (
     GBuffer,
@@ -29,7 +30,7 @@ from taichi_lap.kernels.shading import (
     outline_target,
     shade,
 )
-from taichi_lap.render.blood import BloodFilm
+from taichi_lap.render.blood import DRIP_FILM, DROP_RADIUS, BloodFilm
 from taichi_lap.render.camera import EndoscopeCamera
 from taichi_lap.render.scene_mesh import SceneMesh
 from taichi_lap.scene.planned_plane import PlannedPlane
@@ -54,6 +55,9 @@ SMOKE_HALF_LIFE = 1.5
 """[s] The smoke thins by half in this time (insufflation carries it off)."""
 SMOKE_MAX = 8.0
 """[1/m] The thickest smoke."""
+MAX_DRAWN_DROPS = 32
+"""Falling drops of blood drawn at most (the nearest to the eye; each costs a sphere
+test per pixel while drops fall)."""
 
 
 @ti.data_oriented
@@ -128,6 +132,8 @@ class Renderer:
         self.params = ShadingParams(group)
         self.frame = group.field(ti.f32, self.width, vector=3, columns=self.height)
         self._depths = group.field(ti.i32, DEPTH_BINS) if auto_exposure else None
+        self._drop_centre = group.field(ti.f32, MAX_DRAWN_DROPS, vector=3)
+        self._drop_triangle = group.field(ti.i32, MAX_DRAWN_DROPS)
         group.finalize()
         self.params.intensity[None] = headlight
         self.params.cos_inner[None] = math.cos(math.radians(0.6 * spot_angle))
@@ -201,6 +207,7 @@ class Renderer:
             cam.near,
             self.distortion,
         )
+        self._draw_drops()
         ti.sync()
         marks.append(time.perf_counter())
         self.params.eye[None] = cam.eye
@@ -236,6 +243,32 @@ class Renderer:
         marks.append(time.perf_counter())
         for name, a, b in zip(("vertex", "visibility", "shading"), marks, marks[1:]):
             self.timings[name] = (b - a) * 1e3
+
+    def _draw_drops(self):
+        """The blood's falling drops (:meth:`BloodFilm.in_flight`), the nearest
+        :data:`MAX_DRAWN_DROPS` to the eye, into the G-buffer as spheres of blood
+        (:data:`~taichi_lap.render.blood.DROP_RADIUS`) that the shading draws wet."""
+        centres, triangles = self.blood.in_flight()
+        if not len(centres):
+            return
+        nearest = np.argsort(np.linalg.norm(centres - self.camera.eye, axis=1))
+        nearest = nearest[:MAX_DRAWN_DROPS]
+        fields.write(
+            [
+                (self._drop_centre, padded_rows(centres[nearest], MAX_DRAWN_DROPS)),
+                (self._drop_triangle, padded_rows(triangles[nearest], MAX_DRAWN_DROPS)),
+            ]
+        )
+        self.gbuffer.add_spheres(
+            self._drop_centre,
+            self._drop_triangle,
+            len(nearest),
+            DROP_RADIUS,
+            DRIP_FILM,
+            self.camera.eye,
+            self._matrix,
+            self.distortion,
+        )
 
     def update_smoke(self, cauterising: bool, dt: float):
         """Cautery smoke over ``dt`` [s]: it thickens by the smoke rate while some hook
