@@ -10,7 +10,8 @@ import pytest
 
 from taichi_lap.core.csr import rows_of_extents
 from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON
-from taichi_lap.core.mesh import element_pieces, unique_edges
+from taichi_lap.core.mesh import element_pieces, triangle_areas, unique_edges
+from taichi_lap.dissection.sheet_cut import masses_after_cut
 from taichi_lap.devices import ScriptedDevice
 from taichi_lap.preprocess.organs import CUT_RESERVE
 from taichi_lap.scene import Scene, from_tables
@@ -184,6 +185,44 @@ def test_new_vertices_take_reserve_rows_where_their_parents_were(cut_sheet):
     # rest lie on the sheet's rest plane y = 0, inside its extent
     assert np.allclose(rest[:, 1], 0.0, atol=1e-6)
     assert (np.abs(rest[:, 0]) <= 0.05 + 1e-6).all() and (np.abs(rest[:, 2]) <= 0.03 + 1e-6).all()
+
+
+def test_a_cut_keeps_the_sheets_mass_but_for_the_area_it_cut_away(cut_sheet):
+    """The mass the cut triangles held goes to the triangles that replace them, by
+    area: the sheet loses the share of the kerf and its fragments (not the mass of
+    every new vertex gained, as blended from its parents), every live vertex keeps a
+    positive mass whose inverse the model holds."""
+    session, _, _ = cut_sheet
+    data, topology = session.data, session._dissection.topology
+    built = sheet_particles(session)
+    faces = session.live_triangles()
+    live = np.unique(faces)
+    mass_before, mass_after = data.mass[built].sum(), topology.mass[live].sum()
+    built_faces = data.surface_index.reshape(-1, 4)[data.surface_triangles.reshape(-1, 3), 0]
+    area_before = triangle_areas(data.rest_position, built_faces).sum()
+    area_after = triangle_areas(topology.rest, faces).sum()
+    assert area_after < area_before
+    assert mass_after / mass_before == pytest.approx(area_after / area_before, abs=0.01)
+    assert (topology.mass[live] > 0.0).all()
+    free = live[~topology.pinned[live]]
+    inverse_mass = session.model.inv_mass.to_numpy()[free]
+    assert np.allclose(inverse_mass, 1.0 / topology.mass[free], rtol=1e-5)
+
+
+def test_masses_after_a_cut_move_the_cut_triangles_mass_to_their_replacements():
+    """A square of two triangles, a vertex of 1 kg each: the triangle (0, 1, 2) is cut
+    away for one on half of it with a new vertex 4 at the middle of the edge 1-2;
+    vertex 3, only in the kept triangle, keeps its mass."""
+    rest = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [1, 0.5, 0]], float)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    old, new = masses_after_cut(
+        rest, faces, np.array([True, False]), np.array([[0, 1, 4]]), np.ones(4)
+    )
+    # each corner of the cut triangle gave the half of its area there: 0.5 + 1 + 0.5
+    # = 2 kg over 0.5 m², taken back over 0.25 m², a third by each corner
+    assert old == pytest.approx([0.5 + 1 / 3, 1 / 3, 0.5, 1.0])
+    assert new == pytest.approx([1 / 3])
+    assert old.sum() + new.sum() == pytest.approx(4.0 - 1.0)
 
 
 def test_a_reset_puts_the_sheet_and_its_constraints_back(cut_sheet):

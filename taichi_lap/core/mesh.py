@@ -134,6 +134,12 @@ def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", np.cross(d[:, 0], d[:, 1]), d[:, 2]) / 6.0
 
 
+def triangle_areas(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Areas ``(F,)`` [m^2] of ``triangles`` at ``points``."""
+    x = np.asarray(points, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
+    return 0.5 * np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1)
+
+
 def enclosed_volume(points: np.ndarray, triangles: np.ndarray) -> float:
     """Volume [m^3] a closed triangle mesh encloses (divergence theorem), negative
     when its faces point inwards."""
@@ -161,8 +167,7 @@ def degenerate_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarra
     :data:`DEGENERATE_AREA` of the squared diagonal of ``points``' bounding box."""
     points = np.asarray(points, dtype=np.float64)
     triangles = np.asarray(triangles, dtype=np.int64)
-    a, b, c = (points[triangles[:, k]] for k in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    area = triangle_areas(points, triangles)
     diagonal_sq = float(np.sum((points.max(axis=0) - points.min(axis=0)) ** 2))
     repeated = (
         (triangles[:, 0] == triangles[:, 1])

@@ -134,6 +134,20 @@ class DeviceTopology:
         writes.add(particles, {**columns, state.x: x, state.p: x, state.v: v})
         writes.flush()
 
+    def set_masses(self, particles, mass):
+        """Give the particle rows ``particles`` the mass ``mass`` [kg] in the model
+        and the host tables; a particle held in place (inverse mass 0) keeps it 0.
+        Particles of clusters are refused (their clusters' mass tables would not
+        follow)."""
+        if len(rows_of(self.topology.membership_start, particles)):
+            raise ValueError("set_masses: particles of clusters are not reweighed")
+        inverse = np.where(self.inverse_mass[particles] > 0.0, 1.0 / np.asarray(mass), 0.0)
+        self.inverse_mass[particles] = inverse
+        self.topology.mass[particles] = mass
+        writes = RowWrites()
+        writes.add(particles, {self.model.mass: mass, self.model.inv_mass: inverse})
+        writes.flush()
+
     def out_of_reach(self, organ: int, x: np.ndarray, low, high) -> bool:
         """Whether ``organ``'s particles at ``x`` (N, 3) [m] lie outside the box
         ``low``..``high`` (a cut's reach), by their bounding box."""

@@ -8,9 +8,11 @@ that the sheet's topology:
 
 * a new vertex takes a particle row from the sheet's reserve (rows the model was
   built with, pinned and in nothing until taken,
-  :func:`~taichi_lap.preprocess.organs.add_cut_reserve`); its position, rest position,
-  velocity and mass are its parents' by the cut's weights. A vertex the cut removes
-  gives its particle row back;
+  :func:`~taichi_lap.preprocess.organs.add_cut_reserve`); its position, rest position
+  and velocity are its parents' by the cut's weights. A vertex the cut removes gives
+  its particle row back. The mass the cut triangles held goes to the triangles that
+  replace them, by area (:func:`masses_after_cut`): the sheet keeps its mass but for
+  the kerf's and the fragments';
 * the sheet's distance constraints are its edges and bending pairs again (seed 000
   §3.2: the constraints across the cut are gone, those along it are new), their rest
   lengths from the rest positions; a truss's are its edges again and the struts
@@ -38,6 +40,7 @@ from taichi_lap.core.mesh import (
     pair_lengths,
     piece_count,
     rows_in,
+    triangle_areas,
     unique_edges,
 )
 from taichi_lap.dissection.device import DeviceTopology
@@ -106,6 +109,29 @@ def struts_crossed(pairs: np.ndarray, sweep: Sweep, bounds, x: np.ndarray) -> np
         inside = sweep.distance(points.reshape(-1, 3)) < 0.0
         crossed[near] = inside.reshape(-1, samples).any(axis=1)
     return crossed
+
+
+def masses_after_cut(
+    rest: np.ndarray, faces: np.ndarray, dead: np.ndarray, new_faces: np.ndarray, mass: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The masses [kg] of a surface's vertices after a cut, the surface's mass kept
+    but for the cut away: each old vertex (the first ``len(mass)`` of ``rest`` [m], the
+    rest positions of the old and new vertices) gives the triangles of ``faces`` that
+    die (``dead``) its mass's share by their area at it (a third of each incident
+    triangle's), the ``new_faces`` take that mass at its mean density over the dead
+    triangles' area, shared by the same rule among their corners; the area the
+    cut removed (the kerf, fragments) takes its mass with it. Returns (the masses of
+    the old vertices, those of the new ones)."""
+    old = len(mass)
+    corner_area = np.repeat(triangle_areas(rest, faces) / 3.0, 3)
+    at = faces.ravel()
+    area = np.bincount(at, weights=corner_area, minlength=old)[:old]
+    lost = np.bincount(at, weights=corner_area * np.repeat(dead, 3), minlength=old)[:old]
+    given = mass * np.divide(lost, area, out=np.zeros(old), where=area > 0.0)
+    density = given.sum() / max(lost.sum(), 1e-30)
+    new_area = np.repeat(triangle_areas(rest, new_faces) / 3.0, 3)
+    taken = density * np.bincount(new_faces.ravel(), weights=new_area, minlength=len(rest))
+    return mass - given + taken[:old], taken[old:]
 
 
 _NO_STRUTS = (np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0))
@@ -223,7 +249,26 @@ class SheetCutter:
         def blend(values):
             return np.einsum("nk,nk...->n...", weights, values[parents])
 
-        rest, mass = blend(topology.rest), blend(self.mass)
+        every_rest = np.concatenate(
+            [
+                topology.rest[particles],
+                np.einsum(
+                    "nk,nk...->n...",
+                    cut.vertex_weights,
+                    topology.rest[particles[cut.vertex_parents]],
+                ),
+            ]
+        )
+        dead = ~kept  # the triangles cut away, and the kept ones of a fragment
+        dead[kept] = fragment[: int(kept.sum())]
+        old_mass, new_mass = masses_after_cut(
+            every_rest,
+            local.reshape(-1, 3),
+            dead,
+            faces[~fragment & (row_of < 0)],
+            self.mass[particles],
+        )
+        rest, mass = every_rest[count + made], new_mass[made]
         topology.rest[new_particles] = rest
         topology.particle_alive[new_particles] = True
         new_vertices = vertices.take(len(made))
@@ -253,6 +298,8 @@ class SheetCutter:
         np.add.at(vertices["uses"], slot[added].ravel(), 1)
 
         self.dissection.set_particles(new_particles, rest, mass, blend(x), blend(v), state)
+        alive = in_use[:count]
+        self.dissection.set_masses(particles[alive], old_mass[alive])
         if len(sheet.struts[0]):
             pieces = element_pieces(faces[~fragment])
             piece_of = np.full(len(in_use), -1)
