@@ -551,23 +551,18 @@ def draw_spheres(
     eye: ti.math.vec3,
     view_projection: ti.math.mat4,
     distortion: ti.f32,
-    gbuffer_depth: ti.template(),
-    gbuffer_position: ti.template(),
-    gbuffer_normal: ti.template(),
-    gbuffer_char: ti.template(),
-    gbuffer_blood: ti.template(),
-    gbuffer_triangle: ti.template(),
+    gbuffer: ti.template(),
 ):
     """The first ``count`` spheres of ``radius`` [m] at ``centres`` (falling drops of
-    blood) into a resolved G-buffer, where the pixel's ray (through the same lens as
+    blood) into a resolved ``gbuffer``, where the pixel's ray (through the same lens as
     :func:`resolve_gbuffer`) meets one nearer than what the pixel holds: the depth and
     position of the hit, the sphere's normal there, no char, a blood film ``film`` [m]
     and the triangle ``sphere_triangle[k]`` (whose material the film covers)."""
-    width, height = ti.static(gbuffer_depth.shape)
+    width, height = ti.static(gbuffer.depth.shape)
     half = ti.Vector([0.5 * width, 0.5 * height])
-    for x, y in gbuffer_depth:
+    for x, y in gbuffer.depth:
         ray = ray_of(view_projection, lens_ndc(x, y, half, distortion))
-        nearest, sphere = gbuffer_depth[x, y], -1
+        nearest, sphere = gbuffer.depth[x, y], -1
         for k in range(count):
             towards = centres[k] - eye
             along = towards.dot(ray)
@@ -578,10 +573,10 @@ def draw_spheres(
                     nearest, sphere = hit_at, k
         if sphere >= 0:
             hit = eye + nearest * ray
-            gbuffer_depth[x, y], gbuffer_position[x, y] = nearest, hit
-            gbuffer_normal[x, y] = (hit - centres[sphere]).normalized()
-            gbuffer_char[x, y], gbuffer_blood[x, y] = 0.0, film
-            gbuffer_triangle[x, y] = sphere_triangle[sphere]
+            gbuffer.depth[x, y], gbuffer.position[x, y] = nearest, hit
+            gbuffer.normal[x, y] = (hit - centres[sphere]).normalized()
+            gbuffer.char[x, y], gbuffer.blood[x, y] = 0.0, film
+            gbuffer.triangle[x, y] = sphere_triangle[sphere]
 
 
 class GBuffer:
@@ -685,12 +680,7 @@ class GBuffer:
             np.asarray(eye, np.float32),
             np.asarray(view_projection, dtype=np.float32),
             float(distortion),
-            self.depth,
-            self.position,
-            self.normal,
-            self.char,
-            self.blood,
-            self.triangle,
+            self,
         )
 
 
