@@ -90,9 +90,8 @@ _lighting: tuple | None = None
 
 def shared_lighting() -> ImageLighting:
     """The cavity's image-based lighting (:class:`ImageLighting`), computed once per
-    Taichi program and shared by every renderer in it: one SNode tree, and the shading
-    kernel compiled once for it (Taichi compiles a kernel again for every object it is
-    given), instead of one of each per renderer."""
+    Taichi program and shared by every renderer in it: one SNode tree and one
+    precomputation per program instead of one of each per renderer."""
     global _lighting
     program = ti.lang.impl.get_runtime().prog
     if _lighting is None or _lighting[0] is not program:
@@ -128,7 +127,7 @@ class Renderer:
         self.camera = camera
         self.gbuffer = GBuffer(self.width, self.height)
         self.lighting = shared_lighting()
-        group = FieldGroup()  # one SNode tree: the parameters, the image, the histogram
+        group = FieldGroup()  # one SNode tree: parameters, image, histogram, drops
         self.params = ShadingParams(group)
         self.frame = group.field(ti.f32, self.width, vector=3, columns=self.height)
         self._depths = group.field(ti.i32, DEPTH_BINS) if auto_exposure else None
