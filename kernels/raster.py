@@ -35,7 +35,7 @@ import math
 import numpy as np
 import taichi as ti
 
-from taichi_lap.core.fields import FieldGroup
+from taichi_lap.core.fields import FieldGroup, FieldOwner
 
 SUBPIXEL_BITS = 8
 SUBPIXEL = 1 << SUBPIXEL_BITS  # snapping grid: 1/256 px
@@ -279,7 +279,7 @@ def rasterize_visibility(
 
 
 @ti.data_oriented
-class BoxPixels:
+class BoxPixels(FieldOwner):
     """Per fan part (two per triangle) of :func:`rasterize_visibility_by_pixel`: snapped
     corners, their 1/w, pixel box ``(x0, y0, box width)`` and the running end of the
     box pixel counts; room for ``capacity`` triangles."""
@@ -289,20 +289,16 @@ class BoxPixels:
     def __init__(self, capacity: int):
         self.capacity = capacity
         parts, blocks = 2 * capacity, (2 * capacity + self.BLOCK - 1) // self.BLOCK
-        self.corner = ti.Matrix.field(3, 2, ti.i32)
-        self.inv_w = ti.Vector.field(3, ti.f32)
-        self.box = ti.Vector.field(3, ti.i32)
-        self.count = ti.field(ti.i32)
-        self.end = ti.field(ti.i32)
-        self.block_start = ti.field(ti.i32)
-        self.total = ti.field(ti.i32)
-        builder = (
-            ti.FieldsBuilder()
-        )  # 32-bit types only: Vulkan misplaces small fields after i64 ones
-        builder.dense(ti.i, parts).place(self.corner, self.inv_w, self.box, self.count, self.end)
-        builder.dense(ti.i, blocks).place(self.block_start)
-        builder.place(self.total)
-        self.tree = builder.finalize()
+        # 32-bit types only: Vulkan misplaces small fields after i64 ones
+        group = self._declare_in(None)
+        self.corner = group.field(ti.i32, parts, matrix=(3, 2))
+        self.inv_w = group.field(ti.f32, parts, vector=3)
+        self.box = group.field(ti.i32, parts, vector=3)
+        self.count = group.field(ti.i32, parts)
+        self.end = group.field(ti.i32, parts)
+        self.block_start = group.field(ti.i32, blocks)
+        self.total = group.field(ti.i32, None)
+        self._finalize()
 
 
 @ti.func
@@ -634,7 +630,7 @@ class GBuffer:
             capacity = 0 if self.box_pixels is None else self.box_pixels.capacity
             if capacity < triangle_count:  # grows by doubling: cutting adds triangles
                 if self.box_pixels is not None:
-                    self.box_pixels.tree.destroy()
+                    self.box_pixels.close()
                 self.box_pixels = BoxPixels(max(int(triangle_count), 2 * capacity, 1024))
             rasterize_visibility_by_pixel(*args, self.box_pixels)
         else:
