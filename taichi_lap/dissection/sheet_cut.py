@@ -244,28 +244,19 @@ class SheetCutter:
         if not self._reserve_left(sheet, len(made)):
             return None
         new_particles = np.array([sheet.free.pop() for _ in made], dtype=np.int64)
-        weights, parents = cut.vertex_weights[made], particles[cut.vertex_parents[made]]
 
-        def blend(values):
-            return np.einsum("nk,nk...->n...", weights, values[parents])
+        def blend(values):  # at the new vertices in use, by the cut's weights
+            return cut.new_values(values[particles])[made]
 
-        every_rest = np.concatenate(
-            [
-                topology.rest[particles],
-                np.einsum(
-                    "nk,nk...->n...",
-                    cut.vertex_weights,
-                    topology.rest[particles[cut.vertex_parents]],
-                ),
-            ]
-        )
+        old_rest = topology.rest[particles]
+        every_rest = np.concatenate([old_rest, cut.new_values(old_rest)])
         dead = ~kept  # the triangles cut away, and the kept ones of a fragment
         dead[kept] = fragment[: int(kept.sum())]
         old_mass, new_mass = masses_after_cut(
             every_rest,
             local.reshape(-1, 3),
             dead,
-            faces[~fragment & (row_of < 0)],
+            added,
             self.mass[particles],
         )
         rest, mass = every_rest[count + made], new_mass[made]
