@@ -123,15 +123,10 @@ class DeviceTopology:
         torn vertex's: :mod:`taichi_lap.dissection.sheet_cut`) their rest
         position, mass, inverse mass, position and velocity ((P, 3) or (P,) each) in
         the model and ``state``."""
-        model = self.model
-        model.as_built = False
-        inverse = 1.0 / np.asarray(mass, dtype=np.float64)
-        self.inverse_mass[particles] = inverse
-        self.topology.mass[particles] = mass
         self.topology.pinned[particles] = False
         writes = RowWrites()
-        columns = {model.rest_position: rest, model.mass: mass, model.inv_mass: inverse}
-        writes.add(particles, {**columns, state.x: x, state.p: x, state.v: v})
+        self._add_masses(writes, particles, mass, 1.0 / np.asarray(mass, dtype=np.float64))
+        writes.add(particles, {self.model.rest_position: rest, state.x: x, state.p: x, state.v: v})
         writes.flush()
 
     def set_masses(self, particles, mass):
@@ -142,11 +137,17 @@ class DeviceTopology:
         if len(rows_of(self.topology.membership_start, particles)):
             raise ValueError("set_masses: particles of clusters are not reweighed")
         inverse = np.where(self.inverse_mass[particles] > 0.0, 1.0 / np.asarray(mass), 0.0)
+        writes = RowWrites()
+        self._add_masses(writes, particles, mass, inverse)
+        writes.flush()
+
+    def _add_masses(self, writes: RowWrites, particles, mass, inverse):
+        """Set ``particles``' mass and ``inverse`` mass in the host tables and add
+        them to ``writes`` for the model (no longer as built)."""
+        self.model.as_built = False
         self.inverse_mass[particles] = inverse
         self.topology.mass[particles] = mass
-        writes = RowWrites()
         writes.add(particles, {self.model.mass: mass, self.model.inv_mass: inverse})
-        writes.flush()
 
     def out_of_reach(self, organ: int, x: np.ndarray, low, high) -> bool:
         """Whether ``organ``'s particles at ``x`` (N, 3) [m] lie outside the box
