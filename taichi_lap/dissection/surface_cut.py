@@ -113,10 +113,10 @@ class Sweep:
         return tips, Slerp([0.0, 1.0], turn)(s).as_matrix()
 
     @cached_property
-    def _sheets(self) -> tuple[np.ndarray, np.ndarray]:
+    def _sheets(self) -> tuple[_Triangles, np.ndarray]:
         """The surfaces each round shape's axis sweeps between consecutive poses, as
-        triangles (Q, 3, 3) (two per quadrilateral A_k B_k B_k+1 A_k+1: exact for a
-        translation, where it is a parallelogram), and the shape's radius (Q,)."""
+        triangles (two per quadrilateral A_k B_k B_k+1 A_k+1: exact for a translation,
+        where it is a parallelogram), and the shape's radius (one per triangle)."""
         tips, rotations = self.poses
         shapes = self.geometry.round_shapes()
         a = np.array([s[0] for s in shapes]).reshape(-1, 3)
@@ -126,7 +126,7 @@ class Sweep:
         a0, b0, a1, b1 = starts[:-1], ends[:-1], starts[1:], ends[1:]
         triangles = np.concatenate([np.stack([a0, b0, b1], 2), np.stack([a0, b1, a1], 2)])
         radii = np.array([s[2] for s in shapes], dtype=np.float64)
-        return triangles.reshape(-1, 3, 3), np.tile(radii, 2 * (len(tips) - 1))
+        return _Triangles(triangles.reshape(-1, 3, 3)), np.tile(radii, 2 * (len(tips) - 1))
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Signed distance-like value of ``points`` (n, 3) to V_sweep: the least
@@ -135,7 +135,7 @@ class Sweep:
         out = np.full(len(points), np.inf)
         triangles, radii = self._sheets
         for first in range(0, len(points), _CHUNK):
-            d = _triangle_distance(points[first : first + _CHUNK], triangles) - radii
+            d = triangles.distance(points[first : first + _CHUNK]) - radii
             out[first : first + _CHUNK] = d.min(axis=1, initial=np.inf)
         if self.geometry.boxes():
             boxes = ToolGeometry(tuple(s for s in self.geometry.shapes if s.kind == "box"), 0, 0)
@@ -273,30 +273,35 @@ def cut_surface(
     )
 
 
-def _triangle_distance(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(n, Q) distances [m] of ``points`` (n, 3) from ``triangles`` (Q, 3, 3), which
-    may be degenerate (a sphere's sweep is a segment): the least of the distances to
-    the three edges and, where the point projects inside, to the plane."""
-    x = points[:, None, :]
-    out = np.full((len(points), len(triangles)), np.inf)
-    normal = _cross_rows(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-    norm = np.linalg.norm(normal, axis=1)
-    within = np.ones(out.shape, dtype=bool)
-    for k in range(3):
-        a, b = triangles[:, k], triangles[:, (k + 1) % 3]
-        ab = b - a
-        ax = x - a
-        t = np.clip(
-            np.einsum("nqj,qj->nq", ax, ab) / np.maximum(np.einsum("qj,qj->q", ab, ab), 1e-30), 0, 1
+class _Triangles:
+    """Triangles (Q, 3, 3) [m], which may be degenerate (a sphere's sweep is a
+    segment), with what :meth:`distance` needs of them computed once: a sweep's
+    distances are taken many times a cut, on a few points each."""
+
+    def __init__(self, triangles: np.ndarray):
+        self.corners = triangles
+        normal = _cross_rows(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        norm = np.linalg.norm(normal, axis=1)
+        self.edges = np.roll(triangles, -1, axis=1) - triangles  # edge k: corner k to k + 1
+        self.inverse_square = 1.0 / np.maximum(
+            np.einsum("qkj,qkj->qk", self.edges, self.edges), 1e-30
         )
-        gap = ax - t[..., None] * ab
-        np.minimum(out, np.sqrt(np.einsum("nqj,nqj->nq", gap, gap)), out=out)
-        # (ab x ax) . n = ax . (n x ab): the inward normal of the edge, per triangle
-        within &= np.einsum("nqj,qj->nq", ax, _cross_rows(normal, ab)) >= 0.0
-    flat = norm > 1e-12 * np.max(np.abs(triangles), initial=1.0) ** 2
-    unit = normal / np.maximum(norm, 1e-30)[:, None]
-    plane = np.abs(np.einsum("nqj,qj->nq", x - triangles[:, 0], unit))
-    return np.where(within & flat, np.minimum(out, plane), out)
+        # (ab x ax) . n = ax . (n x ab): the inward normal of each edge
+        self.inward = _cross_rows(normal[:, None, :], self.edges)
+        self.flat = norm > 1e-12 * np.max(np.abs(triangles), initial=1.0) ** 2
+        self.unit = normal / np.maximum(norm, 1e-30)[:, None]
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(n, Q) distances [m] of ``points`` (n, 3) from the triangles: the least of
+        the distances to the three edges and, where the point projects inside, to the
+        plane."""
+        ax = points[:, None, None, :] - self.corners  # (n, Q, 3 edges, 3)
+        t = np.clip(np.einsum("nqkj,qkj->nqk", ax, self.edges) * self.inverse_square, 0.0, 1.0)
+        gap = ax - t[..., None] * self.edges
+        out = np.sqrt(np.einsum("nqkj,nqkj->nqk", gap, gap).min(axis=2))
+        within = (np.einsum("nqkj,qkj->nqk", ax, self.inward) >= 0.0).all(axis=2) & self.flat
+        plane = np.abs(np.einsum("nqj,qj->nq", ax[:, :, 0], self.unit))
+        return np.where(within, np.minimum(out, plane), out)
 
 
 def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -392,18 +397,28 @@ def _classify_edges(points, edges, distance, sweep) -> tuple[np.ndarray, np.ndar
     return kind, t_edge
 
 
-def _bisect(a, b, s_lo, s_hi, f_lo, f_hi, sweep, steps: int = 6) -> np.ndarray:
+def _bisect(a, b, s_lo, s_hi, f_lo, f_hi, sweep, rounds: int = 2, parts: int = 8) -> np.ndarray:
     """The parameters in [s_lo, s_hi] where the segments a-b cross the sweep's
     boundary, given f, the distance less the inside level (-tolerance), at both ends
-    (of unlike signs): ``steps`` bisections, then the root of f interpolated linearly
-    over the last interval (exact where the sweep's boundary is flat)."""
+    (of unlike signs): ``rounds`` times the interval is cut into ``parts`` and the
+    first part whose ends' signs differ is kept (all segments' samples in one
+    distance query: as fine as six bisections with two queries), then the root of f
+    is interpolated linearly over the last interval (exact where the sweep's boundary
+    is flat)."""
     lo, hi = s_lo.copy(), s_hi.copy()
-    for _ in range(steps):
-        mid = 0.5 * (lo + hi)
-        f_mid = sweep.distance(a + mid[:, None] * (b - a)) + sweep.tolerance
-        same = (f_mid < 0.0) == (f_lo < 0.0)
-        lo, f_lo = np.where(same, mid, lo), np.where(same, f_mid, f_lo)
-        hi, f_hi = np.where(same, hi, mid), np.where(same, f_hi, f_mid)
+    steps = np.arange(1, parts) / parts
+    rows = np.arange(len(lo))
+    for _ in range(rounds):
+        s = lo[:, None] + steps * (hi - lo)[:, None]  # (C, parts - 1)
+        points = a[:, None] + s[..., None] * (b - a)[:, None]
+        f = sweep.distance(points.reshape(-1, 3)).reshape(s.shape) + sweep.tolerance
+        f = np.concatenate([f, f_hi[:, None]], axis=1)  # the ends of parts 0 .. parts - 1
+        first = np.argmax((f < 0.0) != (f_lo < 0.0)[:, None], axis=1)
+        ends = np.concatenate([s, hi[:, None]], axis=1)
+        starts = np.concatenate([lo[:, None], s], axis=1)
+        f_starts = np.concatenate([f_lo[:, None], f[:, :-1]], axis=1)
+        lo, hi = starts[rows, first], ends[rows, first]
+        f_lo, f_hi = f_starts[rows, first], f[rows, first]
     span = f_lo - f_hi
     safe = np.abs(span) > 1e-30
     share = np.clip(np.where(safe, f_lo / np.where(safe, span, 1.0), 0.5), 0.0, 1.0)
