@@ -136,6 +136,11 @@ def masses_after_cut(
 
 _NO_STRUTS = (np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0))
 
+LRA_REACH_MARGIN = 1.25
+"""A sheet's LRAs are looked for again after a cut within this factor of their longest
+rest distance before it (:func:`~taichi_lap.preprocess.sheets.long_range_attachments`'s
+``reach``; cuts lengthen the geodesics around them)."""
+
 FRAGMENT_TRIANGLES = 8
 """A piece of a cut sheet of at most this many triangles holding no anchor is a
 fragment, removed with the cut (the slivers the kerf leaves between its edges)."""
@@ -159,6 +164,7 @@ class _Sheet:
     struts: tuple[np.ndarray, np.ndarray, np.ndarray]
     is_sheet: bool  # a sheet (bending pairs, LRAs), not a truss (struts)
     pieces: int  # its connected pieces of triangles now
+    lra_reach: float = np.inf  # the guess at its LRAs' longest rest distance [m]
     spent: bool = False  # whether the reserve ran out (said once)
 
 
@@ -434,10 +440,11 @@ class SheetCutter:
         and relaxed LRAs (particles, anchors, rest distances [m]) on its live
         triangles (module docstring)."""
         topology = self.dissection.topology
-        faces = topology.live_faces(sheet.organ)
-        edges = unique_edges(faces)
-        bending = bending_pairs(faces) if sheet.is_sheet else np.zeros((0, 2), np.int64)
-        pairs = np.concatenate([edges, bending])
+        live, local = np.unique(topology.live_faces(sheet.organ), return_inverse=True)
+        local = local.reshape(-1, 3)
+        edges = unique_edges(local)  # numbered as ``live``, whose order they keep
+        bending = bending_pairs(local) if sheet.is_sheet else np.zeros((0, 2), np.int64)
+        pairs = live[np.concatenate([edges, bending])]
         rest = pair_lengths(topology.rest, pairs)
         stiffness = np.repeat(
             [sheet.edge_stiffness, sheet.bending_stiffness], [len(edges), len(bending)]
@@ -446,10 +453,12 @@ class SheetCutter:
         pairs = np.concatenate([pairs, strut_pairs])
         rest = np.concatenate([rest, strut_rest])
         stiffness = np.concatenate([stiffness, strut_stiffness])
-        live, local = np.unique(faces, return_inverse=True)
         anchors = np.flatnonzero(np.isin(live, sheet.anchors))
         if not len(anchors) or not sheet.is_sheet:
             return pairs, rest, stiffness, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-        mesh = TriangleMesh(topology.rest[live], local.reshape(-1, 3))
-        lra = long_range_attachments(mesh, anchors, sheet.anchors_per_vertex)
+        mesh = TriangleMesh(topology.rest[live], local)
+        lra = long_range_attachments(
+            mesh, anchors, sheet.anchors_per_vertex, edges=edges, reach=sheet.lra_reach
+        )
+        sheet.lra_reach = LRA_REACH_MARGIN * float(lra.rest.max(initial=0.0)) or np.inf
         return pairs, rest, stiffness, live[lra.particle], live[lra.anchor], lra.rest

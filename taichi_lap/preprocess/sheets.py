@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from taichi_lap.core.geometry import SpringSheet, TriangleMesh
 from taichi_lap.core.mesh import pair_lengths, unique_edges
@@ -15,16 +15,18 @@ from taichi_lap.core.mesh import pair_lengths, unique_edges
 
 def bending_pairs(triangles: np.ndarray) -> np.ndarray:
     """For every edge shared by two triangles, the two vertices opposite it (a distance
-    constraint between them resists folding, Müller et al. 2007 §4.2)."""
-    t = np.asarray(triangles)
-    directed = np.concatenate([t[:, [0, 1, 2]], t[:, [1, 2, 0]], t[:, [2, 0, 1]]])
-    key = np.sort(directed[:, :2], axis=1)
-    order = np.lexsort((key[:, 1], key[:, 0]))
-    key, opposite = key[order], directed[order, 2]
-    same = np.all(key[1:] == key[:-1], axis=1)
-    pairs = np.stack([opposite[:-1][same], opposite[1:][same]], axis=1)
-    pairs = np.sort(pairs[pairs[:, 0] != pairs[:, 1]], axis=1)
+    constraint between them resists folding, Müller et al. 2007 §4.2), sorted i < j
+    and in increasing order."""
+    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     n = np.int64(t.max(initial=0) + 1)
+    a, b = t.ravel(), t[:, [1, 2, 0]].ravel()  # edge k of a triangle: corners k, k + 1
+    opposite = t[:, [2, 0, 1]].ravel()
+    key = np.minimum(a, b) * n + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    key, opposite = key[order], opposite[order]
+    same = key[1:] == key[:-1]
+    pairs = np.sort(np.stack([opposite[:-1][same], opposite[1:][same]], axis=1), axis=1)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
     return np.stack(np.divmod(np.unique(pairs[:, 0] * n + pairs[:, 1]), n), axis=1)
 
 
@@ -38,21 +40,43 @@ class Attachments:
     rest: np.ndarray
 
 
-def long_range_attachments(mesh: TriangleMesh, anchors: np.ndarray, per_vertex: int) -> Attachments:
-    """Each free vertex keeps its ``per_vertex`` geodesically nearest anchors
-    (seed 000 §3.2: "it may be constrained by different attached vertices")."""
+def long_range_attachments(
+    mesh: TriangleMesh,
+    anchors: np.ndarray,
+    per_vertex: int,
+    edges: np.ndarray | None = None,
+    reach: float = np.inf,
+) -> Attachments:
+    """Each free vertex keeps its ``per_vertex`` geodesically nearest anchors (seed 000
+    §3.2: "it may be constrained by different attached vertices"), fewer where its
+    piece of the mesh holds fewer; distances along the mesh's ``edges`` (its unique
+    edges, :func:`~taichi_lap.core.mesh.unique_edges`, found when not given).
+
+    ``reach`` [m]: a guess at the farthest such anchor. The search from each anchor
+    stops there, and runs again unbounded when a vertex found fewer anchors within it
+    than its piece holds: the result is the same, found faster when the guess holds
+    (a sheet cut again and again, whose attachments move little)."""
     anchors = np.unique(np.asarray(anchors, dtype=np.int64))
     n = len(mesh.vertices)
-    edges = unique_edges(mesh.triangles)
+    edges = unique_edges(mesh.triangles) if edges is None else edges
     length = pair_lengths(mesh.vertices, edges)
-    graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    distance = dijkstra(graph, directed=False, indices=anchors)  # (A, n)
-    free = np.setdiff1d(np.arange(n), anchors)
+    graph = csr_matrix(
+        (np.concatenate([length, length]), (edges.ravel("F"), edges[:, ::-1].ravel("F"))),
+        shape=(n, n),
+    )
+    free = np.ones(n, dtype=bool)
+    free[anchors] = False
     count = min(per_vertex, len(anchors))
-    nearest = np.argsort(distance[:, free], axis=0, kind="stable")[:count]  # (count, F)
-    rest = np.take_along_axis(distance[:, free], nearest, axis=0)
+    distance = dijkstra(graph, indices=anchors, limit=reach)[:, free]  # (A, F)
+    if np.isfinite(reach):
+        piece = connected_components(graph, directed=False)[1]
+        held = np.bincount(piece[anchors], minlength=piece.max(initial=-1) + 1)
+        if np.any(np.isfinite(distance).sum(axis=0) < np.minimum(count, held[piece[free]])):
+            distance = dijkstra(graph, indices=anchors)[:, free]
+    nearest = np.argsort(distance, axis=0, kind="stable")[:count]  # (count, F)
+    rest = np.take_along_axis(distance, nearest, axis=0)
     reachable = np.isfinite(rest)
-    particle = np.broadcast_to(free, nearest.shape)[reachable]
+    particle = np.broadcast_to(np.flatnonzero(free), nearest.shape)[reachable]
     return Attachments(particle=particle, anchor=anchors[nearest][reachable], rest=rest[reachable])
 
 
