@@ -106,6 +106,17 @@ def padded_rows(values: np.ndarray, rows: int, fill=0) -> np.ndarray:
     return np.concatenate([values, extra])
 
 
+def placed_rows(table: np.ndarray, at: int, values: np.ndarray) -> np.ndarray:
+    """``table`` with ``values`` written into its rows from ``at``: the same array,
+    or where it is too short a copy half as long again (at least long enough), so
+    that appending to a table a little at a time does not copy it each time."""
+    end = at + len(values)
+    if end > len(table):
+        table = padded_rows(table, max(end, int(1.5 * len(table))))
+    table[at:end] = values
+    return table
+
+
 class FieldGroup:
     """Declare fields with :meth:`field`, then :meth:`finalize` builds the tree and
     uploads the values given at declaration. A group is refused (an error) where

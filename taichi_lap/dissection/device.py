@@ -55,6 +55,7 @@ class DeviceTopology:
 
     def __init__(self, model: Model, topology: MutableTopology):
         self.model, self.topology = model, topology
+        self._pending = RowWrites()  # set_particles' and set_masses', for apply's launch
         data = model.data
         start = np.asarray(data.cluster_start, dtype=np.int64)
         member = np.asarray(data.cluster_member, dtype=np.int64)
@@ -86,7 +87,7 @@ class DeviceTopology:
         model, topology, removed = self.model, self.topology, change.removed_particles
         new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
         self._fit(change, new, state)
-        writes = RowWrites()  # the rows of the update, written in one launch
+        writes, self._pending = self._pending, RowWrites()  # the update's rows, one launch
         if len(change.joined):
             self._add_members(writes, change.joined[:, 0], change.joined[:, 1])
             writes.flush()  # the members dropped below rewrite rows of the same clusters
@@ -122,32 +123,31 @@ class DeviceTopology:
         """Give the particle rows ``particles`` (reserve rows a cut or tear takes, a
         torn vertex's: :mod:`taichi_lap.dissection.sheet_cut`) their rest
         position, mass, inverse mass, position and velocity ((P, 3) or (P,) each) in
-        the model and ``state``."""
+        the model and ``state``: in the host tables now, on the device with the
+        change's :meth:`apply` (one launch for all of them)."""
         self.topology.pinned[particles] = False
-        writes = RowWrites()
-        self._add_masses(writes, particles, mass, 1.0 / np.asarray(mass, dtype=np.float64))
-        writes.add(particles, {self.model.rest_position: rest, state.x: x, state.p: x, state.v: v})
-        writes.flush()
+        self._add_masses(particles, mass, 1.0 / np.asarray(mass, dtype=np.float64))
+        self._pending.add(
+            particles, {self.model.rest_position: rest, state.x: x, state.p: x, state.v: v}
+        )
 
     def set_masses(self, particles, mass):
-        """Give the particle rows ``particles`` the mass ``mass`` [kg] in the model
-        and the host tables; a particle held in place (inverse mass 0) keeps it 0.
-        Particles of clusters are refused (their clusters' mass tables would not
-        follow)."""
+        """Give the particle rows ``particles`` the mass ``mass`` [kg] (host tables
+        now, the model with the next :meth:`apply`); a particle held in place
+        (inverse mass 0) keeps it 0. Particles of clusters are refused (their
+        clusters' mass tables would not follow)."""
         if len(rows_of(self.topology.membership_start, particles)):
             raise ValueError("set_masses: particles of clusters are not reweighed")
         inverse = np.where(self.inverse_mass[particles] > 0.0, 1.0 / np.asarray(mass), 0.0)
-        writes = RowWrites()
-        self._add_masses(writes, particles, mass, inverse)
-        writes.flush()
+        self._add_masses(particles, mass, inverse)
 
-    def _add_masses(self, writes: RowWrites, particles, mass, inverse):
-        """Set ``particles``' mass and ``inverse`` mass in the host tables and add
-        them to ``writes`` for the model (no longer as built)."""
+    def _add_masses(self, particles, mass, inverse):
+        """Set ``particles``' mass and ``inverse`` mass in the host tables, and for the
+        model (no longer as built) with the next :meth:`apply`."""
         self.model.as_built = False
         self.inverse_mass[particles] = inverse
         self.topology.mass[particles] = mass
-        writes.add(particles, {self.model.mass: mass, self.model.inv_mass: inverse})
+        self._pending.add(particles, {self.model.mass: mass, self.model.inv_mass: inverse})
 
     def out_of_reach(self, organ: int, x: np.ndarray, low, high) -> bool:
         """Whether ``organ``'s particles at ``x`` (N, 3) [m] lie outside the box
@@ -193,6 +193,7 @@ class DeviceTopology:
         short = {k: n for k, n in need.items() if n > model.capacity[k]}
         if not short:
             return
+        self._pending.flush()  # into the fields before they are reallocated
         rows = {k: max(n, int(GROWTH * model.capacity[k])) for k, n in short.items()}
         log.warning(
             "dissection: the model's spare rows ran out; growing %s (kernels compile again)",

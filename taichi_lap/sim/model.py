@@ -17,7 +17,7 @@ import taichi as ti
 
 from taichi_lap.core.csr import both_ends, incidence, rows_of_extents
 from taichi_lap.core import fields
-from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows
+from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows, placed_rows
 from taichi_lap.core.mesh import incident_table
 from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.kernels.scatter import RowWrites
@@ -437,6 +437,7 @@ class Model(FieldOwner):
         # the Jacobi tables as written (replace_constraints appends)
         self._jacobi = self.jacobi_lists(host)
         tables = {name: (values, JACOBI_ROWS[name], 0) for name, values in self._jacobi.items()}
+        self._list_rows = {kind: len(self._jacobi[names[0]]) for kind, (_, names) in LISTS.items()}
         if gauss_seidel:  # the same constraints sorted by colour (Jacobi does not read them)
             tables["colored_pair"] = (pairs[order], "distances", 0)
             tables["colored_rest"] = (rest[order], "distances", 0)
@@ -506,7 +507,7 @@ class Model(FieldOwner):
             size = lists[f"{kind}_end"] - begin
             columns = {name: lists[name] for name in names}
             changed = self._changed_lists(kind, first, begin, size, columns)
-            if len(self._jacobi[names[0]]) + int(size[changed].sum()) > self.capacity[rows_kind]:
+            if self._list_rows[kind] + int(size[changed].sum()) > self.capacity[rows_kind]:
                 self._compact_lists(writes, kind)
             else:
                 self._append_lists(writes, kind, first, changed, begin, size, columns)
@@ -529,6 +530,7 @@ class Model(FieldOwner):
             writes.flush()  # into the fields before they are reallocated
             self._fit_constraints(**{rows_kind: len(whole[columns[0]])})
         self._jacobi.update(whole)
+        self._list_rows[kind] = len(whole[columns[0]])
         extents = (f"{kind}_begin", f"{kind}_end")
         writes.add(
             np.arange(self.particle_count), {getattr(self, name): whole[name] for name in extents}
@@ -604,7 +606,7 @@ class Model(FieldOwner):
         ``size[i]`` entries of ``columns`` from ``begin[i]``) after the rows in use
         and point their extents there (host tables and ``writes``)."""
         rows = rows_of_extents(begin[changed], size[changed])
-        used = len(self._jacobi[LISTS[kind][1][0]])
+        used = self._list_rows[kind]
         sizes = size[changed]
         starts = used + np.cumsum(sizes) - sizes
         particles = first + changed
@@ -615,7 +617,8 @@ class Model(FieldOwner):
             {getattr(self, f"{kind}_begin"): starts, getattr(self, f"{kind}_end"): starts + sizes},
         )
         for name, values in columns.items():
-            self._jacobi[name] = np.concatenate([self._jacobi[name], values[rows]])
+            self._jacobi[name] = placed_rows(self._jacobi[name], used, values[rows])
+        self._list_rows[kind] = used + len(rows)
         writes.add(
             np.arange(used, used + len(rows)),
             {getattr(self, name): values[rows] for name, values in columns.items()},
