@@ -47,3 +47,22 @@ def test_elements_sharing_a_vertex_are_one_piece():
     tets = np.array([[9, 8, 7, 6], [0, 1, 2, 3], [3, 4, 5, 10]])
     assert element_pieces(tets).tolist() == [0, 1, 1]
     assert element_pieces(np.zeros((0, 3), dtype=int)).tolist() == []
+
+
+def test_in_box_keeps_the_elements_whose_bounding_boxes_meet_the_box():
+    """``in_box`` against the elements' own bounding boxes, over random triangles and
+    tets and boxes (some elements straddle the box with no corner inside it)."""
+    from taichi_lap.core.mesh import in_box
+
+    rng = np.random.default_rng(7)
+    points = rng.random((300, 3))
+    for corners in (3, 4):
+        elements = rng.integers(0, len(points), (500, corners))
+        for _ in range(20):
+            low = rng.random(3) * 0.8
+            high = low + rng.random(3) * 0.3
+            box = points[elements]
+            expected = np.all((box.max(axis=1) >= low) & (box.min(axis=1) <= high), axis=1)
+            got = in_box(points, elements, low, high)
+            np.testing.assert_array_equal(got, expected)
+            assert 0 < got.sum() < len(elements)

@@ -48,6 +48,23 @@ def unique_edges(
     return out[0] if len(out) == 1 else tuple(out)
 
 
+def in_box(points: np.ndarray, elements: np.ndarray, low, high) -> np.ndarray:
+    """(E,) whether each of ``elements`` (E, k) (triangles, tets) of ``points`` (V, 3)
+    has a bounding box that meets the box ``low``..``high``: each point says on which
+    sides of the box it lies (six bits), and an element is out when all its corners
+    are on one side (cheaper than the elements' boxes when the box is small)."""
+    points = np.asarray(points)
+    below, above = points < np.asarray(low), points > np.asarray(high)
+    sides = (below.astype(np.uint8) @ np.array([1, 2, 4], np.uint8)) | (
+        above.astype(np.uint8) @ np.array([8, 16, 32], np.uint8)
+    )
+    elements = np.asarray(elements)
+    common = sides[elements[:, 0]]
+    for k in range(1, elements.shape[1]):
+        common = common & sides[elements[:, k]]
+    return common == 0
+
+
 def pair_lengths(points: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     """(E,) the distance between the two points of each pair (E, 2) (edge lengths)."""
     return np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)

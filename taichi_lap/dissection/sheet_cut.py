@@ -37,6 +37,7 @@ import numpy as np
 from taichi_lap.core.geometry import TriangleMesh
 from taichi_lap.core.mesh import (
     element_pieces,
+    in_box,
     pair_lengths,
     piece_count,
     rows_in,
@@ -97,12 +98,10 @@ def struts_crossed(pairs: np.ndarray, sweep: Sweep, bounds, x: np.ndarray) -> np
     """Which struts (particle ``pairs`` at ``x`` [m]) ``sweep`` (within the box
     ``bounds``, :meth:`Sweep.bounds`) passes through: a point along the strut is inside
     it (the points no farther apart than the sweep's thinnest shape)."""
-    low, high = bounds
-    a, b = x[pairs[:, 0]], x[pairs[:, 1]]
-    near = np.all(np.minimum(a, b) <= high, axis=1) & np.all(np.maximum(a, b) >= low, axis=1)
+    near = in_box(x, pairs, *bounds)
     crossed = np.zeros(len(pairs), dtype=bool)
     if near.any():
-        a, b = a[near], b[near]
+        a, b = x[pairs[near, 0]], x[pairs[near, 1]]
         samples = int(np.ceil(np.linalg.norm(b - a, axis=1).max() / sweep.thickness)) + 1
         s = np.linspace(0.0, 1.0, samples)
         points = a[:, None] + s[None, :, None] * (b - a)[:, None]
@@ -212,7 +211,7 @@ class SheetCutter:
         moving at ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``;
         returns the organs' names and changes (none where nothing was cut)."""
         changes, self.separations = [], []
-        bounds = low, high = sweep.bounds()
+        bounds = low, high = sweep.bounds
         for sheet in self.sheets:
             record = self.dissection.model.data.organs[sheet.organ]
             if self.dissection.out_of_reach(sheet.organ, x, low, high):

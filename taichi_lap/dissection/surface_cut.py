@@ -43,7 +43,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from taichi_lap.core.instruments import ToolGeometry, tool_distance
-from taichi_lap.core.mesh import degenerate_triangles, inconsistent_edges, rows_in, unique_edges
+from taichi_lap.core.mesh import (
+    degenerate_triangles,
+    in_box,
+    inconsistent_edges,
+    rows_in,
+    unique_edges,
+)
 
 V_THRESHOLD = 0.15
 """A sub-face smaller than this fraction of its parent's area is deleted (seed 000 §5.2
@@ -151,8 +157,9 @@ class Sweep:
         )
         return d
 
+    @cached_property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """An axis-aligned box [m] holding V_sweep."""
+        """An axis-aligned box [m] holding V_sweep (low, high corners)."""
         corners = []
         for tip, rotation in zip(*self.poses):
             for a, b, r in self.geometry.round_shapes():
@@ -225,9 +232,8 @@ def cut_surface(
     triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     if not 0.0 <= v_threshold < 1.0:
         raise ValueError(f"cut_surface: v_threshold in [0, 1) was expected, found {v_threshold}")
-    lo, hi = sweep.bounds()
-    corners = points[triangles]
-    near = np.flatnonzero(np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), 1))
+    lo, hi = sweep.bounds
+    near = np.flatnonzero(in_box(points, triangles, lo, hi))
     if not len(near):
         return _no_cut(len(points))
     tri = triangles[near]

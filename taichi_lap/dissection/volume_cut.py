@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from taichi_lap.core.instruments import CUT_REACH, JAW_LENGTH, JAW_RADIUS
-from taichi_lap.core.mesh import element_pieces
+from taichi_lap.core.mesh import element_pieces, in_box
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.tet_cut import BladePath, cut_tets
@@ -133,9 +133,7 @@ class VolumeCutter:
         if self.dissection.out_of_reach(organ.organ, x, low, high):
             return None
         tets = topology.live_tets(organ.organ)
-        corners = x[topology.tets[tets]]
-        near = ((corners.max(axis=1) >= low) & (corners.min(axis=1) <= high)).all(axis=1)
-        tets = tets[near]
+        tets = tets[in_box(x, topology.tets[tets], low, high)]
         if not len(tets):
             return None
         keep_whole = np.isin(tets, list(stroke.made)) | topology.beside_wound(tets)
