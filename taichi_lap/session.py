@@ -320,7 +320,10 @@ class Session:
                 self.model.surface_vertex_count,
             ):
                 collision = self.solver.collision = collision.regrown(surface)
-            collision.rewrite(np.union1d(change.dead_triangles, change.new_triangles), surface)
+            rows = [change.dead_triangles, change.new_triangles]
+            if len(change.reweighed):  # their corners' masses changed
+                rows.append(surface.triangles_at(change.reweighed))
+            collision.rewrite(np.unique(np.concatenate(rows)), surface)
         bound = np.union1d(change.new_vertices, change.rebound_vertices)
         if len(bound):  # the wound is drawn where it is
             skin_surface_rows(self.model, self.state, bound.astype(np.int32))

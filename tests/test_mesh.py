@@ -1,6 +1,7 @@
 """Edges of triangle and tet meshes (core.mesh), shared by every layer."""
 
 import numpy as np
+import pytest
 
 from taichi_lap.core.mesh import edge_neighbours, element_edges, element_pieces, unique_edges
 
@@ -66,3 +67,23 @@ def test_in_box_keeps_the_elements_whose_bounding_boxes_meet_the_box():
             got = in_box(points, elements, low, high)
             np.testing.assert_array_equal(got, expected)
             assert 0 < got.sum() < len(elements)
+
+
+def test_masses_after_a_tet_split_keep_the_mass_and_follow_the_volumes():
+    """Two tets sharing the face 1-2-3 (volumes 1/6 and 1/3 m^3), 1 kg at each vertex;
+    the first is split in two at a new vertex 5 in the middle of its edge 0-1.
+    Vertex 0 gives its whole kilogram, vertices 1-3 the third of theirs the first tet
+    held at them: 2 kg over 1/6 m^3, taken back by the halves (1/12 m^3 each) at a
+    quarter per corner: 0.5 kg for vertex 5 (in both), 0.25 for vertex 0 and 1,
+    0.5 for 2 and 3 (in both); vertex 4, outside the cut, keeps its kilogram."""
+    from taichi_lap.core.mesh import masses_after_cut
+
+    rest = np.array(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1], [0.5, 0, 0]], dtype=float
+    )
+    tets = np.array([[0, 1, 2, 3], [1, 4, 2, 3]])
+    halves = np.array([[0, 5, 2, 3], [5, 1, 2, 3]])
+    old, new = masses_after_cut(rest, tets, np.array([True, False]), halves, np.ones(5))
+    assert old == pytest.approx([0.25, 2 / 3 + 0.25, 2 / 3 + 0.5, 2 / 3 + 0.5, 1.0])
+    assert new == pytest.approx([0.5])
+    assert old.sum() + new.sum() == pytest.approx(5.0)

@@ -10,8 +10,7 @@ import pytest
 
 from taichi_lap.core.csr import rows_of_extents
 from taichi_lap.core.instruments import CAUTERY_BUTTON, GRASP_BUTTON
-from taichi_lap.core.mesh import element_pieces, triangle_areas, unique_edges
-from taichi_lap.dissection.sheet_cut import masses_after_cut
+from taichi_lap.core.mesh import element_pieces, masses_after_cut, triangle_areas, unique_edges
 from taichi_lap.devices import ScriptedDevice
 from taichi_lap.preprocess.organs import CUT_RESERVE
 from taichi_lap.scene import Scene, from_tables
@@ -206,6 +205,27 @@ def test_a_cut_keeps_the_sheets_mass_but_for_the_area_it_cut_away(cut_sheet):
     free = live[~topology.pinned[live]]
     inverse_mass = session.model.inv_mass.to_numpy()[free]
     assert np.allclose(inverse_mass, 1.0 / topology.mass[free], rtol=1e-5)
+
+
+def test_the_collision_weighs_every_live_corner_by_the_masses_after_the_cut(cut_sheet):
+    """A cut changes the masses of the vertices around it, and so the inverse masses
+    of the corners of triangles it left as they were: the tissue collision holds, for
+    every live triangle, those of the masses now."""
+    from taichi_lap.collision.surface_tables import corner_binding
+
+    session, _, _ = cut_sheet
+    surface = session._dissection.surface_rows()
+    live = np.flatnonzero(surface.live)
+    expected, _ = corner_binding(
+        surface.triangles[live],
+        surface.index,
+        surface.weight,
+        surface.inverse_mass,
+        surface.contact_radius,
+    )
+    corners = (3 * live[:, None] + np.arange(3)).ravel()
+    held = session.solver.collision.corner_inv_mass.to_numpy()[corners]
+    assert held == pytest.approx(expected, rel=1e-5)
 
 
 def test_masses_after_a_cut_move_the_cut_triangles_mass_to_their_replacements():

@@ -146,3 +146,11 @@ class SurfaceRows:
     vertex_rows: int
     inverse_mass: np.ndarray
     contact_radius: np.ndarray
+
+    def triangles_at(self, particles: np.ndarray) -> np.ndarray:
+        """The live triangles with a corner bound to one of ``particles``."""
+        index, weight = self.index[: self.vertex_rows], self.weight[: self.vertex_rows]
+        vertices = np.flatnonzero((np.isin(index, particles) & (weight > 0.0)).any(axis=1))
+        incident = self.incident[vertices]
+        triangles = np.unique(incident[incident >= 0])
+        return triangles[self.live[triangles]]

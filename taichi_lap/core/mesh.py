@@ -200,3 +200,41 @@ def rows_in(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
         return np.zeros(len(rows), dtype=bool)
     n = int(max(rows.max(), table.max())) + 1
     return np.isin(rows[:, 0] * n + rows[:, 1], table[:, 0] * n + table[:, 1])
+
+
+def element_measures(points: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """The areas [m^2] of triangles (E, 3) or the unsigned volumes [m^3] of tets (E, 4)
+    at ``points``."""
+    elements = np.asarray(elements, dtype=np.int64)
+    if elements.shape[1] == 3:
+        return triangle_areas(points, elements)
+    return np.abs(tet_volumes(points, elements))
+
+
+def masses_after_cut(
+    rest: np.ndarray,
+    elements: np.ndarray,
+    dead: np.ndarray,
+    new_elements: np.ndarray,
+    mass: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The masses [kg] of a mesh's vertices after a cut replaced some of its
+    elements (triangles of a surface, tets of a volume), the mesh's mass kept but
+    for what the cut took away: each old vertex (the first ``len(mass)`` of ``rest``
+    [m], the rest positions of the old and new vertices) gives the ``elements`` that
+    die (``dead``) its mass's share by their measure at it (an equal share of each
+    incident element's area or volume: ``elements`` hold every element at the old
+    vertices in question), and the ``new_elements`` take that mass at its mean
+    density over the dead elements, shared by the same rule among their corners;
+    the area or volume the cut removed (a kerf, fragments) takes its mass with it.
+    Returns (the masses of the old vertices, those of the new ones)."""
+    old, corners = len(mass), elements.shape[1]
+    corner_measure = np.repeat(element_measures(rest, elements) / corners, corners)
+    at = elements.ravel()
+    measure = np.bincount(at, weights=corner_measure, minlength=old)[:old]
+    lost = np.bincount(at, weights=corner_measure * np.repeat(dead, corners), minlength=old)[:old]
+    given = mass * np.divide(lost, measure, out=np.zeros(old), where=measure > 0.0)
+    density = given.sum() / max(lost.sum(), 1e-30)
+    new_measure = np.repeat(element_measures(rest, new_elements) / corners, corners)
+    taken = density * np.bincount(new_elements.ravel(), weights=new_measure, minlength=len(rest))
+    return mass - given + taken[:old], taken[old:]

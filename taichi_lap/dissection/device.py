@@ -56,6 +56,7 @@ class DeviceTopology:
     def __init__(self, model: Model, topology: MutableTopology):
         self.model, self.topology = model, topology
         self._pending = RowWrites()  # set_particles' and set_masses', for apply's launch
+        self._reweighed = np.zeros(0, np.int64)  # the particles given masses, for apply
         data = model.data
         start = np.asarray(data.cluster_start, dtype=np.int64)
         member = np.asarray(data.cluster_member, dtype=np.int64)
@@ -83,7 +84,8 @@ class DeviceTopology:
 
     def apply(self, change: TopologyChange, state):
         """Write ``change`` (just made by the topology) to the model, and release the
-        removed particles from grasps in ``state``."""
+        removed particles from grasps in ``state``; the particles given masses since the
+        last change (:meth:`set_particles`, :meth:`set_masses`) are its ``reweighed``."""
         model, topology, removed = self.model, self.topology, change.removed_particles
         new = [c for c in change.clusters.tolist() if c >= model.cluster_total]
         self._fit(change, new, state)
@@ -116,6 +118,11 @@ class DeviceTopology:
             self._write_memberships(writes)
         self._write_surface(writes, change)
         writes.flush()
+        change.reweighed, self._reweighed = self._reweighed, np.zeros(0, np.int64)
+        members = change.reweighed[np.diff(topology.membership_start)[change.reweighed] > 0]
+        if len(members):  # the clusters' tables as the change left them, weighed anew
+            self._weigh_members(writes, members)
+            writes.flush()
         model.topology_version += 1
         model.as_built = False
 
@@ -134,10 +141,10 @@ class DeviceTopology:
     def set_masses(self, particles, mass):
         """Give the particle rows ``particles`` the mass ``mass`` [kg] (host tables
         now, the model with the next :meth:`apply`); a particle held in place
-        (inverse mass 0) keeps it 0. Particles of clusters are refused (their
-        clusters' mass tables would not follow)."""
-        if len(rows_of(self.topology.membership_start, particles)):
-            raise ValueError("set_masses: particles of clusters are not reweighed")
+        (inverse mass 0) keeps it 0. The clusters they are members of weigh them
+        anew with that :meth:`apply`, after its change (their masses and rest
+        centres follow, as when a member leaves)."""
+        particles = np.asarray(particles, dtype=np.int64)
         inverse = np.where(self.inverse_mass[particles] > 0.0, 1.0 / np.asarray(mass), 0.0)
         self._add_masses(particles, mass, inverse)
 
@@ -147,6 +154,7 @@ class DeviceTopology:
         self.model.as_built = False
         self.inverse_mass[particles] = inverse
         self.topology.mass[particles] = mass
+        self._reweighed = np.union1d(self._reweighed, particles)
         self._pending.add(particles, {self.model.mass: mass, self.model.inv_mass: inverse})
 
     def out_of_reach(self, organ: int, x: np.ndarray, low, high) -> bool:
@@ -211,37 +219,53 @@ class DeviceTopology:
         self.incident = padded_rows(self.incident, model.surface_vertex_count, -1)
 
     def _drop_members(self, writes: RowWrites, clusters: np.ndarray, particles: np.ndarray):
-        """Members ``particles`` leave ``clusters`` (pairs): their rows weigh 0, and
-        each cluster's mass and rest centre follow; its offsets stay and the kernels
-        add ``cluster_rest_shift`` = origin - centre (q = x0 - x0_cm again)."""
+        """Members ``particles`` leave ``clusters`` (pairs): their rows weigh 0
+        (:meth:`_set_member_weights`)."""
+        self._set_member_weights(writes, clusters, particles, np.zeros(len(particles)))
+
+    def _weigh_members(self, writes: RowWrites, particles: np.ndarray):
+        """Every cluster row of ``particles`` weighs the particle's mass now."""
+        topology = self.topology
+        rows = rows_of(topology.membership_start, particles)
+        owners = particles[owners_of(topology.membership_start, particles)]
+        self._set_member_weights(
+            writes, topology.membership_cluster[rows], owners, topology.mass[owners]
+        )
+
+    def _set_member_weights(
+        self, writes: RowWrites, clusters: np.ndarray, particles: np.ndarray, weights
+    ):
+        """Members ``particles`` of ``clusters`` (pairs) weigh ``weights`` [kg] (0: they
+        left), and each cluster's mass and rest centre follow; its offsets stay and
+        the kernels add ``cluster_rest_shift`` = origin - centre (q = x0 - x0_cm
+        again)."""
         model = self.model
         n = len(self.topology.rest)
         keys = clusters * n + particles
         at = np.minimum(np.searchsorted(self.row_key, keys), len(self.row_key) - 1)
         if (self.row_key[at] != keys).any():
-            raise RuntimeError("a cluster member left that has no row in its cluster")
+            raise RuntimeError("a cluster member has no row in its cluster")
         rows = self.row_of_key[at]
-        weight = self.row_mass[rows]
-        self.row_mass[rows] = 0.0
+        gained = weights - self.row_mass[rows]
+        self.row_mass[rows] = weights
         changed, which = np.unique(clusters, return_inverse=True)
-        lost = np.bincount(which, weights=weight, minlength=len(changed))
         rest = self.topology.rest[particles]
         moment = np.stack(
             [
-                np.bincount(which, weights=weight * rest[:, a], minlength=len(changed))
+                np.bincount(which, weights=gained * rest[:, a], minlength=len(changed))
                 for a in range(3)
             ],
             axis=1,
         )
-        total = self.mass[changed] - lost
+        total = self.mass[changed] + np.bincount(which, weights=gained, minlength=len(changed))
         kept = total > 1e-12 * np.maximum(self.mass[changed], 1e-30)
         center = self.center[changed].copy()
-        center[kept] = (self.mass[changed][kept, None] * center[kept] - moment[kept]) / total[
+        center[kept] = (self.mass[changed][kept, None] * center[kept] + moment[kept]) / total[
             kept, None
         ]
         self.mass[changed] = np.where(kept, total, 0.0)
         self.center[changed] = center
-        writes.add(rows, {model.cluster_member_mass: np.zeros(len(rows))})
+        writes.add(rows, {model.cluster_member_mass: weights})
         writes.add(
             changed,
             {

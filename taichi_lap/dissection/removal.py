@@ -169,6 +169,7 @@ class TopologyChange:
     memberships_rebuilt: bool = False  # particle -> clusters rows made again
     fragments: list[int] = field(default_factory=list)  # particles of each fragment
     split_tets: int = 0  # tets a volume cut split (of dead_tets; the rest took twins)
+    reweighed: np.ndarray = field(default_factory=_none)  # old particles given new masses
 
     @property
     def empty(self) -> bool:

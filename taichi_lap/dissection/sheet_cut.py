@@ -40,8 +40,8 @@ from taichi_lap.core.mesh import (
     in_box,
     pair_lengths,
     piece_count,
+    masses_after_cut,
     rows_in,
-    triangle_areas,
     unique_edges,
 )
 from taichi_lap.dissection.device import DeviceTopology
@@ -108,29 +108,6 @@ def struts_crossed(pairs: np.ndarray, sweep: Sweep, bounds, x: np.ndarray) -> np
         inside = sweep.distance(points.reshape(-1, 3)) < 0.0
         crossed[near] = inside.reshape(-1, samples).any(axis=1)
     return crossed
-
-
-def masses_after_cut(
-    rest: np.ndarray, faces: np.ndarray, dead: np.ndarray, new_faces: np.ndarray, mass: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The masses [kg] of a surface's vertices after a cut, the surface's mass kept
-    but for the cut away: each old vertex (the first ``len(mass)`` of ``rest`` [m], the
-    rest positions of the old and new vertices) gives the triangles of ``faces`` that
-    die (``dead``) its mass's share by their area at it (a third of each incident
-    triangle's), the ``new_faces`` take that mass at its mean density over the dead
-    triangles' area, shared by the same rule among their corners; the area the
-    cut removed (the kerf, fragments) takes its mass with it. Returns (the masses of
-    the old vertices, those of the new ones)."""
-    old = len(mass)
-    corner_area = np.repeat(triangle_areas(rest, faces) / 3.0, 3)
-    at = faces.ravel()
-    area = np.bincount(at, weights=corner_area, minlength=old)[:old]
-    lost = np.bincount(at, weights=corner_area * np.repeat(dead, 3), minlength=old)[:old]
-    given = mass * np.divide(lost, area, out=np.zeros(old), where=area > 0.0)
-    density = given.sum() / max(lost.sum(), 1e-30)
-    new_area = np.repeat(triangle_areas(rest, new_faces) / 3.0, 3)
-    taken = density * np.bincount(new_faces.ravel(), weights=new_area, minlength=len(rest))
-    return mass - given + taken[:old], taken[old:]
 
 
 _NO_STRUTS = (np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0))

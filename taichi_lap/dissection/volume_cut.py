@@ -9,9 +9,12 @@ organ's topology (:meth:`~taichi_lap.dissection.removal.MutableTopology.split_te
 
 * a new vertex takes a particle row from the organ's reserve
   (:func:`~taichi_lap.preprocess.organs.add_cut_reserve`) with its parents' position,
-  rest position, velocity and mass by the cut's weights, and joins the clusters of
+  rest position and velocity by the cut's weights, and joins the clusters of
   the particle on its side of the cut; clusters the cut parts split into their
   connected pieces, so the two sides move apart;
+* the mass the split tets held goes to their sub-tets by volume
+  (:func:`~taichi_lap.core.mesh.masses_after_cut`): the organ keeps its mass, and the
+  clusters weigh their members anew;
 * the sub-tets a stroke made are not cut again by the same stroke (their faces on
   the cut lie on its path), nor are tets beside a removal's wound;
 * a piece of an organ that the cut left holding no pinned particle and sharing no
@@ -27,7 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from taichi_lap.core.instruments import CUT_REACH, JAW_LENGTH, JAW_RADIUS
-from taichi_lap.core.mesh import element_pieces, in_box
+from taichi_lap.core.csr import rows_of
+from taichi_lap.core.mesh import element_pieces, in_box, masses_after_cut
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.tet_cut import BladePath, cut_tets
@@ -162,11 +166,23 @@ class VolumeCutter:
             return None
         rows = np.array([organ.free.pop() for _ in range(count)], dtype=np.int64)
         first_new = len(topology.tets)
+        corners = np.unique(topology.tets[tets[cut.removed]])
+        around = np.unique(topology.particle_tet[rows_of(topology.tet_start, corners)])
+        around = around[topology.tet_alive[around]]  # every tet at the split tets' corners
         change = topology.split_tets(cut, tets, rows)
-        mass = cut.new_values(topology.mass)
-        self.dissection.set_particles(
-            rows, topology.rest[rows], mass, cut.new_values(x), cut.new_values(v), state
+        mass = topology.mass.copy()
+        mass[rows] = 0.0  # reserve rows: what they take comes from the cut's tets
+        mass, _ = masses_after_cut(
+            topology.rest,
+            topology.tets[around],
+            np.isin(around, change.dead_tets),
+            topology.tets[first_new:],
+            mass,
         )
+        self.dissection.set_particles(
+            rows, topology.rest[rows], mass[rows], cut.new_values(x), cut.new_values(v), state
+        )
+        self.dissection.set_masses(corners, mass[corners])
         self.dissection.apply(change, state)
         stroke.made.update(range(first_new, len(topology.tets)))
         return change
