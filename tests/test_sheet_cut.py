@@ -385,3 +385,36 @@ def test_a_sheet_without_a_tear_strain_does_not_tear():
         assert session._dissection is None
     finally:
         session.close()
+
+
+def test_a_fragment_is_a_small_piece_neither_anchored_nor_held():
+    """Four pieces after a cut: a large one, and three of two triangles each, one
+    holding an anchor, one held by a grasper and one free: only the free one is a
+    fragment (its four particles), and three pieces are left."""
+    import taichi as ti
+    from types import SimpleNamespace
+
+    from taichi_lap.dissection.sheet_cut import FRAGMENT_TRIANGLES, SheetCutter
+    from taichi_lap.kernels.collision.particle_contact import FREE
+
+    def strip(first: int, quads: int) -> list[list[int]]:
+        return [
+            face
+            for q in range(quads)
+            for face in ([first + q, first + q + 1, first + q + 10],)
+            + ([first + q + 1, first + q + 11, first + q + 10],)
+        ]
+
+    large = strip(0, FRAGMENT_TRIANGLES)  # 16 triangles, particles 0-8 and 10-18
+    anchored, held, free = strip(30, 1), strip(50, 1), strip(70, 1)
+    faces = np.array(large + anchored + held + free)
+    particles = np.arange(100) + 1000  # the sheet's particle of each local vertex
+    grasp = ti.field(ti.i32, 1100)
+    grasp.fill(FREE)
+    grasp[1051] = 0  # a grasper holds a corner of the third piece
+    sheet = SimpleNamespace(anchors=np.array([1000, 1030]))
+    fragment, counts, left = SheetCutter._fragments(
+        None, sheet, faces, particles, SimpleNamespace(grasp_tool=grasp)
+    )
+    assert fragment.tolist() == [False] * (len(faces) - 2) + [True, True]
+    assert counts == [4] and left == 3

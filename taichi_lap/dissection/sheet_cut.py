@@ -216,8 +216,7 @@ class SheetCutter:
         kept[cut.removed] = False
         faces = np.concatenate([local.reshape(-1, 3)[kept], cut.added])
         row_of = np.concatenate([rows[kept], np.full(len(cut.added), -1)])  # -1: made
-        held = gather(state.grasp_tool, particles) != FREE
-        fragment, fragments, piece_count = self._fragments(sheet, faces, particles, held)
+        fragment, fragments, piece_count = self._fragments(sheet, faces, particles, state)
         dead_triangles = np.concatenate([rows[cut.removed], row_of[fragment & (row_of >= 0)]])
         added = faces[~fragment & (row_of < 0)]
         in_use = np.zeros(count + len(cut.vertex_parents), dtype=bool)
@@ -387,21 +386,27 @@ class SheetCutter:
             )
         return False
 
-    def _fragments(self, sheet: _Sheet, faces: np.ndarray, particles: np.ndarray, held):
+    def _fragments(self, sheet: _Sheet, faces: np.ndarray, particles: np.ndarray, state):
         """Which of the cut sheet's ``faces`` (vertices numbered as the cut numbers
-        them, the first ``len(particles)`` those of ``particles``, ``held`` those a
-        grasper holds) belong to a fragment: a piece of at most
-        :data:`FRAGMENT_TRIANGLES` triangles that holds no anchor and that no
-        grasper holds (a sliver left in the kerf, removed with the cut); the
-        particle count of each fragment; and how many pieces are left."""
+        them, the first ``len(particles)`` those of ``particles``) belong to a
+        fragment: a piece of at most :data:`FRAGMENT_TRIANGLES` triangles that holds
+        no anchor and that no grasper holds (in ``state``: read only for such small
+        pieces; a sliver left in the kerf, removed with the cut); the particle count
+        of each fragment; and how many pieces are left."""
         pieces = element_pieces(faces)
         sizes = np.bincount(pieces)
         known = faces < len(particles)
-        anchor = np.zeros(faces.shape, dtype=bool)
-        anchor[known] = np.isin(particles[faces[known]], sheet.anchors) | held[faces[known]]
         anchored = np.zeros(len(sizes), dtype=bool)
+        anchor = np.zeros(faces.shape, dtype=bool)
+        anchor[known] = np.isin(particles[faces[known]], sheet.anchors)
         anchored[pieces[anchor.any(axis=1)]] = True
         small = (sizes <= FRAGMENT_TRIANGLES) & ~anchored
+        if small.any():
+            candidates = faces[small[pieces]]
+            candidates = np.unique(candidates[candidates < len(particles)])
+            held = candidates[gather(state.grasp_tool, particles[candidates]) != FREE]
+            anchored[pieces[np.isin(faces, held).any(axis=1)]] = True
+            small &= ~anchored
         counts = [len(np.unique(faces[pieces == k])) for k in np.flatnonzero(small)]
         return small[pieces], counts, int((~small).sum())
 
