@@ -270,8 +270,8 @@ class SheetCutter:
         np.add.at(vertices["uses"], slot[added].ravel(), 1)
 
         self.dissection.set_particles(new_particles, rest, mass, blend(x), blend(v), state)
-        alive = in_use[:count]
-        self.dissection.set_masses(particles[alive], old_mass[alive])
+        changed = in_use[:count] & (old_mass != self.mass[particles])  # those at the cut
+        self.dissection.set_masses(particles[changed], old_mass[changed])
         if len(sheet.struts[0]):
             pieces = element_pieces(faces[~fragment])
             piece_of = np.full(len(in_use), -1)
