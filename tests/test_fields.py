@@ -155,3 +155,17 @@ def test_a_tree_past_taichis_limit_is_refused_with_an_error_instead_of_crashing(
     assert int(built) == runtime.SNODE_TREE_LIMIT - 1
     assert "as many as Taichi can hold" in message
     assert float(lines["sum"]) == 10.0 * int(built)
+
+
+def test_placed_rows_append_into_spare_rows_and_grow_by_half():
+    """Rows written past a table's end grow it half again (or to fit), and writes
+    that fit land in place, in the same array."""
+    from taichi_lap.core.fields import placed_rows
+
+    table = np.arange(4.0)
+    table = placed_rows(table, 4, [4.0, 5.0])  # past its end: 6 rows
+    assert table.tolist() == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    same = placed_rows(table, 2, [9.0])
+    assert same is table and table.tolist() == [0.0, 1.0, 9.0, 3.0, 4.0, 5.0]
+    grown = placed_rows(table, 6, [6.0])
+    assert len(grown) == 9 and grown[:7].tolist() == [0.0, 1.0, 9.0, 3.0, 4.0, 5.0, 6.0]
