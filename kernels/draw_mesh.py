@@ -81,10 +81,19 @@ def copy_surface_triangles(
 
 
 @ti.kernel
-def gather_points(surface: ti.template(), source: ti.template(), points: ti.template()):
-    """points[k] = surface[source[k]]: a tube's centre line [m]."""
+def gather_points(
+    surface: ti.template(),
+    source: ti.template(),
+    across: ti.template(),
+    points: ti.template(),
+    reference: ti.template(),
+):
+    """points[k] = surface[source[k]]: a tube's centre line [m]; reference[k] =
+    surface[across[k]] - points[k]: the direction to a vertex fixed beside it (the
+    tube's material direction, :meth:`~taichi_lap.render.tubes.TubeMesh.update`)."""
     for k in points:
         points[k] = surface[source[k]]
+        reference[k] = surface[across[k]] - points[k]
 
 
 @ti.kernel

@@ -63,6 +63,10 @@ START_NORMAL_KEPT = 0.5
 """The last call's first normal is kept (turned onto the new first tangent) while at
 least this much of it lies across that tangent; less (no last call, or the tube's
 start turned onto it) starts from the Frenet frame."""
+REFERENCE_KEPT = 0.1
+"""A sample's normal follows the tube's material direction (``sample_tubes``' reference)
+where at least this much of it lies across the tangent; elsewhere (the direction
+along the tube) it keeps the rotation-minimizing frame."""
 FIRST_RING, LAST_RING = 1, 2  # ring_flags bits
 
 
@@ -206,6 +210,8 @@ def sample_tubes(
     tube_count: ti.i32,
     epsilon: ti.f32,
     level: ti.i32,
+    reference: ti.template(),
+    referenced: ti.template(),
 ):
     """§5.1 and Eq. 12: indicators, Eq. 11 samples, frames; then the output layout.
 
@@ -213,6 +219,11 @@ def sample_tubes(
     Writes tubes.segment_* (per point), tubes.sample_* (packed per tube, starting at
     tubes.tube_sample_start), tubes.tube_ring_base / tube_band_base (tube_count + 1
     entries), the live counts and the padding ends of the next skin_tubes call.
+    With ``referenced`` (compile time), each sample's normal is instead ``reference``
+    (a direction per point fixed in the tube's material) interpolated to it and made
+    normal to its tangent, where that is not too short: the frames, and the texcoords
+    round the tube, then move with the material and do not drift in twist as the
+    rotation-minimizing frames of a bending tube do (their holonomy).
     """
     tau = 0.5 * (1.0 - tubes.tension)
     point_end = 0
@@ -314,6 +325,14 @@ def sample_tubes(
                     r_l -= (2.0 / c2) * v2.dot(r_l) * v2
                 k = (r_l - r_l.dot(t1) * t1).normalized()
                 tubes.sample_normal[j + 1] = k
+            if ti.static(referenced):
+                for j in range(s0, s0 + count):
+                    i, u = tubes.sample_segment[j], tubes.sample_parameter[j]
+                    r = (1.0 - u) * reference[i] + u * reference[ti.min(i + 1, end - 1)]
+                    t1 = tubes.sample_tangent[j]
+                    across = r - r.dot(t1) * t1
+                    if across.norm() > REFERENCE_KEPT * r.norm():
+                        tubes.sample_normal[j] = across.normalized()
 
 
 @ti.func

@@ -32,29 +32,43 @@ def rig():
         normals=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
         indices=g.field(ti.i32, 3 * mesh.triangle_capacity + 5),
         texcoords=g.field(ti.f32, mesh.vertex_capacity + 7, vector=3),
+        reference=g.field(ti.f32, CAPACITY, vector=3),
     )
     g.finalize()
     return mesh, fields
 
 
 def tessellate(
-    polylines, radii, epsilon=0.1, level=2, vertex_offset=7, index_offset=5, *, keep=False
+    polylines,
+    radii,
+    epsilon=0.1,
+    level=2,
+    vertex_offset=7,
+    index_offset=5,
+    *,
+    keep=False,
+    references=None,
 ):
     """Upload the tubes, update (their first frames anew, or with ``keep`` continuing
-    the last call's); return the mesh, the live output and the whole regions."""
+    the last call's; with ``references``, a material direction per point of each
+    tube); return the mesh, the live output and the whole regions."""
     mesh, f = rig()
     if not keep:
         mesh.forget_frames()
     points = np.zeros((CAPACITY, 3), np.float32)
     radius = np.zeros(CAPACITY, np.float32)
+    reference = np.zeros((CAPACITY, 3), np.float32)
     ranges, start = np.zeros((TUBES, 2), np.int32), 0
     for t, (p, r) in enumerate(zip(polylines, radii)):
         points[start : start + len(p)], radius[start : start + len(p)] = p, r
+        if references is not None:
+            reference[start : start + len(p)] = references[t]
         ranges[t] = start, start + len(p)
         start += len(p)
     f["points"].from_numpy(points)
     f["radius"].from_numpy(radius)
     f["tube_range"].from_numpy(ranges)
+    f["reference"].from_numpy(reference)
     mesh.update(
         f["points"],
         f["radius"],
@@ -68,6 +82,7 @@ def tessellate(
         index_offset=index_offset,
         epsilon=epsilon,
         level=level,
+        reference=None if references is None else f["reference"],
     )
     nv, nt = live_counts(mesh)
     v = f["vertices"].to_numpy()[vertex_offset : vertex_offset + mesh.vertex_capacity]
@@ -185,6 +200,79 @@ def test_the_first_frame_turns_with_the_tube_not_with_its_first_bend():
     assert np.ptp(carried) < np.radians(10.0)
     frenet = first_normal_angles(keep=False)
     assert np.ptp(frenet) > np.radians(300.0)
+
+
+def ring_start_angles(out, reference_at) -> np.ndarray:
+    """For each ring, the angle [rad] between the direction from its centre to its
+    first vertex (where the texcoords' angle is 0) and ``reference_at`` (rings, 3)
+    made normal to the ring's axis."""
+    rings = out["vertices"].reshape(-1, SIDES, 3).astype(np.float64)
+    centre = rings.mean(axis=1)
+    axis = np.gradient(centre, axis=0)
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    ref = reference_at - np.sum(reference_at * axis, axis=1, keepdims=True) * axis
+    first = rings[:, 0] - centre
+    first -= np.sum(first * axis, axis=1, keepdims=True) * axis
+    cos = np.sum(first * ref, axis=1) / np.linalg.norm(first, axis=1) / np.linalg.norm(ref, axis=1)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def twisted_helix(turn: float) -> tuple[np.ndarray, np.ndarray]:
+    """A helix's points and a material direction at each, across the tube, turned
+    by ``turn`` [rad] about it over its length (a twisted intestine)."""
+    points = helix(n=40).astype(np.float64)
+    tangent = np.gradient(points, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    normal = np.cross(tangent, [0.0, 0.0, 1.0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    binormal = np.cross(tangent, normal)
+    angle = np.linspace(0.0, turn, len(points))[:, None]
+    return points.astype(np.float32), np.cos(angle) * normal + np.sin(angle) * binormal
+
+
+def test_the_texcoords_round_a_tube_follow_its_material_as_it_twists():
+    """With a material direction per point (an intestine's: towards its mesentery),
+    every ring's texcoord angle 0 lies towards that direction there (within 3°), as
+    the material twists by a quarter and by a whole turn along a helix; the
+    rotation-minimizing frames alone do not turn with the twist (the tube's detail
+    would stay while its material turned)."""
+    for turn in (0.5 * np.pi, 2.0 * np.pi):
+        points, reference = twisted_helix(turn)
+        _, out, _ = tessellate([points], [0.004], references=[reference])
+        rings = len(out["vertices"]) // SIDES
+        # each ring's material direction: the samples' references by the ring's place
+        along = out["texcoords"].reshape(rings, SIDES, 3)[:, 0, 0] / 0.01
+        at = np.stack(
+            [np.interp(along, np.arange(len(points)), reference[:, a]) for a in range(3)], 1
+        )
+        assert np.degrees(ring_start_angles(out, at)).max() < 3.0
+        _, plain, _ = tessellate([points], [0.004])
+        assert np.degrees(ring_start_angles(plain, at)).max() > 45.0
+
+
+def test_a_tube_with_a_material_direction_comes_back_as_it_was():
+    """The first bend of a tube circling its axis, as in the test above, with a
+    material direction fixed in space: after a full circle each vertex (each texcoord)
+    is where the first call put it (the frames carried from call to call come back
+    turned by the solid angle the first tangent swept)."""
+    mesh, _ = rig()
+    mesh.forget_frames()
+    reference = np.tile([0.0, 0.0, 1.0], (12, 1))
+    vertices = {True: [], False: []}
+    for material in (True, False):
+        mesh.forget_frames()
+        for a in np.linspace(0.0, 2.0 * np.pi, 25):
+            p = np.stack([np.arange(12) * 0.01, np.zeros(12), np.zeros(12)], 1)
+            p[0, 1:] = 0.001 * np.cos(a), 0.001 * np.sin(a)
+            _, out, _ = tessellate(
+                [p.astype(np.float32)],
+                [np.full(12, 0.003)],
+                keep=True,
+                references=[reference] if material else None,
+            )
+            vertices[material].append(out["vertices"])
+    assert np.abs(vertices[True][-1] - vertices[True][0]).max() < 1e-6
+    assert np.abs(vertices[False][-1] - vertices[False][0]).max() > 1e-5
 
 
 def test_more_samples_land_where_curvature_is_high():

@@ -362,17 +362,24 @@ class SceneMesh(ArrayMesh):
         self.vertex_tool = group.field(ti.i32, self.instrument_count, values=tools["tool"])
         membrane_organ = np.array([bool(o.row_length) for o in data.organs], np.int32)
         self.membrane_organ = group.field(ti.i32, len(data.organs), values=membrane_organ)
-        self.tube_fields = []  # per tube: (source, points, radius, range) fields
+        # per tube: (source, across, points, reference, radius, range) fields: its
+        # surface vertices, those of its mesentery's next row (its material direction)
+        self.tube_fields = []
         self.tube_spacing = []  # per tube: its points' mean rest distance [m]
         for _, organ in tubes:
             first, count = organ.surface_vertices[0], organ.row_length
+            source = np.arange(first, first + count)
+            rows = (organ.surface_vertices[1] - first) // count
+            across = source + count if rows > 1 else source  # no mesentery: no direction
             row = slice(organ.particles[0], organ.particles[0] + count)
             radius = data.radius[row]
             steps = np.linalg.norm(np.diff(data.rest_position[row], axis=0), axis=1)
             self.tube_spacing.append(float(steps.mean()) if len(steps) else 0.0)
             self.tube_fields.append(
                 (
-                    group.field(ti.i32, count, values=np.arange(first, first + count)),
+                    group.field(ti.i32, count, values=source),
+                    group.field(ti.i32, count, values=across),
+                    group.field(ti.f32, count, vector=3),
                     group.field(ti.f32, count, vector=3),
                     group.field(ti.f32, count, values=radius.astype(np.float32)),
                     group.field(ti.i32, 1, vector=2, values=np.array([[0, count]])),
@@ -462,10 +469,11 @@ class SceneMesh(ArrayMesh):
                 self.normals,
                 self.surface_count,
             )
-        for mesh, (source, points, radius, span), (vertex_offset, index_offset), spacing in zip(
+        for mesh, fields, (vertex_offset, index_offset), spacing in zip(
             self.tubes, self.tube_fields, self.tube_offsets, self.tube_spacing
         ):
-            gather_points(state.surface_position, source, points)
+            source, across, points, reference, radius, span = fields
+            gather_points(state.surface_position, source, across, points, reference)
             mesh.update(
                 points,
                 radius,
@@ -480,4 +488,5 @@ class SceneMesh(ArrayMesh):
                 epsilon=self.tube_epsilon,
                 level=self.tube_level,
                 spacing=spacing,
+                reference=reference,
             )

@@ -127,6 +127,7 @@ class TubeMesh:
         epsilon: float = 0.1,
         level: int | None = None,
         spacing: float = 0.01,
+        reference=None,
     ) -> None:
         """Tessellate the tubes into the output region (seed 001 §5). No host sync.
 
@@ -138,7 +139,13 @@ class TubeMesh:
         [m] × the point parameter along the tube, the radius × (cos φ, sin φ)): the
         tube's material, moving with it) from ``vertex_offset`` and ``indices`` (i32)
         from ``index_offset`` (see the module docstring for the layout). Each tube's
-        first frame continues the last call's (:meth:`forget_frames`)."""
+        first frame continues the last call's (:meth:`forget_frames`), and the frames
+        along it are rotation-minimizing (Eq. 12); with ``reference``, a vec3 field
+        of a direction per point fixed in the tube's material (an intestine's: towards
+        its mesentery), each frame's normal is that direction, interpolated and made
+        normal to the tube, so the texcoords round the tube stay on the material
+        however the tube bends (the rotation-minimizing frames turn about the tube as
+        it bends: their holonomy)."""
         level = self.max_level if level is None else int(level)
         if not 0 <= level <= self.max_level:
             raise ValueError(f"level must be in [0, {self.max_level}], got {level}")
@@ -159,7 +166,18 @@ class TubeMesh:
             self.padded_vertex_end[None] = self.cap_vertex_start
             self.padded_band_end[None] = self.ring_capacity - 1
             self._output = output
-        gc.sample_tubes(self, points, radius, tube_range, tube_count, float(epsilon), level)
+        referenced = reference is not None
+        gc.sample_tubes(
+            self,
+            points,
+            radius,
+            tube_range,
+            tube_count,
+            float(epsilon),
+            level,
+            reference if referenced else points,
+            referenced,
+        )
         gc.skin_tubes(
             self,
             tube_count,
