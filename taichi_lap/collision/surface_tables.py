@@ -150,7 +150,9 @@ class SurfaceRows:
     def triangles_at(self, particles: np.ndarray) -> np.ndarray:
         """The live triangles with a corner bound to one of ``particles``."""
         index, weight = self.index[: self.vertex_rows], self.weight[: self.vertex_rows]
-        vertices = np.flatnonzero((np.isin(index, particles) & (weight > 0.0)).any(axis=1))
+        marked = np.zeros(len(self.inverse_mass), dtype=bool)
+        marked[particles] = True
+        vertices = np.flatnonzero((marked[index] & (weight > 0.0)).any(axis=1))
         incident = self.incident[vertices]
         triangles = np.unique(incident[incident >= 0])
         return triangles[self.live[triangles]]

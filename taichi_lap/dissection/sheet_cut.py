@@ -38,9 +38,9 @@ from taichi_lap.core.geometry import TriangleMesh
 from taichi_lap.core.mesh import (
     element_pieces,
     in_box,
+    masses_after_cut,
     pair_lengths,
     piece_count,
-    masses_after_cut,
     rows_in,
     unique_edges,
 )

@@ -377,7 +377,7 @@ def _classify_edges(points, edges, distance, sweep) -> tuple[np.ndarray, np.ndar
     level += sweep.tolerance
     inside_sample = level < 0.0
     change = np.flatnonzero((inside_sample[:-1] != inside_sample[1:]) & (owner[:-1] == owner[1:]))
-    t = _bisect(
+    t = _crossing_parameters(
         a[owner[change]],
         b[owner[change]],
         s[change],
@@ -403,7 +403,9 @@ def _classify_edges(points, edges, distance, sweep) -> tuple[np.ndarray, np.ndar
     return kind, t_edge
 
 
-def _bisect(a, b, s_lo, s_hi, f_lo, f_hi, sweep, rounds: int = 2, parts: int = 8) -> np.ndarray:
+def _crossing_parameters(
+    a, b, s_lo, s_hi, f_lo, f_hi, sweep, rounds: int = 2, parts: int = 8
+) -> np.ndarray:
     """The parameters in [s_lo, s_hi] where the segments a-b cross the sweep's
     boundary, given f, the distance less the inside level (-tolerance), at both ends
     (of unlike signs): ``rounds`` times the interval is cut into ``parts`` and the
