@@ -15,6 +15,7 @@ from taichi_lap.kernels.brdf import (
     fresnel,
     fresnel_weight,
     ggx_distance,
+    headlight_brdf_cos,
     smith_visibility,
     surface_brdf_cos,
 )
@@ -127,6 +128,24 @@ def brdf_both_ways(dirs: ti.types.ndarray(), params: ti.types.ndarray(), out: ti
 
 
 @ti.kernel
+def headlight_and_general(
+    dirs: ti.types.ndarray(), params: ti.types.ndarray(), out: ti.types.ndarray()
+):
+    """out[c] = (headlight_brdf_cos(n, v), surface_brdf_cos(n, v, v)) with dirs[c] = (n, v)
+    and params[c] = (albedo rgb, roughness, metalness, mucus)."""
+    for c in range(dirs.shape[0]):
+        n = ti.Vector([dirs[c, 0, 0], dirs[c, 0, 1], dirs[c, 0, 2]])
+        v = ti.Vector([dirs[c, 1, 0], dirs[c, 1, 1], dirs[c, 1, 2]])
+        albedo = ti.Vector([params[c, 0], params[c, 1], params[c, 2]])
+        r, m, w = params[c, 3], params[c, 4], params[c, 5]
+        headlight = headlight_brdf_cos(n, v, albedo, r, m, w)
+        general = surface_brdf_cos(n, v, v, albedo, r, m, w)
+        for k in ti.static(range(3)):
+            out[c, 0, k] = headlight[k]
+            out[c, 1, k] = general[k]
+
+
+@ti.kernel
 def fresnel_curves(cosines: ti.types.ndarray(), f0: ti.types.ndarray(), out: ti.types.ndarray()):
     """out[c] = (fresnel(f0 rgb, cosines[c]) rgb, fresnel_weight(cosines[c]))."""
     for c in range(cosines.shape[0]):
@@ -223,6 +242,27 @@ def test_brdf_is_reciprocal_in_light_and_view():
     forward, backward = out[keep, 0], out[keep, 1]
     assert np.all(np.isfinite(out[keep])) and keep.sum() > 1900
     np.testing.assert_allclose(forward, backward, rtol=1e-5, atol=1e-7)
+
+
+def test_headlight_brdf_is_the_brdf_with_the_light_at_the_eye():
+    """headlight_brdf_cos(n, v) = surface_brdf_cos(n, v, v) within f32 rounding for 2000
+    random views (both hemispheres, grazing ones included) and materials (roughness down
+    to 0, where the lobes peak), and zero behind the surface."""
+    rng = np.random.default_rng(5)
+    count = 2000
+    n = rng.normal(size=(count, 3))
+    v = rng.normal(size=(count, 3))
+    dirs = np.stack([n, v], axis=1)
+    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    params = np.concatenate(
+        [rng.uniform(0, 1, (count, 3)), rng.uniform(0, 1, (count, 3))], axis=1
+    ).astype(np.float32)
+    out = np.zeros((count, 2, 3), np.float32)
+    headlight_and_general(dirs.astype(np.float32), params, out)
+    behind = np.sum(dirs[:, 0] * dirs[:, 1], axis=1) <= 0.0
+    assert 800 < behind.sum() < 1200
+    assert np.all(out[behind] == 0.0)
+    np.testing.assert_allclose(out[:, 0], out[:, 1], rtol=2e-5, atol=1e-7)
 
 
 def test_fresnel_starts_at_f0_and_follows_schlick():
