@@ -396,10 +396,10 @@ def _visible(visibility: ti.template(), pixel):
 
 @ti.func
 def ray_barycentrics(positions: ti.template(), triangles: ti.template(), eye, ray, triangle):
-    """(u, v, t): where the ray from ``eye`` along unit ``ray`` meets the plane of
+    """(u, v, t): where the ray from ``eye`` along ``ray`` meets the plane of
     ``triangle`` (Möller-Trumbore in f32, vertices taken relative to the eye), as the
-    weights of its second and third corners and the distance t [m]; (1/3, 1/3, inf)
-    when parallel or no triangle."""
+    weights of its second and third corners and the distance t in lengths of ``ray``
+    ([m] for a unit ray); (1/3, 1/3, inf) when parallel or no triangle."""
     u, v, t = 1.0 / 3.0, 1.0 / 3.0, BACKGROUND_DEPTH
     if triangle >= 0:
         first = 3 * triangle
@@ -422,28 +422,48 @@ def _inside(u, v):
     return u >= 0.0 and v >= 0.0 and u + v <= 1.0
 
 
+def lens_coefficients(distortion: float, width: int, height: int) -> np.ndarray:
+    """The wide-angle lens of :func:`resolve_gbuffer` as :func:`lens_ndc` applies it:
+    ``(scale, bend)``, f32, with which the pixel at ``p`` pixels from the centre of a
+    ``width`` x ``height`` image looks along the rectilinear ray at ``(scale + bend
+    |p|²)`` times its NDC. ``scale`` keeps the middles of the left and right edges on
+    their rays; bend = 0 for no distortion. Computed once per frame, not per pixel."""
+    half2 = (0.5 * width) ** 2 + (0.5 * height) ** 2
+    scale = 1.0 / (1.0 + distortion * (0.5 * width) ** 2 / half2)
+    return np.array([scale, distortion * scale / half2], np.float32)
+
+
 @ti.func
-def lens_ndc(x, y, half, distortion):
-    """The rectilinear image point (NDC) the wide-angle lens shows at the centre of
-    pixel ``(x, y)`` of an image of ``half`` its size (:func:`resolve_gbuffer`)."""
+def lens_ndc(x, y, half, lens):
+    """The rectilinear image point (NDC) the wide-angle lens ``lens``
+    (:func:`lens_coefficients`) shows at the centre of pixel ``(x, y)`` of an image of
+    ``half`` its size (:func:`resolve_gbuffer`)."""
     ndc = ti.Vector([(x + 0.5) / half[0] - 1.0, (y + 0.5) / half[1] - 1.0])
-    if distortion != 0.0:
-        edge = half[0] / half.norm()
-        keep_edges = 1.0 / (1.0 + distortion * edge * edge)
-        ndc *= keep_edges * (1.0 + distortion * (ndc * half).norm_sqr() / half.norm_sqr())
+    if lens[1] != 0.0:
+        ndc *= lens[0] + lens[1] * (ndc * half).norm_sqr()
     return ndc
 
 
+def ray_basis(view_projection) -> np.ndarray:
+    """``(base, along_x, along_y)`` (rows, f32) with which the eye's ray through the
+    image point ``ndc`` runs along ``base + ndc_x along_x + ndc_y along_y``
+    (:func:`ray_towards`): the cross product of the clip planes x = ndc_x w and y =
+    ndc_y w (rows r_x - ndc_x r_w and r_y - ndc_y r_w of ``view_projection``), which
+    is linear in ndc since r_w x r_w = 0, turned towards increasing w. Computed once
+    per frame, not per pixel."""
+    matrix = np.asarray(view_projection, np.float64)
+    row_x, row_y, row_w = matrix[0, :3], matrix[1, :3], matrix[3, :3]
+    basis = np.stack([np.cross(row_x, row_y), np.cross(row_y, row_w), np.cross(row_w, row_x)])
+    if basis[0] @ row_w < 0.0:  # along_x and along_y are normal to r_w: base decides
+        basis = -basis
+    return basis.astype(np.float32)
+
+
 @ti.func
-def ray_of(view_projection, ndc):
-    """The unit direction from the eye through the image point ``ndc``: the cross
-    product of the clip planes x = ndc_x w and y = ndc_y w, towards increasing w."""
-    row_x, row_y, row_w = view_projection[0, :], view_projection[1, :], view_projection[3, :]
-    plane_x, plane_y = row_x - ndc[0] * row_w, row_y - ndc[1] * row_w
-    ray = plane_x.xyz.cross(plane_y.xyz).normalized()
-    if ray.dot(row_w.xyz) < 0.0:
-        ray = -ray
-    return ray
+def ray_towards(rays, ndc):
+    """The direction (not unit) from the eye through image point ``ndc``, of the ray
+    basis ``rays`` (:func:`ray_basis`, a mat3 of rows)."""
+    return rays[0, :] + ndc[0] * rays[1, :] + ndc[1] * rays[2, :]
 
 
 @ti.kernel
@@ -455,20 +475,22 @@ def resolve_gbuffer(
     triangles: ti.template(),
     visibility: ti.template(),
     eye: ti.math.vec3,
-    view_projection: ti.math.mat4,
-    distortion: ti.f32,
+    rays: ti.math.mat3,
+    lens: ti.math.vec2,
     gbuffer_depth: ti.template(),
     gbuffer_position: ti.template(),
     gbuffer_normal: ti.template(),
     gbuffer_char: ti.template(),
     gbuffer_blood: ti.template(),
+    gbuffer_weights: ti.template(),
     gbuffer_triangle: ti.template(),
 ):
     """Per pixel: the ray of the laparoscope's wide-angle lens through the pixel centre
     (one-term radial barrel distortion, Brown 1966: the pixel at radius r, in
     half-diagonals from the centre, looks along the rectilinear ray at r (1 +
-    ``distortion`` r²), scaled so that the middles of the left and right edges keep
-    their rays; 0: none), the winning triangle t of ``visibility`` at the pixel that ray
+    distortion r²), scaled so that the middles of the left and right edges keep
+    their rays; ``lens`` from :func:`lens_coefficients`, the ray from the basis
+    ``rays`` of :func:`ray_basis`), the winning triangle t of ``visibility`` at the pixel that ray
     crosses (or background, also past the image at the corners; through a lens, when
     the ray misses t, the nearest triangle of the four pixel centres around that point
     that it crosses, unless it lies behind t's plane: a silhouette keeps what is in
@@ -479,25 +501,25 @@ def resolve_gbuffer(
     = hit [m] (0), ``gbuffer_normal`` = the barycentric mix of ``normals``, normalised
     and flipped to face the eye (0; the geometric normal if the mix vanishes),
     ``gbuffer_char`` and ``gbuffer_blood`` = the same mix of the vertices' ``char`` and
-    ``blood`` (0) and
-    ``gbuffer_triangle`` = t (-1). The ray direction is the cross product of the
-    clip planes x = ndc_x w and y = ndc_y w, pointing to increasing w."""
+    ``blood`` (0), ``gbuffer_weights`` = the hit's barycentric weights of t's second
+    and third corners (1/3, 1/3) and ``gbuffer_triangle`` = t (-1)."""
     width, height = ti.static(visibility.shape)
     half = ti.Vector([0.5 * width, 0.5 * height])
     for x, y in visibility:
-        ndc = lens_ndc(x, y, half, distortion)
+        ndc = lens_ndc(x, y, half, lens)
+        distorted = lens[1] != 0.0
         triangle, seen = _visible(visibility, ti.Vector([x, y])), True
         source = ti.Vector([x + 0.5, y + 0.5])  # where the ray crosses the rectilinear image
-        if distortion != 0.0:
+        if distorted:
             source = (ndc + 1.0) * half
             seen = 0.0 <= source[0] < width and 0.0 <= source[1] < height
             triangle = _visible(visibility, ti.cast(ti.floor(source), ti.i32))
         ray = ti.Vector([0.0, 0.0, 1.0])
         u, v, reach = 1.0 / 3.0, 1.0 / 3.0, BACKGROUND_DEPTH
-        if triangle >= 0 or (distortion != 0.0 and seen):
-            ray = ray_of(view_projection, ndc)
+        if triangle >= 0 or (distorted and seen):
+            ray = ray_towards(rays, ndc)
             u, v, reach = ray_barycentrics(positions, triangles, eye, ray, triangle)
-        if distortion != 0.0 and seen and (triangle < 0 or not _inside(u, v)):
+        if distorted and seen and (triangle < 0 or not _inside(u, v)):
             # a bent ray need not cross the triangle at its pixel's centre: the nearest
             # triangle of the four centres around it that it crosses, not behind the
             # first one's plane (so a silhouette keeps what is in front of it)
@@ -505,13 +527,14 @@ def resolve_gbuffer(
             nearest_hit = reach * (1.0 + SAME_SURFACE) if reach > 0.0 else BACKGROUND_DEPTH
             for k in ti.static(range(4)):
                 other = _visible(visibility, corner + ti.Vector([k % 2, k // 2]))
-                if other >= 0:
+                if other >= 0 and other != triangle:  # that one missed or was taken
                     ou, ov, hit_at = ray_barycentrics(positions, triangles, eye, ray, other)
                     if _inside(ou, ov) and 0.0 < hit_at < nearest_hit:
                         triangle, u, v, nearest_hit = other, ou, ov, hit_at
         depth = BACKGROUND_DEPTH
         position, normal = ti.Vector([0.0, 0.0, 0.0]), ti.Vector([0.0, 0.0, 0.0])
         charred, bloody = 0.0, 0.0
+        weights = ti.Vector([1.0 / 3.0, 1.0 / 3.0])
         if triangle >= 0:
             first = 3 * triangle
             i0, i1, i2 = triangles[first], triangles[first + 1], triangles[first + 2]
@@ -521,6 +544,7 @@ def resolve_gbuffer(
             b1, b2 = ti.math.clamp(u, 0.0, 1.0), ti.math.clamp(v, 0.0, 1.0)
             total = b0 + b1 + b2
             b0, b1, b2 = b0 / total, b1 / total, b2 / total
+            weights = ti.Vector([b1, b2])
             hit = b0 * v0 + b1 * v1 + b2 * v2
             depth, position = hit.norm(), hit + eye
             mix = b0 * normals[i0] + b1 * normals[i1] + b2 * normals[i2]
@@ -535,6 +559,7 @@ def resolve_gbuffer(
         gbuffer_triangle[x, y], gbuffer_depth[x, y] = triangle, depth
         gbuffer_position[x, y], gbuffer_normal[x, y] = position, normal
         gbuffer_char[x, y], gbuffer_blood[x, y] = charred, bloody
+        gbuffer_weights[x, y] = weights
 
 
 @ti.kernel
@@ -545,19 +570,20 @@ def draw_spheres(
     radius: ti.f32,
     film: ti.f32,
     eye: ti.math.vec3,
-    view_projection: ti.math.mat4,
-    distortion: ti.f32,
+    rays: ti.math.mat3,
+    lens: ti.math.vec2,
     gbuffer: ti.template(),
 ):
     """The first ``count`` spheres of ``radius`` [m] at ``centres`` (falling drops of
     blood) into a resolved ``gbuffer``, where the pixel's ray (through the same lens as
     :func:`resolve_gbuffer`) meets one nearer than what the pixel holds: the depth and
     position of the hit, the sphere's normal there, no char, a blood film ``film`` [m]
-    and the triangle ``sphere_triangle[k]`` (whose material the film covers)."""
+    and the triangle ``sphere_triangle[k]`` (whose material the film covers) at its
+    centre (weights 1/3)."""
     width, height = ti.static(gbuffer.depth.shape)
     half = ti.Vector([0.5 * width, 0.5 * height])
     for x, y in gbuffer.depth:
-        ray = ray_of(view_projection, lens_ndc(x, y, half, distortion))
+        ray = ray_towards(rays, lens_ndc(x, y, half, lens)).normalized()
         nearest, sphere = gbuffer.depth[x, y], -1
         for k in range(count):
             towards = centres[k] - eye
@@ -573,6 +599,7 @@ def draw_spheres(
             gbuffer.normal[x, y] = (hit - centres[sphere]).normalized()
             gbuffer.char[x, y], gbuffer.blood[x, y] = 0.0, film
             gbuffer.triangle[x, y] = sphere_triangle[sphere]
+            gbuffer.weights[x, y] = ti.Vector([1.0 / 3.0, 1.0 / 3.0])
 
 
 class GBuffer:
@@ -580,7 +607,9 @@ class GBuffer:
     ``(width, height)`` indexed ``[x, y]`` (origin bottom-left), in one SNode tree:
     ``visibility`` (i64 keys) and the outputs of :func:`resolve_gbuffer`: ``depth``
     (f32 [m]), ``position`` (vec3 [m]), ``normal`` (unit vec3), ``char`` (f32, 0 fresh
-    to 1 charred tissue), ``blood`` (f32, the blood film's thickness [m]) and ``triangle`` (i32, -1 for background). ``by_pixel`` picks
+    to 1 charred tissue), ``blood`` (f32, the blood film's thickness [m]), ``weights``
+    (vec2, the barycentric weights of the triangle's second and third corners) and
+    ``triangle`` (i32, -1 for background). ``by_pixel`` picks
     :func:`rasterize_visibility_by_pixel` (default: on every backend but the CPU)."""
 
     def __init__(self, width: int, height: int, *, by_pixel: bool | None = None):
@@ -597,6 +626,7 @@ class GBuffer:
             ("normal", ti.f32, 3),
             ("char", ti.f32, 0),
             ("blood", ti.f32, 0),
+            ("weights", ti.f32, 2),
             ("triangle", ti.i32, 0),
             ("visibility", ti.i64, 0),
         ):
@@ -643,13 +673,14 @@ class GBuffer:
             triangles,
             self.visibility,
             np.asarray(eye, np.float32),
-            matrix,
-            float(distortion),
+            ray_basis(matrix),
+            lens_coefficients(distortion, self.width, self.height),
             self.depth,
             self.position,
             self.normal,
             self.char,
             self.blood,
+            self.weights,
             self.triangle,
         )
 
@@ -674,8 +705,8 @@ class GBuffer:
             float(radius),
             float(film),
             np.asarray(eye, np.float32),
-            np.asarray(view_projection, dtype=np.float32),
-            float(distortion),
+            ray_basis(view_projection),
+            lens_coefficients(distortion, self.width, self.height),
             self,
         )
 

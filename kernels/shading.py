@@ -10,7 +10,7 @@ channel instead of the shaded colour.
 """
 
 import taichi as ti
-from taichi_lap.kernels.brdf import surface_brdf_cos
+from taichi_lap.kernels.brdf import headlight_brdf_cos
 from taichi_lap.kernels.ibl import ibl_diffuse, ibl_specular
 from taichi_lap.kernels.subsurface import vessel_tint
 from taichi_lap.kernels.surface_detail import surface_detail
@@ -70,24 +70,14 @@ def object_colour(index):
 
 
 @ti.func
-def rest_point(mesh: ti.template(), triangle, p):
-    """The texcoord (rest-space point [m]) of the point ``p`` [m] on ``triangle``:
-    its barycentric coordinates among the corners' positions (clamped to the
-    triangle), applied to their ``texcoord``."""
+def rest_point(mesh: ti.template(), triangle, weights):
+    """The texcoord (rest-space point [m]) of the point of ``triangle`` whose
+    barycentric weights of the second and third corners are ``weights`` (the
+    G-buffer's): the same mix of the corners' ``texcoord``."""
     first = 3 * triangle
     i0, i1, i2 = mesh.triangles[first], mesh.triangles[first + 1], mesh.triangles[first + 2]
-    v0 = mesh.positions[i0]
-    e0, e1, d = mesh.positions[i1] - v0, mesh.positions[i2] - v0, p - v0
-    d00, d01, d11 = e0.dot(e0), e0.dot(e1), e1.dot(e1)
-    d20, d21 = d.dot(e0), d.dot(e1)
-    den = d00 * d11 - d01 * d01
-    b1, b2 = 1.0 / 3.0, 1.0 / 3.0
-    if ti.abs(den) > 1e-30:
-        b1 = ti.math.clamp((d11 * d20 - d01 * d21) / den, 0.0, 1.0)
-        b2 = ti.math.clamp((d00 * d21 - d01 * d20) / den, 0.0, 1.0)
-    total = ti.max(b1 + b2, 1.0)
-    b1, b2 = b1 / total, b2 / total
-    return (1.0 - b1 - b2) * mesh.texcoord[i0] + b1 * mesh.texcoord[i1] + b2 * mesh.texcoord[i2]
+    w1, w2 = weights[0], weights[1]
+    return (1.0 - w1 - w2) * mesh.texcoord[i0] + w1 * mesh.texcoord[i1] + w2 * mesh.texcoord[i2]
 
 
 SIMILAR_NORMAL = 0.9
@@ -185,7 +175,7 @@ def shade(
         if triangle >= 0 and not skipped:
             m, c = materials.triangle_material[triangle], gbuffer.char[x, y]
             p = gbuffer.position[x, y]
-            rest = rest_point(materials, triangle, p)
+            rest = rest_point(materials, triangle, gbuffer.weights[x, y])
             albedo, n = surface_detail(
                 materials, m, rest, materials.albedo[m], gbuffer.normal[x, y]
             )
@@ -206,7 +196,7 @@ def shade(
                 spot = ti.math.smoothstep(
                     light.cos_outer[None], light.cos_inner[None], -v.dot(light.forward[None])
                 )
-                direct = surface_brdf_cos(n, v, v, albedo, roughness, metalness, mucus) * (
+                direct = headlight_brdf_cos(n, v, albedo, roughness, metalness, mucus) * (
                     light.intensity[None] * spot / (distance * distance)
                 )
                 ambient = ibl_diffuse(lighting, n, v, albedo, metalness, mucus) + ibl_specular(
