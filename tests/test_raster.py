@@ -7,7 +7,7 @@ import functools
 import numpy as np
 import pytest
 import taichi as ti
-from taichi_lap.kernels.raster import BACKGROUND_DEPTH, GBuffer, camera_matrices
+from taichi_lap.kernels.raster import BACKGROUND_DEPTH, GBuffer, camera_matrices, ray_basis
 
 from tests.archrun import assert_backend_matches_cpu
 
@@ -422,3 +422,23 @@ def test_vulkan_matches_cpu():
     cpu = assert_backend_matches_cpu("tests.test_raster:compute_gbuffer", 1e-5)
     floor = len(icosphere()[1])
     assert (cpu["triangle"] == floor).sum() > 100 and (cpu["triangle"] >= 0).sum() > 1000
+
+
+def test_ray_basis_points_through_the_image_point():
+    """base + ndc_x along_x + ndc_y along_y runs from the eye through the point the
+    projection maps to ``ndc`` (any depth), towards the view, for random cameras and
+    image points, past the image's edges too."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        eye = rng.normal(size=3)
+        view, projection = camera_matrices(
+            eye, eye + rng.normal(size=3), (0.0, 1.0, 0.0), rng.uniform(30, 100), 4 / 3, 0.01, 5.0
+        )
+        matrix = (projection @ view).astype(np.float64)
+        rays = ray_basis(matrix).astype(np.float64)
+        for ndc in rng.uniform(-1.5, 1.5, size=(10, 2)):
+            ray = rays[0] + ndc[0] * rays[1] + ndc[1] * rays[2]
+            far = np.linalg.solve(matrix, np.array([ndc[0], ndc[1], 0.5, 1.0]))
+            towards = far[:3] / far[3] - eye
+            cosine = ray @ towards / np.linalg.norm(ray) / np.linalg.norm(towards)
+            assert cosine > 1.0 - 1e-6
