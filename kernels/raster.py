@@ -235,6 +235,30 @@ def _fragment_key(weight, inv_w, inv_area2, triangle):
 
 
 @ti.func
+def _row_span(weight, step, bias, last):
+    """The pixels k in 0..``last`` of a row whose centres a triangle covers, the row's
+    edge functions being ``weight + k step`` (i64 3-vectors) and covered where all are
+    >= ``bias``: ``(first, final)`` (empty when first > final), solved per edge in exact
+    integer arithmetic, so a row of a large triangle costs no test per pixel outside
+    it."""
+    first, final = ti.i64(0), ti.cast(last, ti.i64)
+    for i in ti.static(range(3)):
+        short = bias[i] - weight[i]  # > 0: edge i excludes k = 0
+        if step[i] > 0:
+            if short > 0:  # weight + k step >= bias from k = ceil(short / step)
+                first = ti.max(first, (short + step[i] - 1) // step[i])
+        elif step[i] < 0:  # ... while k <= (weight - bias) / |step|
+            if short > 0:
+                final = ti.i64(-1)
+            else:
+                final = ti.min(final, (-short) // (-step[i]))
+        elif short > 0:
+            final = ti.i64(-1)
+    first = ti.min(first, final + 1)  # within 0..last + 1 before narrowing to i32
+    return ti.cast(first, ti.i32), ti.cast(final, ti.i32)
+
+
+@ti.func
 def _clear(visibility: ti.template()):
     for x, y in visibility:
         visibility[x, y] = ti.i64(VISIBILITY_CLEAR)
@@ -270,11 +294,12 @@ def rasterize_visibility(
                 inv_area2 = 1.0 / ti.cast(area2, ti.f32)
                 for y in range(y0, y1 + 1):
                     weight = _weights(a, b, c, x0, y)
-                    for x in range(x0, x1 + 1):
-                        if (weight >= bias).all():
-                            key = _fragment_key(weight, corner_inv_w, inv_area2, t)
-                            if key < visibility[x, y]:  # skips most atomics of hidden fragments
-                                ti.atomic_min(visibility[x, y], key)
+                    first, last = _row_span(weight, step, bias, x1 - x0)
+                    weight += step * ti.cast(first, ti.i64)
+                    for x in range(x0 + first, x0 + last + 1):
+                        key = _fragment_key(weight, corner_inv_w, inv_area2, t)
+                        if key < visibility[x, y]:  # skips most atomics of hidden fragments
+                            ti.atomic_min(visibility[x, y], key)
                         weight += step
 
 
