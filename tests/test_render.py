@@ -327,6 +327,25 @@ def test_the_lens_bends_each_pixels_ray_radially_and_darkens_the_corners():
     assert np.allclose(renderer.frame.to_numpy(), plain * (1.0 - 0.35 * r2)[..., None], atol=1e-6)
 
 
+def test_a_changed_lens_is_looked_up_anew():
+    """The G-buffer's lens lookup follows the lens: a renderer that drew through one
+    distortion and then another draws what a new renderer draws through the second."""
+    wall = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    mesh = ArrayMesh.of_material(
+        np.array([[0, 1, 2], [0, 2, 3]]), wall.astype(np.float32), PRESETS["liver"]
+    )
+    camera = head_on(np.array([0.0, 0.0, 0.1]), 60.0)
+    drawn = []
+    for distortions in ((0.05, 0.3), (0.3,)):
+        renderer = Renderer(mesh, camera, size=(64, 48))
+        for k in distortions:
+            renderer.distortion = k
+            renderer.render(None, None)
+        drawn.append((renderer.gbuffer.position.to_numpy(), renderer.gbuffer.triangle.to_numpy()))
+    assert np.array_equal(drawn[0][1], drawn[1][1]) and (drawn[0][1] == -1).sum() > 50
+    assert np.array_equal(drawn[0][0], drawn[1][0])
+
+
 def test_cautery_smoke_thickens_to_its_balance_thins_by_half_and_veils_the_view():
     """Under steady cautery the smoke settles where it thickens as fast as it thins
     (rate × half-life / ln 2); a half-life later, the hook off, half is left. Drawn,
