@@ -124,14 +124,22 @@ def edge_distance2(x, y, frame: ti.template()):
     return (ti.Vector([x + 0.5, y + 0.5]) - half).norm_sqr() / half.norm_sqr()
 
 
+UNSHADED = -1.0
+"""What :func:`shade` leaves in the red channel of a pixel it skips for
+:func:`fill_checkerboard` (a shaded colour is never negative)."""
+
+
 @ti.kernel
-def fill_checkerboard(gbuffer: ti.template(), materials: ti.template(), frame: ti.template()):
-    """Checkerboard shading's second half: each pixel :func:`filled` takes the mean of
-    its four neighbours' colours (shaded by :func:`shade`, never filled themselves), as
-    checkerboard rendering reconstructs its unshaded half (El Mansouri 2016, without the
-    previous frame)."""
-    for x, y in frame:
-        if filled(gbuffer, materials, x, y):
+def fill_checkerboard(frame: ti.template()):
+    """Checkerboard shading's second half: each pixel :func:`shade` skipped (its red
+    channel :data:`UNSHADED`; one :func:`filled`) takes the mean of its four neighbours'
+    colours (shaded, never skipped themselves), as checkerboard rendering reconstructs
+    its unshaded half (El Mansouri 2016, without the previous frame). Only the pixels
+    of odd x + y inside the border are looked at."""
+    width, height = ti.static(frame.shape)
+    for i, y in ti.ndrange(width // 2, (1, height - 1)):
+        x = 2 * i + 1 - y % 2  # odd x + y
+        if 0 < x < width - 1 and frame[x, y][0] == UNSHADED:
             frame[x, y] = 0.25 * (
                 frame[x - 1, y] + frame[x + 1, y] + frame[x, y - 1] + frame[x, y + 1]
             )
@@ -165,7 +173,8 @@ def shade(
     (:func:`~taichi_lap.kernels.surface_detail.surface_detail`) and the tint of the
     vessels under it (:func:`~taichi_lap.kernels.subsurface.vessel_tint`) at the
     pixel's rest-space point (:func:`rest_point`). With ``checkerboard`` (view 0
-    only) the pixels :func:`filled` are skipped, for :func:`fill_checkerboard`."""
+    only) the pixels :func:`filled` are skipped, marked :data:`UNSHADED` for
+    :func:`fill_checkerboard`."""
     for x, y in frame:
         triangle = gbuffer.triangle[x, y]
         colour = light.background[None]
@@ -228,8 +237,9 @@ def shade(
                 colour = ti.Vector([c, c, c])
             else:
                 colour = ti.Vector([blood, blood, blood])
-        if not skipped:
-            frame[x, y] = colour
+        if skipped:
+            colour = ti.Vector([UNSHADED, 0.0, 0.0])
+        frame[x, y] = colour
 
 
 DEPTH_BINS = 64
@@ -237,19 +247,25 @@ DEPTH_BINS = 64
 DEPTH_BINS_PER_OCTAVE = 8
 
 
+HISTOGRAM_STRIDE = 4
+""":func:`depth_histogram` counts every this many rows and columns (a sixteenth of a
+640x480 image is 19,200 pixels: plenty for a quantile; two threads adding to 64 bins
+make it a kernel of contended atomics)."""
+
+
 @ti.kernel
 def depth_histogram(gbuffer: ti.template(), counts: ti.template(), near: ti.f32):
-    """How many pixels show a surface at each depth, counted on every other row and
-    column (a quarter of the pixels suffices for a quantile): ``counts[k]`` (i32, exact
-    in any order) of the pixels whose depth d [m] lies in octave bin k = floor(8
-    log2(d / near)), clamped to the :data:`DEPTH_BINS`; the background is not
-    counted."""
+    """How many pixels show a surface at each depth, counted on every
+    :data:`HISTOGRAM_STRIDE`-th row and column: ``counts[k]`` (i32, exact in any order)
+    of the pixels whose depth d [m] lies in octave bin k = floor(8 log2(d / near)),
+    clamped to the :data:`DEPTH_BINS`; the background is not counted."""
     width, height = ti.static(gbuffer.depth.shape)
     ti.loop_config(serialize=True)  # 64 bins: less than a thread-pool launch
     for k in range(DEPTH_BINS):
         counts[k] = 0
-    for i, j in ti.ndrange((width + 1) // 2, (height + 1) // 2):
-        x, y = 2 * i, 2 * j
+    stride = ti.static(HISTOGRAM_STRIDE)
+    for i, j in ti.ndrange((width + stride - 1) // stride, (height + stride - 1) // stride):
+        x, y = stride * i, stride * j
         if gbuffer.triangle[x, y] >= 0:
             octave = ti.log(ti.max(gbuffer.depth[x, y], near) / near) / ti.log(2.0)
             k = ti.min(ti.cast(octave * DEPTH_BINS_PER_OCTAVE, ti.i32), DEPTH_BINS - 1)

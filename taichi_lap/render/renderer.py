@@ -221,7 +221,7 @@ class Renderer:
             self.gbuffer, self.mesh, self.lighting, self.params, self.frame, self.view, checkerboard
         )
         if checkerboard:
-            fill_checkerboard(self.gbuffer, self.mesh, self.frame)
+            fill_checkerboard(self.frame)
         if self.planned is not None and self.view == 0:
             organ, plane = self.planned
             mark_plane(
