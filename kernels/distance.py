@@ -50,6 +50,14 @@ def distance_correction(model: ti.template(), positions: ti.template(), i, p):
 
 
 @ti.func
+def constrained(model: ti.template(), i):
+    """Whether particle ``i`` has a distance constraint or an LRA. A sweep leaves the
+    others where they are (shape-matched particles: their contacts were resolved
+    where they last moved, by the prediction and the goal projections)."""
+    return model.distance_end[i] > model.distance_begin[i] or model.lra_end[i] > model.lra_begin[i]
+
+
+@ti.func
 def finish_particle(
     model: ti.template(), state: ti.template(), control: ti.template(), source: ti.template(), i, p
 ):
@@ -71,10 +79,11 @@ def jacobi_sweep(
     over_relaxation: ti.f32,
 ):
     """One averaged Jacobi iteration over all distance constraints and LRAs, reading
-    ``source`` and writing ``target`` (both particle position fields)."""
+    ``source`` and writing ``target`` (both particle position fields); the particles
+    not :func:`constrained` are copied."""
     for i in range(model.particle_count):
         p = source[i]
-        if model.inv_mass[i] > 0.0:
+        if model.inv_mass[i] > 0.0 and constrained(model, i):
             delta, count = distance_correction(model, source, i, p)
             if count > 0:
                 p += over_relaxation * delta / count
@@ -96,9 +105,10 @@ def gauss_seidel_color(model: ti.template(), state: ti.template(), begin: ti.i32
 
 @ti.kernel
 def gauss_seidel_finish(model: ti.template(), state: ti.template(), control: ti.template()):
-    """LRA and contacts after a Gauss-Seidel sweep, per particle, in place."""
+    """LRA and contacts after a Gauss-Seidel sweep, per :func:`constrained` particle,
+    in place."""
     for i in range(model.particle_count):
-        if model.inv_mass[i] > 0.0:
+        if model.inv_mass[i] > 0.0 and constrained(model, i):
             state.p[i] = finish_particle(model, state, control, state.p, i, state.p[i])
 
 
