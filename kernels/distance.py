@@ -81,6 +81,7 @@ def jacobi_sweep(
     """One averaged Jacobi iteration over all distance constraints and LRAs, reading
     ``source`` and writing ``target`` (both particle position fields); the particles
     not :func:`constrained` are copied."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for i in range(model.particle_count):
         p = source[i]
         if model.inv_mass[i] > 0.0 and constrained(model, i):
@@ -94,6 +95,7 @@ def jacobi_sweep(
 @ti.kernel
 def gauss_seidel_color(model: ti.template(), state: ti.template(), begin: ti.i32, end: ti.i32):
     """Project the constraints ``begin..end`` of one colour in place on ``state.p``."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for e in range(begin, end):
         i, j = model.colored_pair[e][0], model.colored_pair[e][1]
         pi, pj = state.p[i], state.p[j]
@@ -107,6 +109,7 @@ def gauss_seidel_color(model: ti.template(), state: ti.template(), begin: ti.i32
 def gauss_seidel_finish(model: ti.template(), state: ti.template(), control: ti.template()):
     """LRA and contacts after a Gauss-Seidel sweep, per :func:`constrained` particle,
     in place."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for i in range(model.particle_count):
         if model.inv_mass[i] > 0.0 and constrained(model, i):
             state.p[i] = finish_particle(model, state, control, state.p, i, state.p[i])

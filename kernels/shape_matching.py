@@ -79,6 +79,7 @@ def predict(
     """Alg. 1 lines 3-6 and contacts for every particle, or only for those with
     springs when the others were predicted by :func:`update_goals`. Reads x, v, goal;
     writes p, collided. ``gravity`` [m/s²], ``h`` [s]."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for i in range(model.particle_count):
         if not springs_only or has_springs(model, i):
             predict_particle(model, state, control, i, gravity, h)
@@ -91,6 +92,7 @@ def cluster_partial_sums(model: ti.template(), state: ti.template()):
     member's mass in the cluster (0 once dissection took it out), q its stored
     offset plus the cluster's ``cluster_rest_shift`` (0 until members leave). Reads
     p; writes chunk_first, chunk_moment."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for chunk in range(model.chunk_cluster.shape[0]):
         if chunk < model.chunk_count[None]:
             c = model.chunk_cluster[chunk]
@@ -112,6 +114,7 @@ def cluster_frames(model: ti.template(), state: ti.template()):
     """Alg. 1 lines 8-11 per cluster: p_cm and R from the chunk sums (in order).
     Reads and writes cluster_quaternion (the warm start); writes cluster_center (p_cm)
     and cluster_rotation (R)."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for c in range(model.cluster_rest_center.shape[0]):
         if c < model.cluster_count[None]:
             first = ti.Vector([0.0, 0.0, 0.0])
@@ -170,6 +173,7 @@ def limited_goal(model: ti.template(), state: ti.template(), i, p):
 def project_to_goals(model: ti.template(), state: ti.template(), control: ti.template()):
     """An extra shape-matching iteration: p += α (g - p) towards the limited goal, then
     contacts. Reads and writes p (each particle only its own), collided."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for i in range(model.particle_count):
         if model.inv_mass[i] > 0.0 and model.membership_start[i + 1] > model.membership_start[i]:
             p = state.p[i]
@@ -196,6 +200,7 @@ def update_goals(
     update, health check; with ``predict_next`` also the next substep's prediction of
     every particle without springs (those need all neighbours updated first). Reads
     p, collided, eta, cluster frames; writes eta, goal, v, x, fault (and p, collided)."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for i in range(model.particle_count):
         p, _ = hold_grasped(state, control, i, state.p[i])  # collisions may have moved it
         goal, eta = limited_goal(model, state, i, p)

@@ -30,6 +30,7 @@ def skin(model: ti.template(), state: ti.template(), positions: ti.template(), s
 def skin_surface(model: ti.template(), state: ti.template()):
     """surface_position[s] from x (:func:`skin`). Reads x, cluster rotations; writes
     surface_position."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for s in range(model.surface_vertex_count):
         state.surface_position[s] = skin(model, state, state.x, s)
 

@@ -50,9 +50,11 @@ def measure_tool_contact(
     above 0) each organ has (the training metrics' instrument contacts). Reads x,
     goal, collided (after a step)."""
     control.tool_reaction[k] = ti.Vector([0.0, 0.0, 0.0])
+    ti.loop_config(serialize=ti.static(model.serial))
     for organ in range(control.tool_contacts.shape[1]):
         control.tool_contacts[k, organ] = 0
     pose = control_pose(control, k)
+    ti.loop_config(serialize=ti.static(model.serial))
     for i in range(model.particle_count):
         if state.collided[i] and model.inv_mass[i] > 0.0:
             dist, _ = tool_distance(control, k, pose, state.x[i])

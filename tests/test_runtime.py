@@ -40,3 +40,18 @@ def test_a_compile_error_still_names_the_file_line_and_source():
     message = str(error.value)
     assert __file__ in message and re.search(r"line \d+, in broken", message)
     assert "return undefined_name" in message
+
+
+def test_small_models_loop_serially_on_the_cpu():
+    """On the CPU backend a model below SERIAL_BELOW particles runs its per-step loops
+    serially (no thread-pool hand-off), a larger one in parallel; the tissue collision
+    follows its model. (Runs are bit-identical either way: the reference trajectories,
+    stored from parallel runs, hold for the serial ones.)"""
+    from taichi_lap import scene as scene_mod
+    from taichi_lap.session import Session
+
+    assert runtime.serial_loops(runtime.SERIAL_BELOW - 1)
+    assert not runtime.serial_loops(runtime.SERIAL_BELOW)
+    with Session(scene_mod.load("rectum", {"scene.detail": 0.05}), progress=False) as session:
+        assert session.model.serial and session.model.particle_count < runtime.SERIAL_BELOW
+        assert session.solver.collision.serial

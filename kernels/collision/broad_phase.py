@@ -154,6 +154,7 @@ def update_bounds(
             ]
         )
     skin_vertices(model, state, coll)
+    ti.loop_config(serialize=ti.static(model.serial))
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:
             v = coll.tri_vertex[t]
@@ -188,12 +189,14 @@ def hold_spheres(coll: ti.template(), grid: ti.template()):
     (sorted_sphere, sorted_rest, sorted_body: what the scan loop reads); the largest
     radius of a live one goes to ``broad[B_HELD]``."""
     coll.broad[B_HELD] = 0
+    ti.loop_config(serialize=ti.static(coll.serial))
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:
             sphere = coll.broad_sphere[t]
             coll.hash_sphere[t] = sphere
             if coll.tri_live[t] != 0:  # radii >= 0 (or NaN): their bits order as they do
                 ti.atomic_max(coll.broad[B_HELD], ti.bit_cast(sphere[3], ti.i32))
+    ti.loop_config(serialize=ti.static(coll.serial))
     for s in range(coll.tri_vertex.shape[0]):
         if s < coll.row_count[None]:
             u = grid.sorted_index[s]
@@ -301,6 +304,7 @@ def list_pairs(coll: ti.template(), grid: ti.template(), found: ti.template()):
     found.count[None] = 0
     for k in ti.static(range(B_SEEN, B_LISTED + 1)):
         coll.broad[k] = 0
+    ti.loop_config(serialize=ti.static(coll.serial))
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:
             if coll.moved[t]:
@@ -322,6 +326,7 @@ def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(), foun
     did not move; every found pair adds to both rows. Writes new.cursor (kept), new.size,
     new.start (prefix sum) and, to compare with the capacities, broad[B_FOUND] and
     broad[B_ROWS] (the total)."""
+    ti.loop_config(serialize=ti.static(coll.serial))
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:
             kept = 0
@@ -331,6 +336,7 @@ def count_rows(coll: ti.template(), old: ti.template(), new: ti.template(), foun
                         kept += 1
             new.cursor[t] = kept
             new.size[t] = kept
+    ti.loop_config(serialize=ti.static(coll.serial))
     for q in range(found.capacity):
         if q < found.count[None]:
             pair = found.pair[q]
@@ -346,6 +352,7 @@ def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found
     """The new rows of :func:`count_rows`, each sorted by partner (the order the
     contacts are summed in: runs stay bit-reproducible); the rescan's counts go to the
     counters."""
+    ti.loop_config(serialize=ti.static(coll.serial))
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:
             if not coll.moved[t]:
@@ -355,6 +362,7 @@ def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found
                     if not coll.moved[u]:
                         new.partner[slot] = u
                         slot += 1
+    ti.loop_config(serialize=ti.static(coll.serial))
     for q in range(found.capacity):
         if q < found.count[None]:
             pair = found.pair[q]
@@ -364,6 +372,7 @@ def fill_rows(coll: ti.template(), old: ti.template(), new: ti.template(), found
     ti.atomic_add(coll.counter[C_CANDIDATES], coll.broad[B_SEEN])
     ti.atomic_add(coll.counter[C_RESCANNED], coll.broad[B_RESCANNED])
     ti.atomic_add(coll.counter[C_LISTED], coll.broad[B_LISTED])
+    ti.loop_config(serialize=ti.static(coll.serial))
     for t in range(coll.tri_vertex.shape[0]):  # insertion sort of the short rows
         if t < coll.row_count[None]:
             lo, hi = new.start[t], new.start[t + 1]
@@ -384,6 +393,7 @@ def mark_active(coll: ti.template(), rows: ti.template()):
     near a tool (:func:`update_bounds`), the triangles whose spheres
     :func:`kernels.collision.spheres.update_spheres` computes and that
     :func:`detect_and_respond` tests (both triangles of a pair are listed)."""
+    ti.loop_config(serialize=ti.static(coll.serial))
     for t in range(coll.tri_vertex.shape[0]):
         if t < coll.row_count[None]:
             start, end = rows.start[t], rows.start[t + 1]

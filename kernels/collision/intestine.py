@@ -182,6 +182,7 @@ def track_pairs(
     ``threshold`` [m]) with their gaps [m]. Reads pair_*."""
     old = cd.pair_count[None]
     cd.candidate_count[None] = old + draws
+    ti.loop_config(serialize=ti.static(cd.serial))
     for k in range(old + draws):
         a, b = -1, -1
         if k < old:
@@ -221,6 +222,7 @@ def compact(
     index); dst_start[a] is where segment a's pairs begin. Pairs past ``capacity``
     are dropped and counted in ``dst_dropped``."""
     n = src_count[None]
+    ti.loop_config(serialize=ti.static(cd.serial))
     for c in range(n):
         valid = ti.i32(src_a[c] >= 0)
         ti.atomic_add(cd.bucket_count[ti.max(src_a[c], 0)], valid)
@@ -232,11 +234,13 @@ def compact(
             total += cd.bucket_count[a]
             cd.bucket_fill[a] = 0
         cd.bucket_start[cd.segment_count] = total
+    ti.loop_config(serialize=ti.static(cd.serial))
     for c in range(n):
         a = ti.max(src_a[c], 0)
         slot = cd.bucket_start[a] + ti.atomic_add(cd.bucket_fill[a], ti.i32(src_a[c] >= 0))
         if src_a[c] >= 0:
             cd.sorted_source[slot] = c
+    ti.loop_config(serialize=ti.static(cd.serial))
     for a in range(cd.segment_count):
         lo, hi = cd.bucket_start[a], cd.bucket_start[a + 1]
         for i in range(lo + 1, hi):  # insertion sort by (b, source index)
@@ -266,6 +270,7 @@ def compact(
         dst_start[cd.segment_count] = ti.min(total, capacity)
         dst_count[None] = ti.min(total, capacity)
         dst_dropped[None] = ti.max(total - capacity, 0)
+    ti.loop_config(serialize=ti.static(cd.serial))
     for a in range(cd.segment_count):
         out, last = cd.bucket_fill[a], -1
         for i in range(cd.bucket_start[a], cd.bucket_start[a + 1]):
@@ -302,8 +307,10 @@ def grow_contacts(cd: ti.template(), x: ti.template(), retest: ti.i32, skin: ti.
     n, m = cd.contact_count[None], cd.pair_count[None]
     cd.area_count[None] = n * GROWTH + m
     cd.region_count[None] = 0
+    ti.loop_config(serialize=ti.static(cd.serial))
     for k in range(m):
         ti.atomic_add(cd.region_count[None], ti.i32(cd.pair_gap[k] < 0.0))
+    ti.loop_config(serialize=ti.static(cd.serial))
     for k in range(n * GROWTH + m):
         out_a, out_b, g = -1, -1, HUGE
         if k >= n * GROWTH:

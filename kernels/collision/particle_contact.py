@@ -124,6 +124,7 @@ def push_tubes_out_of_tools(model: ti.template(), state: ti.template(), control:
     gathers its share of its two segments' pushes (averaged, Jacobi) from p into
     p_next, then takes it and is flagged collided. Reads p, x; writes p_next, p,
     collided."""
+    ti.loop_config(serialize=ti.static(model.serial))
     for n in range(model.tube_particle_count):
         i = model.tube_particle[n]
         delta, count = ti.Vector([0.0, 0.0, 0.0]), 0
@@ -146,6 +147,7 @@ def push_tubes_out_of_tools(model: ti.template(), state: ti.template(), control:
         state.p_next[i] = state.p[i] + delta / ti.max(count, 1)
         if count > 0:
             state.collided[i] = 1
+    ti.loop_config(serialize=ti.static(model.serial))
     for n in range(model.tube_particle_count):
         i = model.tube_particle[n]
         state.p[i] = state.p_next[i]

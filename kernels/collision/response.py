@@ -423,6 +423,7 @@ def detect_and_respond(
     and set collided. Reads the spheres, the pair rows and the tool poses; writes corner_delta,
     corner_count (zero again at the end), counter, p, collided."""
     coll.touched_count[None] = 0
+    ti.loop_config(serialize=ti.static(model.serial))
     for m in range(coll.active_list.shape[0]):
         if m < coll.active_count[None]:
             t = coll.active_list[m]
@@ -450,6 +451,7 @@ def detect_and_respond(
             ti.atomic_add(coll.counter[C_TOOL_CANDIDATES], tool_candidates)
             ti.atomic_add(coll.counter[C_TOOL], tool)
             ti.atomic_add(coll.counter[C_TRIANGLES], ti.cast(hits.max() > 0, ti.i32))
+    ti.loop_config(serialize=ti.static(model.serial))
     for m in range(coll.active_list.shape[0]):  # list the particles bound to hit corners
         if m < coll.active_count[None]:
             t = coll.active_list[m]
@@ -462,6 +464,7 @@ def detect_and_respond(
                             if ti.atomic_add(coll.particle_mark[idx[j]], 1) == 0:
                                 touched = ti.atomic_add(coll.touched_count[None], 1)
                                 coll.touched_list[touched] = idx[j]
+    ti.loop_config(serialize=ti.static(model.serial))
     for n in range(coll.touched_list.shape[0]):
         if n < coll.touched_count[None]:
             i = coll.touched_list[n]
@@ -484,6 +487,7 @@ def detect_and_respond(
                 state.p[i] = state.p[i] + total / weight
             state.collided[i] = 1
             coll.particle_mark[i] = 0
+    ti.loop_config(serialize=ti.static(model.serial))
     for m in range(coll.active_list.shape[0]):
         if m < coll.active_count[None]:
             t = coll.active_list[m]

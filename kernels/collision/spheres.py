@@ -210,6 +210,7 @@ def update_spheres(
         skin_vertices(model, state, coll)
     # the end read at run time, unlike the module's other loops over a count: over the
     # capacity, lavapipe rounded the dual curvature otherwise and flipped a contact
+    ti.loop_config(serialize=ti.static(model.serial))
     for m in range(coll.row_count[None] if ti.static(every) else coll.active_count[None]):
         t = m if ti.static(every) else coll.active_list[m]
         v = coll.tri_vertex[t]

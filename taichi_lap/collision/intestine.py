@@ -151,6 +151,7 @@ class IntestineCollision(FieldOwner):
         if elements["segment_count"] < 1:
             raise ValueError("the model has no organ with spring rows (row_length > 0)")
         self.model = model
+        self.serial = model.serial  # its kernels' loop_config, as the model's
         self.segment_count = int(elements["segment_count"])
         self.element_count = len(elements["radius"])
         self.particle_count = len(elements["particles"])

@@ -127,6 +127,7 @@ class TissueCollision:
         if rest_exclusion < 0.0 or (pair_margin or 0.0) < 0.0 or (hash_slack or 0.0) < 0.0:
             raise ValueError("pair_margin, hash_slack and rest_exclusion must be >= 0")
         self.model = model
+        self.serial = model.serial  # its kernels' loop_config, as the model's
         self._options = dict(
             method=method,
             scale_phi=scale_phi,

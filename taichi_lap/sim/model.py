@@ -19,6 +19,7 @@ from taichi_lap.core.csr import both_ends, incidence, rows_of_extents
 from taichi_lap.core import fields
 from taichi_lap.core.fields import FieldGroup, FieldOwner, padded_rows, placed_rows
 from taichi_lap.core.mesh import incident_table
+from taichi_lap import runtime
 from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.kernels.scatter import RowWrites
 from taichi_lap.preprocess.model_data import ModelData
@@ -226,6 +227,7 @@ class Model(FieldOwner):
         self._group = FieldGroup()
         n = data.particle_count
         self.particle_count = n
+        self.serial = runtime.serial_loops(n)  # the kernels' loop_config (compile time)
         self.cluster_total = data.cluster_count
         self.constraint_solver = constraint_solver
 
