@@ -81,7 +81,7 @@ def jacobi_sweep(
     """One averaged Jacobi iteration over all distance constraints and LRAs, reading
     ``source`` and writing ``target`` (both particle position fields); the particles
     not :func:`constrained` are copied."""
-    ti.loop_config(serialize=ti.static(model.serial))
+    ti.loop_config(serialize=ti.static(model.serial_sweeps))
     for i in range(model.particle_count):
         p = source[i]
         if model.inv_mass[i] > 0.0 and constrained(model, i):

@@ -55,3 +55,8 @@ def test_small_models_loop_serially_on_the_cpu():
     with Session(scene_mod.load("rectum", {"scene.detail": 0.05}), progress=False) as session:
         assert session.model.serial and session.model.particle_count < runtime.SERIAL_BELOW
         assert session.solver.collision.serial
+        model = session.model
+        entries = 2 * model.distance_count + model.lra_count
+        assert 0 < entries < runtime.SWEEP_SERIAL_BELOW and model.serial_sweeps
+        model.distance_count += runtime.SWEEP_SERIAL_BELOW  # as if its truss were denser
+        assert not model.serial_sweeps

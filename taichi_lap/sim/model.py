@@ -413,6 +413,14 @@ class Model(FieldOwner):
             ),
         }
 
+    @property
+    def serial_sweeps(self) -> bool:
+        """Whether the Jacobi sweeps run serially (the kernel's loop_config, fixed
+        when it compiles for this model): a :attr:`serial` model whose lists hold
+        fewer than :data:`~taichi_lap.runtime.SWEEP_SERIAL_BELOW` entries."""
+        entries = 2 * self.distance_count + self.lra_count
+        return self.serial and entries < runtime.SWEEP_SERIAL_BELOW
+
     def _constraint_tables(
         self, pairs, rest, stiffness, lra_particle, lra_anchor, lra_rest
     ) -> dict[str, tuple[np.ndarray, str | None, int]]:
