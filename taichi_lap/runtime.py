@@ -18,6 +18,8 @@ from pathlib import Path
 import taichi as ti
 from taichi.lang import impl
 
+from taichi_lap.kernels.scatter import serial_on_cpu
+
 log = logging.getLogger("taichi_lap")
 
 ARCH_CHOICES = ("auto", "cpu", "cuda", "vulkan", "metal")
@@ -157,7 +159,7 @@ def serial_loops(count: int) -> bool:
     """Whether a model of ``count`` particles runs its per-step loops serially
     (``ti.loop_config(serialize=...)``): on the CPU backends below
     :data:`SERIAL_BELOW`; never on a GPU (a serial loop runs on one GPU thread)."""
-    return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) and count < SERIAL_BELOW
+    return serial_on_cpu() and count < SERIAL_BELOW
 
 
 def available_backends() -> list[str]:
