@@ -276,9 +276,9 @@ def rasterize_visibility(
     """Clear ``visibility`` to VISIBILITY_CLEAR, then for each triangle t < triangle_count
     (vertex ids ``triangles[3t:3t+3]`` into ``positions`` [m]) write, per covered pixel,
     ``min(key)`` with key = ``(depth_key << 32) | t`` (i64, see the module docstring).
-    ``near`` [m] > 0 is the clipping distance on w. One thread per triangle walks its
-    bounding box with incremental edge functions (the CPU path). Reads positions,
-    triangles."""
+    ``near`` [m] > 0 is the clipping distance on w. One thread per triangle walks the
+    covered span of each row of its bounding box (:func:`_row_span`) with incremental
+    edge functions (the CPU path). Reads positions, triangles."""
     _clear(visibility)
     width, height = ti.static(visibility.shape)
     for t in range(triangle_count):
