@@ -152,7 +152,11 @@ class SurfaceRows:
         index, weight = self.index[: self.vertex_rows], self.weight[: self.vertex_rows]
         marked = np.zeros(len(self.inverse_mass), dtype=bool)
         marked[particles] = True
-        vertices = np.flatnonzero((marked[index] & (weight > 0.0)).any(axis=1))
+        return self.triangles_of(np.flatnonzero((marked[index] & (weight > 0.0)).any(axis=1)))
+
+    def triangles_of(self, vertices: np.ndarray) -> np.ndarray:
+        """The live triangles at ``vertices`` (surface vertex rows), from their
+        incident rows, sorted."""
         incident = self.incident[vertices]
         triangles = np.unique(incident[incident >= 0])
         return triangles[self.live[triangles]]

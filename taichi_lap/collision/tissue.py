@@ -362,9 +362,7 @@ class TissueCollision:
     def _rewrite_owners(self, vertices: np.ndarray, surface: SurfaceRows):
         """Owner corners (:func:`corner_owners`) of ``vertices``: every live corner at
         one of them (their incident rows list them all) is written."""
-        incident = surface.incident[vertices]
-        triangles = np.unique(incident[incident >= 0])
-        triangles = triangles[surface.live[triangles]]
+        triangles = surface.triangles_of(vertices)
         corner_vertex = self._tri_vertex[triangles].ravel()
         corner = (3 * triangles[:, None] + np.arange(3)).ravel()
         mine = np.isin(corner_vertex, vertices)  # all of their live corners are here
