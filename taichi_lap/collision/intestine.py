@@ -151,7 +151,6 @@ class IntestineCollision(FieldOwner):
         if elements["segment_count"] < 1:
             raise ValueError("the model has no organ with spring rows (row_length > 0)")
         self.model = model
-        self.serial = model.serial  # its kernels' loop_config, as the model's
         self.segment_count = int(elements["segment_count"])
         self.element_count = len(elements["radius"])
         self.particle_count = len(elements["particles"])
@@ -204,6 +203,12 @@ class IntestineCollision(FieldOwner):
         self.sorted_source = group.field(i32, max(candidates, areas))
         group.finalize()
         self._group = group
+
+    @property
+    def serial(self) -> bool:
+        """Whether its kernels loop serially (their loop_config): as its model's
+        (:attr:`~taichi_lap.sim.model.Model.serial`)."""
+        return self.model.serial
 
     def reset(self):
         """Forget the active pairs and contacts; restart the random sequence."""

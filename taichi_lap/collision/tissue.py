@@ -127,7 +127,6 @@ class TissueCollision:
         if rest_exclusion < 0.0 or (pair_margin or 0.0) < 0.0 or (hash_slack or 0.0) < 0.0:
             raise ValueError("pair_margin, hash_slack and rest_exclusion must be >= 0")
         self.model = model
-        self.serial = model.serial  # its kernels' loop_config, as the model's
         self._options = dict(
             method=method,
             scale_phi=scale_phi,
@@ -294,6 +293,12 @@ class TissueCollision:
         self.corner_delta = group.field(ti.f32, 3 * f, vector=3)
         self.corner_count = group.field(ti.i32, 3 * f)
         self.counter = group.field(ti.i32, len(spheres.COUNTERS))
+
+    @property
+    def serial(self) -> bool:
+        """Whether its kernels loop serially (their loop_config): as its model's
+        (:attr:`~taichi_lap.sim.model.Model.serial`)."""
+        return self.model.serial
 
     def close(self):
         """Free the fields of the tables, the hash and the pair lists (Taichi then
