@@ -545,5 +545,7 @@ def skin_tubes(
                 side = k - (CAP_RINGS - 1) * 2 * sides
                 row = first + (CAP_RINGS - 2) * sides
                 corners = ti.Vector([row + side, row + (side + 1) % sides, first + per_cap - 1])
+            if end == 0:  # the first end's outward axis runs against the tube: turned round
+                corners = corners.yxz
         for c in ti.static(range(3)):
             indices[cap_index_offset + 3 * slot + c] = corners[c]

@@ -377,9 +377,11 @@ def test_unused_capacity_is_degenerate_padding():
 
 def test_each_tube_is_closed_by_its_rounded_end_caps():
     """With its two caps a tube is a closed surface (every edge in exactly two
-    triangles); each cap is a half sphere of the end ring's radius about the end ring's
+    triangles) facing out (its triangles run each edge in opposite directions and
+    enclose a positive volume: the renderer skips its back faces); each cap is a half sphere of the end ring's radius about the end ring's
     centre, its pole one radius beyond the end along the tube; the caps of the tube
     slots left empty are zero vertices and degenerate triangles."""
+    from taichi_lap.core.mesh import enclosed_volume, inconsistent_edges
     from taichi_lap.kernels.generalized_cylinder import CAP_RINGS
 
     p = helix(n=30)
@@ -391,6 +393,8 @@ def test_each_tube_is_closed_by_its_rounded_end_caps():
     edges = np.sort(closed[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     _, uses = np.unique(edges, axis=0, return_counts=True)
     assert np.all(uses == 2)
+    assert inconsistent_edges(closed) == 0
+    assert enclosed_volume(v, closed) > 0.0
     assert np.all(i[start + 2 * cap_triangles :] == 0)
     assert not np.any(v[mesh.cap_vertex_start + 2 * per_cap :])
     rings = len(out["vertices"]) // SIDES
