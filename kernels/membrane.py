@@ -129,7 +129,9 @@ def membrane_vertices(
     surface's normal (the front, at offset + i F + j), then moved against it with the
     normal reversed (the back, at offset + S + i F + j), then the rim around the
     border (:func:`rim_sample`, R samples): front corners at offset + 2 S + k, back
-    ones at offset + 2 S + R + k, each with the outward normal across the border."""
+    ones at offset + 2 S + R + k, each with the outward normal across the border and
+    the very position of the front or back sample it joins (the shell is watertight
+    to the bit, so it can be drawn one-sided)."""
     fine_rows, fine_cols = (rows - 1) * across + 1, (cols - 1) * along + 1
     count = fine_rows * fine_cols
     for i, j in ti.ndrange(fine_rows, fine_cols):
@@ -141,7 +143,7 @@ def membrane_vertices(
     border = 2 * (fine_rows - 1) + 2 * (fine_cols - 1)
     for k in range(border):
         i, j, side = rim_sample(k, fine_rows, fine_cols)
-        point, d_row, d_col, n = membrane_sample(points, first, rows, cols, across, along, i, j)
+        _, d_row, d_col, n = membrane_sample(points, first, rows, cols, across, along, i, j)
         out = -d_row
         if side == 1:
             out = d_col
@@ -151,7 +153,7 @@ def membrane_vertices(
             out = -d_col
         out = (out - out.dot(n) * n).normalized(1e-12)
         rim = offset + 2 * count
-        positions[rim + k] = point + half_thickness * n
-        positions[rim + border + k] = point - half_thickness * n
+        positions[rim + k] = positions[offset + i * fine_cols + j]
+        positions[rim + border + k] = positions[offset + count + i * fine_cols + j]
         normals[rim + k] = out
         normals[rim + border + k] = out
