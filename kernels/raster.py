@@ -23,8 +23,10 @@ Matrices act on column vectors, OpenGL style (:func:`camera_matrices`). The
 rasterizer's depth is ``1 / w`` (w = view depth [m]): affine in screen space, ordered
 as NDC z, no far plane needed; ``depth_key`` = f32 bits of +inf minus those of 1/w.
 Triangles wholly outside a side or the far plane are skipped (one crossing the far
-plane is drawn whole), back faces are drawn (tissue is seen from both sides), and
-triangles of zero snapped area are skipped. Vertices farther than 2^20 px from the
+plane is drawn whole), back faces (clockwise on screen) are skipped for objects drawn
+one-sided (closed surfaces facing out, whose back faces lie behind their front ones)
+and drawn for the others (a sheet is seen from both sides), and triangles of zero
+snapped area are skipped. Vertices farther than 2^20 px from the
 image centre are pulled toward it along the line through it, so coordinates stay
 below 2^29 and edge terms below 2^61; the pull depends on the vertex alone, so
 meshes stay watertight.
@@ -171,10 +173,10 @@ def _corner(screen, k: ti.template()):
 
 
 @ti.func
-def _fan_part(screen, inv_w, part):
+def _fan_part(screen, inv_w, part, one_sided):
     """Fan triangle ``part`` (0: corners 0, 1, 2; 1: corners 0, 2, 3) made counter-
-    clockwise (back faces are drawn): ``(a, b, c, inv_w, area2)``, corners as i64
-    2-vectors, area2 = twice its area [1/256 px]^2."""
+    clockwise: ``(a, b, c, inv_w, area2)``, corners as i64 2-vectors, area2 = twice its
+    area [1/256 px]^2, 0 for a back face (clockwise) when ``one_sided``."""
     a, b, c = _corner(screen, 0), _corner(screen, 1), _corner(screen, 2)
     corner_inv_w = inv_w.xyz
     if part == 1:
@@ -183,7 +185,7 @@ def _fan_part(screen, inv_w, part):
     if area2 < 0:
         b, c = c, b
         corner_inv_w = corner_inv_w.xzy
-        area2 = -area2
+        area2 = 0 if one_sided else -area2
     return a, b, c, corner_inv_w, area2
 
 
@@ -268,6 +270,8 @@ def _clear(visibility: ti.template()):
 def rasterize_visibility(
     positions: ti.template(),
     triangles: ti.template(),
+    triangle_object: ti.template(),
+    one_sided: ti.template(),
     triangle_count: ti.i32,
     view_projection: ti.math.mat4,
     near: ti.f32,
@@ -275,7 +279,9 @@ def rasterize_visibility(
 ):
     """Clear ``visibility`` to VISIBILITY_CLEAR, then for each triangle t < triangle_count
     (vertex ids ``triangles[3t:3t+3]`` into ``positions`` [m]) write, per covered pixel,
-    ``min(key)`` with key = ``(depth_key << 32) | t`` (i64, see the module docstring).
+    ``min(key)`` with key = ``(depth_key << 32) | t`` (i64, see the module docstring);
+    a back face is skipped where ``one_sided`` (per object, i32) of its object
+    ``triangle_object[t]`` is not 0.
     ``near`` [m] > 0 is the clipping distance on w. One thread per triangle walks the
     covered span of each row of its bounding box (:func:`_row_span`) with incremental
     edge functions (the CPU path). Reads positions, triangles."""
@@ -285,8 +291,9 @@ def rasterize_visibility(
         corners, screen, inv_w = _clip_and_snap(
             positions, triangles, t, view_projection, near, width, height
         )
+        culled = one_sided[triangle_object[t]] != 0
         for part in range(corners - 2):
-            a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part)
+            a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part, culled)
             if area2 > 0:
                 x0, y0, x1, y1 = _box(a, b, c, width, height)
                 bias = ti.Vector([_tie_bias(b, c), _tie_bias(c, a), _tie_bias(a, b)])
@@ -336,6 +343,8 @@ def _add_counts(a, b):
 def rasterize_visibility_by_pixel(
     positions: ti.template(),
     triangles: ti.template(),
+    triangle_object: ti.template(),
+    one_sided: ti.template(),
     triangle_count: ti.i32,
     view_projection: ti.math.mat4,
     near: ti.f32,
@@ -355,8 +364,9 @@ def rasterize_visibility_by_pixel(
         corners, screen, inv_w = _clip_and_snap(
             positions, triangles, t, view_projection, near, width, height
         )
+        culled = one_sided[triangle_object[t]] != 0
         for part in ti.static(range(2)):
-            a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part)
+            a, b, c, corner_inv_w, area2 = _fan_part(screen, inv_w, part, culled)
             x0, y0, x1, y1 = _box(a, b, c, width, height)
             count = 0
             if part < corners - 2 and area2 > 0 and x0 <= x1 and y0 <= y1:
@@ -691,6 +701,8 @@ class GBuffer:
         char,
         blood,
         triangles,
+        triangle_object,
+        one_sided,
         triangle_count: int,
         eye,
         view_projection,
@@ -698,7 +710,9 @@ class GBuffer:
         distortion: float = 0.0,
     ) -> None:
         """Rasterize ``triangle_count`` triangles of ``positions`` [m] (flat vertex ids in
-        ``triangles``) seen from ``eye`` [m] through ``view_projection`` (4x4, see
+        ``triangles``; the back faces of those whose object, ``triangle_object``, is
+        drawn ``one_sided``, skipped: :func:`rasterize_visibility`) seen from ``eye``
+        [m] through ``view_projection`` (4x4, see
         :func:`camera_matrices`), clipped at view depth ``near`` [m], and resolve the
         G-buffer through a lens of barrel ``distortion`` (:func:`resolve_gbuffer`),
         interpolating the vertex ``normals``, ``char`` and ``blood``. Two kernel
@@ -706,7 +720,16 @@ class GBuffer:
         if not near > 0.0:
             raise ValueError(f"near must be > 0, got {near}")
         matrix = np.asarray(view_projection, dtype=np.float32)
-        args = (positions, triangles, int(triangle_count), matrix, float(near), self.visibility)
+        args = (
+            positions,
+            triangles,
+            triangle_object,
+            one_sided,
+            int(triangle_count),
+            matrix,
+            float(near),
+            self.visibility,
+        )
         if self.by_pixel:
             capacity = 0 if self.box_pixels is None else self.box_pixels.capacity
             if capacity < triangle_count:  # grows by doubling: cutting adds triangles
@@ -778,15 +801,18 @@ def gather_object_triangles(
     triangle_count: ti.i32,
     target: ti.i32,
     out: ti.template(),
+    out_object: ti.template(),
     out_count: ti.template(),
 ):
     """The triangles (vertex ids, 3 each) of object ``target`` among the first
-    ``triangle_count`` into ``out``, their number into ``out_count[None]`` (in no fixed
-    order: only the pixels they cover are used)."""
+    ``triangle_count`` into ``out`` and ``target`` into ``out_object`` for each, their
+    number into ``out_count[None]`` (in no fixed order: only the pixels they cover are
+    used)."""
     out_count[None] = 0
     for t in range(triangle_count):
         if triangle_object[t] == target:
             slot = ti.atomic_add(out_count[None], 1)
+            out_object[slot] = target
             for c in ti.static(range(3)):
                 out[3 * slot + c] = triangles[3 * t + c]
 

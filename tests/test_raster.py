@@ -17,29 +17,41 @@ EYE = np.zeros(3)
 
 
 class Mesh:
-    """Positions [m], normals, char (zeros) and flat triangle ids in one SNode tree,
-    refilled per test."""
+    """Positions [m], normals, char (zeros), flat triangle ids, each triangle's object
+    and the objects' one-sided flags in one SNode tree, refilled per test."""
+
+    OBJECTS = 4
 
     def __init__(self):
         self.positions = ti.Vector.field(3, ti.f32)
         self.normals = ti.Vector.field(3, ti.f32)
         self.char = ti.field(ti.f32)
         self.triangles = ti.field(ti.i32)
+        self.triangle_object = ti.field(ti.i32)
+        self.one_sided = ti.field(ti.i32)
         builder = ti.FieldsBuilder()
         builder.dense(ti.i, VERTEX_CAPACITY).place(self.positions, self.normals, self.char)
         builder.dense(ti.i, 3 * TRIANGLE_CAPACITY).place(self.triangles)
+        builder.dense(ti.i, TRIANGLE_CAPACITY).place(self.triangle_object)
+        builder.dense(ti.i, self.OBJECTS).place(self.one_sided)
         self.tree = builder.finalize()
 
-    def load(self, vertices, faces, normals=None):
+    def load(self, vertices, faces, normals=None, objects=None, one_sided=()):
+        """Fill the mesh; ``objects``: each face's object (default 0), ``one_sided``:
+        the objects drawn one-sided (default none)."""
         vertices, faces = (
             np.asarray(vertices, np.float32),
             np.asarray(faces, np.int32).reshape(-1, 3),
         )
         normals = np.tile([0.0, 0.0, 1.0], (len(vertices), 1)) if normals is None else normals
+        objects = np.zeros(len(faces), np.int32) if objects is None else objects
+        sided = np.isin(np.arange(self.OBJECTS), one_sided).astype(np.int32)
         for field, values, rows in (
             (self.positions, vertices, VERTEX_CAPACITY),
             (self.normals, np.asarray(normals, np.float32), VERTEX_CAPACITY),
             (self.triangles, faces.reshape(-1), 3 * TRIANGLE_CAPACITY),
+            (self.triangle_object, np.asarray(objects, np.int32), TRIANGLE_CAPACITY),
+            (self.one_sided, sided, self.OBJECTS),
         ):
             padded = np.zeros((rows,) + values.shape[1:], values.dtype)
             padded[: len(values)] = values
@@ -74,6 +86,8 @@ def draw(target: GBuffer, count: int, near: float):
         mesh().char,
         mesh().char,  # no blood either
         mesh().triangles,
+        mesh().triangle_object,
+        mesh().one_sided,
         count,
         EYE,
         camera(near),
@@ -81,9 +95,12 @@ def draw(target: GBuffer, count: int, near: float):
     )
 
 
-def render(vertices, faces, *, normals=None, near=0.01, by_pixel=False) -> dict:
-    """G-buffer arrays of a mesh seen by the default camera."""
-    count = mesh().load(vertices, faces, normals)
+def render(
+    vertices, faces, *, normals=None, near=0.01, by_pixel=False, objects=None, one_sided=()
+) -> dict:
+    """G-buffer arrays of a mesh seen by the default camera (``objects`` and
+    ``one_sided`` as :meth:`Mesh.load` takes them)."""
+    count = mesh().load(vertices, faces, normals, objects, one_sided)
     target = gbuffer(by_pixel)
     draw(target, count, near)
     return {
@@ -138,6 +155,43 @@ def test_triangle_covers_exactly_the_pixel_centres_inside_it(name, by_pixel):
     covered = render(from_screen(corners), [0, 1, 2], by_pixel=by_pixel)["triangle"] == 0
     assert np.array_equal(covered, reference_coverage(corners))
     assert covered.sum() > 0 or name == "sliver"
+
+
+@pytest.mark.parametrize("by_pixel", [False, True])
+def test_back_faces_are_skipped_only_for_one_sided_objects(by_pixel):
+    """A triangle counter-clockwise on screen (facing the eye) is drawn either way; one
+    clockwise (its back seen) is drawn for a two-sided object, skipped for a
+    one-sided one; the flag is the triangle's object's."""
+    world = from_screen([(10.2, 8.1), (50.7, 12.3), (28.4, 40.9)])  # counter-clockwise
+    for faces, one_sided, drawn in (
+        ([0, 1, 2], (), True),
+        ([0, 1, 2], (0,), True),
+        ([0, 2, 1], (), True),
+        ([0, 2, 1], (0,), False),
+        ([0, 2, 1], (1,), True),
+    ):
+        covered = render(world, faces, by_pixel=by_pixel, one_sided=one_sided)["triangle"] == 0
+        assert covered.any() == drawn, (faces, one_sided)
+
+
+@pytest.mark.parametrize("by_pixel", [False, True])
+def test_one_sided_closed_surface_draws_the_same_image(by_pixel):
+    """Seen from outside, a closed surface facing out hides its back faces behind its
+    front ones: drawn one-sided it shows the same triangle at the same depth at every
+    pixel. Turned inside out, one-sided shows its far side's inside over the same
+    pixels (the near side is skipped), so the skipping acts."""
+    vertices, faces = icosphere()
+    vertices = vertices * 0.5 + [0.05, -0.02, -0.9]
+    both = render(vertices, faces, by_pixel=by_pixel)
+    one = render(vertices, faces, by_pixel=by_pixel, one_sided=(0,))
+    assert (both["triangle"] >= 0).sum() > 500
+    assert np.array_equal(one["triangle"], both["triangle"])
+    assert np.array_equal(one["depth"], both["depth"])
+    inside_out = render(vertices, faces[:, ::-1], by_pixel=by_pixel, one_sided=(0,))
+    covered = both["triangle"] >= 0
+    assert np.array_equal(inside_out["triangle"] >= 0, covered)
+    farther = inside_out["depth"][covered] - both["depth"][covered]
+    assert np.all(farther >= 0.0) and np.median(farther) > 0.3  # the sphere is 1 m across
 
 
 def fan_around(centre, outer):
@@ -408,7 +462,8 @@ def compute_gbuffer() -> dict:
     floor = np.array([(-1.0, -0.05, -1.5), (1.0, -0.05, -1.5), (0.0, -0.05, 1.0)])
     vertices = np.concatenate([sphere * 0.3 + [0.0, 0.1, -1.0], floor])
     faces = np.concatenate([sphere_faces, [[len(sphere), len(sphere) + 1, len(sphere) + 2]]])
-    target, count = GBuffer(WIDTH, HEIGHT), mesh().load(vertices, faces)
+    objects = np.repeat([0, 1], [len(sphere_faces), 1])  # the sphere one-sided, the floor not
+    target, count = GBuffer(WIDTH, HEIGHT), mesh().load(vertices, faces, None, objects, (0,))
     draw(target, count, 0.02)
     return {
         "triangle": target.triangle.to_numpy(),

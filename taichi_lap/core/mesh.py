@@ -179,6 +179,25 @@ def inconsistent_edges(triangles: np.ndarray) -> int:
     return int(len(directed) - len(np.unique(directed, axis=0)))
 
 
+def faces_out(points: np.ndarray, triangles: np.ndarray) -> bool:
+    """Whether ``triangles`` at ``points`` are closed surfaces facing out, so that
+    their back faces are never seen from outside them: after welding vertices at the
+    same point (a drawn mesh splits them where its normals do), every edge lies in
+    two triangles that run it in opposite directions, and each connected piece
+    encloses a positive volume. False for no triangles."""
+    points = np.asarray(points, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    if not len(triangles):
+        return False
+    welded = np.unique(points, axis=0, return_inverse=True)[1].reshape(-1)[triangles]
+    if edge_defects(welded) != (0, 0) or inconsistent_edges(welded):
+        return False
+    pieces = element_pieces(welded)
+    x = points[triangles]
+    volume = np.einsum("ij,ij->i", x[:, 0], np.cross(x[:, 1], x[:, 2]))
+    return bool(np.all(np.bincount(pieces, weights=volume) > 0.0))
+
+
 def degenerate_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(F,) bool: triangles with a repeated vertex or an area below
     :data:`DEGENERATE_AREA` of the squared diagonal of ``points``' bounding box."""

@@ -200,6 +200,8 @@ class Renderer:
             self.mesh.char,
             self.mesh.blood,
             self.mesh.triangles,
+            self.mesh.triangle_object,
+            self.mesh.one_sided,
             self.mesh.triangle_count,
             cam.eye,
             self._matrix,
@@ -311,12 +313,19 @@ class Renderer:
         if self._alone is None or self._alone[1].shape[0] < capacity:
             group = FieldGroup()
             triangles, count = group.field(ti.i32, capacity), group.field(ti.i32, None)
+            objects = group.field(ti.i32, self.mesh.triangle_count)
             group.finalize()
-            self._alone = (GBuffer(self.width, self.height), triangles, count, group)
-        alone, triangles, count, _ = self._alone
+            self._alone = (GBuffer(self.width, self.height), triangles, objects, count, group)
+        alone, triangles, objects, count, _ = self._alone
         mesh = self.mesh
         gather_object_triangles(
-            mesh.triangles, mesh.triangle_object, mesh.triangle_count, target, triangles, count
+            mesh.triangles,
+            mesh.triangle_object,
+            mesh.triangle_count,
+            target,
+            triangles,
+            objects,
+            count,
         )
         cam = self.camera
         alone.render(
@@ -325,6 +334,8 @@ class Renderer:
             mesh.char,
             mesh.blood,
             triangles,
+            objects,
+            mesh.one_sided,
             int(count[None]),
             cam.eye,
             self._matrix,

@@ -22,7 +22,7 @@ import taichi as ti
 import trimesh
 
 from taichi_lap.core.fields import FieldGroup
-from taichi_lap.core.mesh import incident_table
+from taichi_lap.core.mesh import faces_out, incident_table
 from taichi_lap.kernels.draw_mesh import (
     copy_surface,
     copy_surface_triangles,
@@ -33,6 +33,7 @@ from taichi_lap.kernels.draw_mesh import (
 )
 from taichi_lap.kernels.membrane import membrane_vertices
 from taichi_lap.kernels.normals import vertex_normals
+from taichi_lap.preprocess.organs import CUT_SURFACES
 from taichi_lap.preprocess.sheets import shell_triangles, shell_vertex_count
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.subsurface import TintGrid, vessel_tint_grid
@@ -129,6 +130,36 @@ def environment_arrays(scene) -> dict:
     }
 
 
+def one_sided_objects(data, tool_count: int, tools: dict, environment: dict) -> np.ndarray:
+    """Per object of a session's drawn mesh (the organs of the model ``data``, the
+    ``tool_count`` tools of :func:`~taichi_lap.render.instruments.instrument_arrays`, the objects of
+    :func:`environment_arrays`), 1 where its back faces are never seen, so that the
+    rasterizer skips them (half the pixels a closed surface covers are its back), 0
+    where it is seen from both sides (a sheet, the cavity seen from within). One-sided:
+    an organ drawn as tubes with their membrane (closed and facing out by
+    construction), and every organ, tool and environment object whose triangles
+    :func:`~taichi_lap.core.mesh.faces_out` as built, but an organ whose surface a cut
+    opens (:data:`~taichi_lap.preprocess.organs.CUT_SURFACES` with a reserve: a cut
+    vessel shows its inside; a volume cut closes its wound)."""
+    rest = (data.surface_weight[..., None] * data.rest_position[data.surface_index]).sum(axis=1)
+    triangles = np.asarray(data.surface_triangles).reshape(-1, 3)
+    flags = []
+    for organ in data.organs:
+        if organ.row_length:
+            flags.append(True)
+        elif organ.reserve and organ.model in CUT_SURFACES:
+            flags.append(False)
+        else:
+            flags.append(faces_out(rest, triangles[slice(*organ.triangles)]))
+    owner = tools["tool"][tools["triangles"][:, 0]]
+    for tool in range(tool_count):
+        flags.append(faces_out(tools["position"], tools["triangles"][owner == tool]))
+    owner = environment["piece_object"][environment["piece"]]
+    for k in range(len(environment["names"])):
+        flags.append(faces_out(environment["position"], environment["triangles"][owner == k]))
+    return np.array(flags, np.int32)
+
+
 @ti.data_oriented
 class ArrayMesh:
     """A triangle mesh for the renderer. Fields: ``positions``, ``normals`` (vec3
@@ -138,7 +169,8 @@ class ArrayMesh:
     its owner writes it), ``blood`` (per vertex, the thickness of the blood film on it
     [m]; zeros unless a :class:`~taichi_lap.render.blood.BloodFilm` writes it),
     ``triangles`` (flat, 3 per triangle), ``triangle_material`` and ``triangle_object``
-    (per triangle), the material table ``albedo`` and the
+    (per triangle), ``one_sided`` (per object: 1 where its back faces are not drawn,
+    a closed surface facing out, default none), the material table ``albedo`` and the
     :data:`~taichi_lap.scene.materials.SCALARS`, and the vessels' ``tint`` grid
     (``tint_shape``, ``tint_origin``, ``tint_cell``: a
     :class:`~taichi_lap.render.subsurface.TintGrid`, empty by default). Normals
@@ -159,6 +191,7 @@ class ArrayMesh:
         vertex_count: int,
         smooth_count: int,
         triangle_object: np.ndarray | None = None,
+        one_sided: np.ndarray | None = None,
         positions: np.ndarray | None = None,
         texcoords: np.ndarray | None = None,
         incident=None,
@@ -178,11 +211,11 @@ class ArrayMesh:
         self.blood = group.field(ti.f32, vertex_count)
         self.triangles = group.field(ti.i32, 3 * self.triangle_count, values=triangles.reshape(-1))
         self.triangle_material = group.field(ti.i32, self.triangle_count, values=triangle_material)
-        self.triangle_object = group.field(
-            ti.i32,
-            self.triangle_count,
-            values=(triangle_material if triangle_object is None else triangle_object),
-        )
+        triangle_object = triangle_material if triangle_object is None else triangle_object
+        self.triangle_object = group.field(ti.i32, self.triangle_count, values=triangle_object)
+        objects = int(np.max(triangle_object, initial=-1)) + 1
+        one_sided = np.zeros(objects, np.int32) if one_sided is None else one_sided
+        self.one_sided = group.field(ti.i32, max(objects, len(one_sided)), values=one_sided)
         if incident is None:
             smooth = np.flatnonzero(np.all(triangles < smooth_count, axis=1))
             rows = incident_table(triangles[smooth], smooth_count)
@@ -204,11 +237,13 @@ class ArrayMesh:
 
     @classmethod
     def of_material(cls, triangles, positions, material: Material, texcoords=None) -> "ArrayMesh":
-        """A mesh of one ``material``, every vertex smooth, one object."""
+        """A mesh of one ``material``, every vertex smooth, one object, drawn one-sided
+        when it is a closed surface facing out at ``positions`` (:func:`faces_out`)."""
         return cls(
             triangles,
             np.zeros(len(triangles), np.int32),
             [material],
+            one_sided=[int(faces_out(positions, triangles))],
             vertex_count=len(positions),
             smooth_count=len(positions),
             positions=positions,
@@ -337,6 +372,7 @@ class SceneMesh(ArrayMesh):
                     environment_object,
                 ]
             ),
+            one_sided=one_sided_objects(data, len(scene.tools), tools, environment),
             vertex_count=base + len(environment["position"]),
             smooth_count=self.surface_count,
             incident=model.surface_incident,
