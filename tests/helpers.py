@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from taichi_lap.perf.bench_contact import BOX as BOX  # the test block: one definition
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
@@ -68,3 +70,19 @@ def run_script(session: Session, script: list[dict], frames: int) -> list[dict]:
         session.step(device.poses(time), device.buttons(time))
         events += session.events
     return events
+
+
+def assert_incident_rows_packed(session: Session):
+    """The model's incident rows (what the drawn normals gather) hold each live surface
+    vertex's live triangles, then -1 only: the normals stop at a row's first -1, so a
+    triangle left after a hole would be dropped."""
+    topology = session._dissection.topology
+    used = topology.vertices.used
+    incident = session.model.surface_incident.to_numpy()[:used]
+    live, corners = topology.triangles["alive"], topology.triangles["vertices"]
+    for vertex in np.flatnonzero(topology.vertices["alive"][:used]):
+        row = incident[vertex]
+        count = int((row >= 0).sum())
+        assert (row[count:] == -1).all(), row
+        expected = np.flatnonzero(live & (corners == vertex).any(axis=1))
+        assert sorted(row[:count].tolist()) == expected.tolist()

@@ -22,7 +22,7 @@ from taichi_lap.render.renderer import Renderer
 from taichi_lap.session import Session, release_parked, session_key
 from taichi_lap.sim import model as model_module
 from tests.blocks import block_scene_file
-from tests.helpers import BOX, simulation
+from tests.helpers import BOX, assert_incident_rows_packed, simulation
 
 SHIFT = 0.005  # [m] the left half is moved this far along z
 
@@ -150,6 +150,7 @@ def test_the_drawn_wound_follows_the_body_and_stays_closed_and_outward():
     assert np.abs(skinned[alive] - expected[alive]).max() < 2e-5
     view.surface_position = skinned
     assert check_topology(view) == []
+    assert_incident_rows_packed(session)
 
 
 def test_a_reset_puts_the_removed_tissue_back():

@@ -17,7 +17,7 @@ from taichi_lap.scene import Scene, from_tables
 from taichi_lap.session import Session
 from taichi_lap.sim.model import LISTS
 from tests.archrun import assert_backend_matches_cpu
-from tests.helpers import instrument, run_script
+from tests.helpers import assert_incident_rows_packed, instrument, run_script
 from tests.test_lra import fascia
 
 # the LRA tests' sheet (10 x 6 cm, 16 x 10 cells, anchored along its edge at x = -0.05:
@@ -168,6 +168,10 @@ def test_a_relist_writes_only_the_lists_that_changed(cut_sheet):
     owner, other, rest = model_lists(model, "distance", "distance_other", "distance_rest")
     longer = (owner == pair[0]) & (other == pair[1])
     assert np.isclose(rest[longer], 1.5 * now["rest"][mine][0], rtol=1e-6).all()
+
+
+def test_each_surface_vertex_lists_its_live_triangles_first_for_the_normals(cut_sheet):
+    assert_incident_rows_packed(cut_sheet[0])
 
 
 def test_new_vertices_take_reserve_rows_where_their_parents_were(cut_sheet):

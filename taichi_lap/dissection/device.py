@@ -468,12 +468,19 @@ class DeviceTopology:
         )
 
     def _unlist(self, triangles: np.ndarray, vertices: np.ndarray):
-        """Take each triangle out of its vertex's incident row."""
+        """Take each triangle out of its vertex's incident row; the triangles left keep
+        their order, first in the row (the normals stop at a row's first -1)."""
         hit_row, hit_column = np.nonzero(self.incident[vertices] == triangles[:, None])
         self.incident[vertices[hit_row], hit_column] = -1
+        rows = np.unique(vertices)
+        left = self.incident[rows]
+        self.incident[rows] = np.take_along_axis(
+            left, np.argsort(left < 0, axis=1, kind="stable"), axis=1
+        )
 
     def _list(self, triangles: np.ndarray, vertices: np.ndarray):
-        """Put each triangle into a free column of its vertex's incident row."""
+        """Put each triangle into a free column of its vertex's incident row, the first
+        free ones (after the triangles it holds)."""
         order = np.lexsort((triangles, vertices))
         triangles, vertices = triangles[order], vertices[order]
         distinct, first, counts = np.unique(vertices, return_index=True, return_counts=True)
