@@ -86,6 +86,8 @@ def film_shares(
     for v in range(count):
         edges, length, steepest, total = 0, 0.0, 0.0, 0.0
         for k in range(incident.shape[1]):
+            if incident[v, k] < 0:  # a row's triangles come first
+                break
             for c in ti.static(range(3)):
                 n = _edge_end(triangles, incident, v, k, c)
                 if n >= 0:
@@ -117,6 +119,8 @@ def drain(
     for v in range(count):
         sent, taken = 0.0, 0.0
         for k in range(incident.shape[1]):
+            if incident[v, k] < 0:
+                break
             for c in ti.static(range(3)):
                 n = _edge_end(triangles, incident, v, k, c)
                 if n >= 0:
