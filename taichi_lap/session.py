@@ -30,6 +30,7 @@ from taichi_lap.dissection.cautery import Cautery
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import FRAGMENT_PARTICLES, MutableTopology
 from taichi_lap.dissection.sheet_cut import SheetCutter
+from taichi_lap.dissection.spring_tear import SpringTearing
 from taichi_lap.dissection.surface_cut import Sweep
 from taichi_lap.dissection.volume_cut import VolumeCutter, scissor_blade
 from taichi_lap.kernels.skinning import skin_surface, skin_surface_rows
@@ -180,6 +181,7 @@ class Session:
         self._cautery = None  # a Cautery once a hook was energised
         self._cutter = None  # a SheetCutter once a tool cut
         self._volume_cutter = None  # a VolumeCutter once scissors closed
+        self._spring_tearing = None  # a SpringTearing once a spring sheet could tear
         self._loose: list[tuple[int, np.ndarray]] = []  # pieces cut free: (organ, particles)
         self.camera = EndoscopeCamera.from_scene(scene.camera)  # a window sets its own
         self._cut_poses: dict[int, tuple] = {}  # each cutting tool's tip and frame
@@ -410,28 +412,42 @@ class Session:
             self._loose = self._volume_cutter.loose_pieces()
 
     def _tear(self):
-        """Tearing (:meth:`SheetCutter.tear`) of the sheets with a ``tear_strain``,
-        after the physics stretched them; event ``tear`` with the organ and the
-        triangles made."""
-        if not any(organ.material.get("tear_strain", 0.0) > 0.0 for organ in self.scene.organs):
+        """Tearing of the tissue with a ``tear_strain``, after the physics stretched it:
+        the sheets (:meth:`SheetCutter.tear`; event ``tear`` with the organ and the
+        triangles made) and the spring sheets, the mesentery
+        (:meth:`SpringTearing.tear`; event ``tear`` with the organ and ``springs``: 1)."""
+        models = {o.model for o in self.scene.organs if o.material.get("tear_strain", 0.0) > 0.0}
+        if not models:
             return
         start = time.perf_counter()
-        cutter = self._sheet_cutter()
-        torn = cutter.tear(*self._motion(), self.state)
-        for organ, change in torn:
-            self._follow(change)
-            self.events.append(
-                {"kind": "tear", "organ": organ, "triangles": len(change.new_triangles)}
-            )
-        self._separated(cutter)
+        x, v = self._motion()
+        torn = []
+        if models - {"mass_spring"}:
+            cutter = self._sheet_cutter()
+            torn = cutter.tear(x, v, self.state)
+            for organ, change in torn:
+                self._follow(change)
+                self.events.append(
+                    {"kind": "tear", "organ": organ, "triangles": len(change.new_triangles)}
+                )
+            self._separated(cutter)
+        if "mass_spring" in models:
+            if self._spring_tearing is None:
+                materials = [organ.material for organ in self.scene.organs]
+                self._spring_tearing = SpringTearing(self.model, materials)
+            broken = self._spring_tearing.tear(x)
+            torn += broken
+            for organ, _ in broken:
+                self.events.append({"kind": "tear", "organ": organ, "springs": 1})
+            self._separated(self._spring_tearing)
         if torn:
             spent = (time.perf_counter() - start) * 1e3
             self.timings["topology"] = self.timings.get("topology", 0.0) + spent
 
-    def _separated(self, cutter: SheetCutter, tool: str | None = None):
+    def _separated(self, cutter: SheetCutter | SpringTearing, tool: str | None = None):
         """Event ``separated`` (with the organ, its connected pieces now and the
-        ``tool`` that cut, none for a tear) for each sheet or truss the cutter's last
-        cut or tear parted (:attr:`SheetCutter.separations`)."""
+        ``tool`` that cut, none for a tear) for each sheet, truss or spring sheet the
+        cutter's last cut or tear parted (its ``separations``)."""
         for organ, pieces in cutter.separations:
             event = {"kind": "separated", "organ": organ, "pieces": pieces}
             self.events.append(event if tool is None else dict(event, tool=tool))
@@ -571,7 +587,7 @@ class Session:
         """Put the model back as built if tissue was removed or cut (through this
         session, or through a DeviceTopology of its own on the model:
         :attr:`~taichi_lap.sim.model.Model.as_built` tells either)."""
-        self._cutter = self._volume_cutter = None
+        self._cutter = self._volume_cutter = self._spring_tearing = None
         self._loose = []
         self._dissection = None
         if not self.model.as_built:

@@ -120,6 +120,32 @@ def sheet_springs(
     return Springs(pairs=pairs, rest=rest, stiffness=stiffness)
 
 
+def spring_pieces(pairs: np.ndarray, first: int, end: int) -> int:
+    """How many connected pieces springs ``pairs`` (S, 2) make of the particles
+    ``first..end`` (a particle no spring holds is a piece of its own)."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2) - first
+    count = end - first
+    graph = csr_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
+    return int(connected_components(graph, directed=False)[0])
+
+
+def torn_cells(pairs: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """(rows - 1, cols - 1) bool: the cells of a (rows, cols) grid of masses (particle
+    r cols + c) that the springs ``pairs`` (S, 2), broken, lay in or bordered: a
+    diagonal's cell, the one or two cells beside a spring along a row or across rows
+    (:func:`sheet_springs`); a spring skipping a mass marks the cells it spans."""
+    torn = np.zeros((max(rows - 1, 0), max(cols - 1, 0)), dtype=bool)
+    for i, j in np.asarray(pairs, np.int64).reshape(-1, 2).tolist():
+        (r0, c0), (r1, c1) = divmod(i, cols), divmod(j, cols)
+        low_r, high_r, low_c, high_c = min(r0, r1), max(r0, r1), min(c0, c1), max(c0, c1)
+        if high_r == low_r:  # along a row: the cells above and below it
+            low_r, high_r = low_r - 1, low_r + 1
+        if high_c == low_c:  # across rows: the cells on either side
+            low_c, high_c = low_c - 1, low_c + 1
+        torn[max(low_r, 0) : high_r, max(low_c, 0) : high_c] = True
+    return torn
+
+
 def sheet_triangles(rows: int, cols: int) -> np.ndarray:
     """Two triangles per quad of a (rows, cols) grid of points (the mesentery surface)."""
     index = np.arange(rows * cols).reshape(rows, cols)
@@ -131,6 +157,18 @@ def sheet_triangles(rows: int, cols: int) -> np.ndarray:
 def shell_vertex_count(rows: int, cols: int) -> int:
     """Vertices of the :func:`shell_triangles` of a (rows, cols) grid."""
     return 2 * rows * cols + 4 * (rows - 1) + 4 * (cols - 1)
+
+
+def shell_cells(rows: int, cols: int, across: int, along: int) -> np.ndarray:
+    """For each triangle of :func:`shell_triangles` of a (rows, cols) fine grid that
+    samples a coarse grid ``across`` times between its rows and ``along`` times between
+    its columns: the coarse cell it lies in (row-major), -1 for the rim's."""
+    coarse_cols = (cols - 1) // along
+    i, j = np.divmod(np.arange((rows - 1) * (cols - 1)), cols - 1)  # fine quads
+    cell = (i // across) * coarse_cols + j // along
+    face = np.concatenate([cell, cell])  # sheet_triangles: two per quad, in two runs
+    rim = np.full(4 * ((rows - 1) + (cols - 1)), -1)
+    return np.concatenate([face, face, rim])
 
 
 def shell_triangles(rows: int, cols: int) -> np.ndarray:

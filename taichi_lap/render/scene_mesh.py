@@ -33,8 +33,14 @@ from taichi_lap.kernels.draw_mesh import (
 )
 from taichi_lap.kernels.membrane import membrane_vertices
 from taichi_lap.kernels.normals import vertex_normals
+from taichi_lap.kernels.scatter import RowWrites
 from taichi_lap.preprocess.organs import CUT_SURFACES
-from taichi_lap.preprocess.sheets import shell_triangles, shell_vertex_count
+from taichi_lap.preprocess.sheets import (
+    shell_cells,
+    shell_triangles,
+    shell_vertex_count,
+    torn_cells,
+)
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.subsurface import TintGrid, vessel_tint_grid
 from taichi_lap.render.tubes import TubeMesh
@@ -329,6 +335,9 @@ class SceneMesh(ArrayMesh):
             or [np.zeros(0, np.int32)]
         )
         self.membranes = []  # per sheet: (first surface vertex, rows, columns, vertex offset)
+        # per sheet: (organ, rows, columns, first triangle, its shell's triangles, their cells)
+        self._membrane_cells = []
+        self._torn_drawn = 0  # the broken springs the membranes leave out cells for
         membrane_triangles, membrane_material = [], []
         for index, organ in tubes:
             cols = organ.row_length
@@ -337,6 +346,17 @@ class SceneMesh(ArrayMesh):
             self.membranes.append((organ.surface_vertices[0], rows, cols, base))
             membrane_triangles.append(shell_triangles(*fine) + base)
             membrane_material.append(np.full(len(membrane_triangles[-1]), index, np.int32))
+            self._membrane_cells.append(
+                (
+                    index,
+                    rows,
+                    cols,
+                    first_triangle,
+                    membrane_triangles[-1],
+                    shell_cells(*fine, MEMBRANE_ACROSS, MEMBRANE_ALONG),
+                )
+            )
+            first_triangle += len(membrane_triangles[-1])
             base += shell_vertex_count(*fine)
         membrane_triangles = np.concatenate(membrane_triangles or [np.zeros((0, 3), np.int32)])
         membrane_material = np.concatenate(membrane_material or [np.zeros(0, np.int32)])
@@ -459,7 +479,27 @@ class SceneMesh(ArrayMesh):
         )
         surface_texcoords(self.model, self.texcoord)
         self._draw_membranes(self.texcoord, self.texcoord)  # through the rest positions
+        self._leave_out_torn_cells()
         self._version = self.model.topology_version
+
+    def _leave_out_torn_cells(self):
+        """Each membrane without the cells of its sheet that broken springs lay in or
+        bordered (:func:`~taichi_lap.preprocess.sheets.torn_cells`; a torn mesentery,
+        :mod:`~taichi_lap.dissection.spring_tear`): their triangles, front and back,
+        made degenerate; all drawn again once the springs are mended."""
+        broken = np.flatnonzero(self.model.broken_springs)
+        if len(broken) == self._torn_drawn:
+            return
+        pairs = np.asarray(self.model.data.spring_pair, np.int64).reshape(-1, 2)[broken]
+        writes = RowWrites()
+        for organ, rows, cols, start, triangles, cells in self._membrane_cells:
+            first, end = self.model.data.organs[organ].particles
+            inside = pairs[((pairs >= first) & (pairs < end)).all(axis=1)] - first
+            torn = np.append(torn_cells(inside, rows, cols).ravel(), False)[cells]
+            drawn = np.where(torn[:, None], triangles[:, :1], triangles)
+            writes.add(3 * start + np.arange(drawn.size), {self.triangles: drawn.ravel()})
+        writes.flush()
+        self._torn_drawn = len(broken)
 
     def _draw_membranes(self, points, positions):
         """Each membrane through its sheet's rows of ``points`` (per surface vertex) into

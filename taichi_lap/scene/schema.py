@@ -371,6 +371,14 @@ MATERIAL_PARAMS = {
         "spring_damping": Param(
             "float", 0.05, "damping of every spring", lo=0.0, hi=1e4, unit="N s/m"
         ),
+        "tear_strain": Param(
+            "float",
+            0.0,
+            "the mesentery tears: its spring stretched most beyond this fraction of its rest"
+            " length breaks, one a frame (Müller et al. 2007); 0: it never tears",
+            lo=0.0,
+            hi=10.0,
+        ),
     },
 }
 ATTACHMENT_PARAMS = {

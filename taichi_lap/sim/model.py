@@ -646,6 +646,7 @@ class Model(FieldOwner):
         """Put back every field dissection changes as it was built (off the frame's
         path: whole fields are written; rows a :meth:`grow` added stay, spare)."""
         self._write_whole(self._as_built(self.data))
+        self._mend_springs()
         self.finalize_counts()
         self.topology_version += 1
         self.as_built = True
@@ -656,14 +657,40 @@ class Model(FieldOwner):
         self.chunk_count[None] = self.chunk_total
 
     def _init_springs(self, data: ModelData, n: int):
-        """Damped springs gathered per particle (seed 001 §3.2)."""
+        """Damped springs gathered per particle (seed 001 §3.2); ``broken_springs``
+        (host, per row of ``data.spring_pair``) marks those a tear broke."""
         start, edge, other = both_ends(data.spring_pair, n)
         self.spring_count = len(data.spring_pair)
+        self._spring_edge = edge  # the spring of each gathered entry
+        self.broken_springs = np.zeros(len(data.spring_pair), dtype=bool)
         self.spring_start = self._ints(start)
         self.spring_other = self._ints(other)
         self.spring_rest = self._floats(data.spring_rest[edge])
         self.spring_stiffness = self._floats(data.spring_stiffness[edge])
         self.spring_damping = self._floats(data.spring_damping[edge])
+
+    def break_springs(self, springs: np.ndarray):
+        """Springs ``springs`` (rows of ``data.spring_pair``) break (a torn mesentery,
+        :mod:`taichi_lap.dissection.spring_tear`): their stiffness and damping become 0
+        at both ends, so they pull no more."""
+        springs = np.asarray(springs, dtype=np.int64)
+        for entry in np.flatnonzero(np.isin(self._spring_edge, springs)).tolist():
+            self.spring_stiffness[entry] = 0.0
+            self.spring_damping[entry] = 0.0
+        self.broken_springs[springs] = True
+        self.topology_version += 1
+        self.as_built = False
+
+    def _mend_springs(self):
+        """Every spring as built (:meth:`reset_topology`)."""
+        if self.broken_springs.any():
+            edge, data = self._spring_edge, self.data
+            for field, values in (
+                (self.spring_stiffness, data.spring_stiffness),
+                (self.spring_damping, data.spring_damping),
+            ):
+                field.from_numpy(padded_rows(values[edge].astype(np.float32), field.shape[0]))
+            self.broken_springs[:] = False
 
     def _init_tubes(self, data: ModelData):
         """Tubes drawn around a row of masses (row 0 of a spring sheet, seed 001): the

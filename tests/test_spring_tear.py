@@ -1,0 +1,145 @@
+"""Tearing of the mesentery (taichi_lap.dissection.spring_tear): a spring stretched
+beyond the tear strain breaks, one a frame, the intestine's own springs never; a
+broken spring pulls no more, the drawn membrane leaves out the cells it crossed, and a
+reset mends it all."""
+
+import numpy as np
+import pytest
+
+from taichi_lap import scene as scene_mod
+from taichi_lap.preprocess.sheets import (
+    shell_cells,
+    shell_triangles,
+    spring_pieces,
+    torn_cells,
+)
+from taichi_lap.render.scene_mesh import MEMBRANE_ACROSS, MEMBRANE_ALONG, SceneMesh
+from taichi_lap.session import Session
+from tests.archrun import assert_backend_matches_cpu
+
+TEAR_STRAIN = 0.05
+"""Low enough that the mesentery of a short intestine tears as it sags."""
+
+
+def test_torn_cells_are_those_a_broken_spring_lay_in_or_bordered():
+    rows, cols = 4, 5  # particle r * 5 + c
+    expected = {
+        (5, 6): [(0, 0), (1, 0)],  # along row 1: the cells above and below
+        (1, 6): [(0, 0), (0, 1)],  # across rows 0-1 at column 1: either side
+        (0, 6): [(0, 0)],  # a diagonal: its cell
+        (18, 19): [(2, 3)],  # along the last row: the cell above only
+    }
+    for pair, cells in expected.items():
+        torn = torn_cells([pair], rows, cols)
+        assert sorted(zip(*np.nonzero(torn))) == cells, pair
+
+
+def test_each_shell_triangle_lies_in_its_cell():
+    """The front and back triangles of the membrane's shell lie in the coarse cell
+    :func:`shell_cells` gives them; the rim's have none."""
+    rows, cols = 3, 4  # coarse
+    fine = ((rows - 1) * MEMBRANE_ACROSS + 1, (cols - 1) * MEMBRANE_ALONG + 1)
+    triangles, cells = shell_triangles(*fine), shell_cells(*fine, MEMBRANE_ACROSS, MEMBRANE_ALONG)
+    assert len(cells) == len(triangles)
+    count = fine[0] * fine[1]
+    faces = np.flatnonzero(cells >= 0)
+    assert len(faces) == len(triangles) - 4 * ((fine[0] - 1) + (fine[1] - 1))
+    grid = triangles[faces] % count  # the back's vertices mirror the front's
+    i, j = np.divmod(grid, fine[1])
+    centre_row = i.mean(axis=1) / MEMBRANE_ACROSS
+    centre_col = j.mean(axis=1) / MEMBRANE_ALONG
+    assert np.array_equal(np.floor(centre_row) * (cols - 1) + np.floor(centre_col), cells[faces])
+
+
+def sagging(frames: int) -> tuple[Session, list[list[dict]]]:
+    """A short intestine (20 masses a row) whose mesentery tears at
+    :data:`TEAR_STRAIN`, after ``frames`` frames sagging from its rest shape, and the
+    events of each frame."""
+    scene = scene_mod.load(
+        "intestine",
+        {
+            "scene.detail": 0.05,
+            "organs.intestine.geometry.points_per_row": 20,
+            "organs.intestine.material.tear_strain": TEAR_STRAIN,
+        },
+    )
+    session = Session(scene, progress=False)
+    events = []
+    for _ in range(frames):
+        session.step()
+        events.append(list(session.events))
+    return session, events
+
+
+@pytest.fixture(scope="module")
+def torn():
+    session, events = sagging(100)
+    yield session, events
+    session.close()
+
+
+def early_tears() -> dict[str, np.ndarray]:
+    """The springs broken in the first 40 frames of :func:`sagging`, and where the
+    masses are."""
+    session, _ = sagging(40)
+    out = {
+        "broken": np.flatnonzero(session.model.broken_springs),
+        "x": session.state.x.to_numpy(),
+    }
+    session.close()
+    return out
+
+
+@pytest.mark.vulkan
+def test_tears_on_vulkan_match_cpu():
+    """The same springs break, the masses within 1 mm."""
+    cpu = assert_backend_matches_cpu(
+        "tests.test_spring_tear:early_tears", 1e-3, per_key={"broken": 0}
+    )
+    assert len(cpu["broken"]) > 5
+
+
+def test_a_sagging_mesentery_tears_spring_by_spring_and_the_intestine_stays_whole(torn):
+    session, events = torn
+    model, data = session.model, session.data
+    tears = [[e for e in frame if e["kind"] == "tear"] for frame in events]
+    assert all(len(frame) <= 1 for frame in tears)  # one spring a frame
+    assert sum(map(len, tears)) == model.broken_springs.sum() > 10
+    assert all(e == {"kind": "tear", "organ": "intestine", "springs": 1} for f in tears for e in f)
+    pairs = np.asarray(data.spring_pair)
+    organ = data.organs[0]
+    first, end = organ.particles
+    intestine = (pairs < first + organ.row_length).all(axis=1)
+    assert not model.broken_springs[intestine].any()  # the bowel's own springs hold
+    broken = np.flatnonzero(model.broken_springs)
+    entries = np.isin(model._spring_edge, broken)
+    assert entries.sum() == 2 * len(broken)  # both ends of each
+    assert (model.spring_stiffness.to_numpy()[: len(entries)][entries] == 0.0).all()
+    assert (model.spring_damping.to_numpy()[: len(entries)][entries] == 0.0).all()
+    held = ~entries & (data.spring_stiffness[model._spring_edge] > 0.0)
+    assert (model.spring_stiffness.to_numpy()[: len(entries)][held] > 0.0).all()
+    separated = [e for frame in events for e in frame if e["kind"] == "separated"]
+    pieces = spring_pieces(pairs[~model.broken_springs], first, end)
+    assert (separated[-1]["pieces"] if separated else 1) == pieces
+
+
+def test_the_membrane_leaves_out_the_torn_cells_until_a_reset_mends_the_springs(torn):
+    session, _ = torn
+    model, data = session.model, session.data
+    organ = data.organs[0]
+    mesh = SceneMesh(session.scene, model)
+    mesh.update(session.state, session.control)
+    _, rows, cols, start, shell, cells = mesh._membrane_cells[0]
+    pairs = np.asarray(data.spring_pair)[model.broken_springs] - organ.particles[0]
+    torn_cell = np.append(torn_cells(pairs, rows, cols).ravel(), False)[cells]
+    assert torn_cell.any() and not torn_cell.all()
+    drawn = mesh.triangles.to_numpy().reshape(-1, 3)[start : start + len(shell)]
+    assert (drawn[torn_cell] == drawn[torn_cell][:, :1]).all()  # degenerate: not drawn
+    assert np.array_equal(drawn[~torn_cell], shell[~torn_cell])
+    session.reset()
+    assert not model.broken_springs.any()
+    built = data.spring_stiffness[model._spring_edge]
+    assert np.array_equal(model.spring_stiffness.to_numpy()[: len(built)], built.astype(np.float32))
+    mesh.update(session.state, session.control)
+    drawn = mesh.triangles.to_numpy().reshape(-1, 3)[start : start + len(shell)]
+    assert np.array_equal(drawn, shell)
