@@ -337,7 +337,7 @@ class SceneMesh(ArrayMesh):
         self.membranes = []  # per sheet: (first surface vertex, rows, columns, vertex offset)
         # per sheet: (organ, rows, columns, first triangle, its shell's triangles, their cells)
         self._membrane_cells = []
-        self._torn_drawn = 0  # the broken springs the membranes leave out cells for
+        self._torn_drawn = np.zeros(0, np.int64)  # the broken springs the membranes show
         membrane_triangles, membrane_material = [], []
         for index, organ in tubes:
             cols = organ.row_length
@@ -488,7 +488,7 @@ class SceneMesh(ArrayMesh):
         :mod:`~taichi_lap.dissection.spring_tear`): their triangles, front and back,
         made degenerate; all drawn again once the springs are mended."""
         broken = np.flatnonzero(self.model.broken_springs)
-        if len(broken) == self._torn_drawn:
+        if np.array_equal(broken, self._torn_drawn):
             return
         pairs = np.asarray(self.model.data.spring_pair, np.int64).reshape(-1, 2)[broken]
         writes = RowWrites()
@@ -499,7 +499,7 @@ class SceneMesh(ArrayMesh):
             drawn = np.where(torn[:, None], triangles[:, :1], triangles)
             writes.add(3 * start + np.arange(drawn.size), {self.triangles: drawn.ravel()})
         writes.flush()
-        self._torn_drawn = len(broken)
+        self._torn_drawn = broken
 
     def _draw_membranes(self, points, positions):
         """Each membrane through its sheet's rows of ``points`` (per surface vertex) into
