@@ -439,6 +439,8 @@ class Session:
             torn += broken
             for organ, _ in broken:
                 self.events.append({"kind": "tear", "organ": organ, "springs": 1})
+            if broken and self.solver.self_collision is not None:
+                self.solver.self_collision.follow_tears()
             self._separated(self._spring_tearing)
         if torn:
             spent = (time.perf_counter() - start) * 1e3

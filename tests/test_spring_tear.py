@@ -123,6 +123,31 @@ def test_a_sagging_mesentery_tears_spring_by_spring_and_the_intestine_stays_whol
     assert (separated[-1]["pieces"] if separated else 1) == pieces
 
 
+def test_the_torn_cells_triangles_collide_no_more(torn):
+    """The intestine's self-collision takes the mesentery's triangles in torn cells
+    out: not live, and in no active pair or contact after the next detection."""
+    session, _ = torn
+    model, data = session.model, session.data
+    collision = session.solver.self_collision
+    organ = data.organs[0]
+    first = organ.particles[0]
+    rows = (organ.particles[1] - first) // organ.row_length
+    pairs = np.asarray(data.spring_pair)[model.broken_springs] - first
+    torn_cell = torn_cells(pairs, rows, organ.row_length).ravel()
+    corners = data.surface_index[data.surface_triangles[slice(*organ.triangles)], 0] - first
+    cell = (corners // organ.row_length).min(axis=1) * (organ.row_length - 1) + (
+        corners % organ.row_length
+    ).min(axis=1)
+    live = collision.element_live.to_numpy()
+    assert (live[: collision.segment_count] == 1).all()
+    assert np.array_equal(live[collision.segment_count :] == 0, torn_cell[cell])
+    assert torn_cell[cell].any()
+    collision.detect(session.state)
+    dead = np.flatnonzero(live == 0)
+    for pairs, _ in (collision.active_pairs(), collision.contacts()):
+        assert not np.isin(pairs, dead).any()
+
+
 def test_the_membrane_leaves_out_the_torn_cells_until_a_reset_mends_the_springs(torn):
     session, _ = torn
     model, data = session.model, session.data
@@ -143,3 +168,4 @@ def test_the_membrane_leaves_out_the_torn_cells_until_a_reset_mends_the_springs(
     mesh.update(session.state, session.control)
     drawn = mesh.triangles.to_numpy().reshape(-1, 3)[start : start + len(shell)]
     assert np.array_equal(drawn, shell)
+    assert (session.solver.self_collision.element_live.to_numpy() == 1).all()

@@ -82,11 +82,12 @@ def gap(cd: ti.template(), x: ti.template(), a, b):
 
 @ti.func
 def is_pair(cd: ti.template(), a, b):
-    """True when segment ``a`` and element ``b > a`` exist and are not neighbours."""
+    """True when segment ``a`` and element ``b > a`` exist, are not neighbours and
+    ``b`` is live (not in a torn cell of the mesentery)."""
     ok = False
     if 0 <= a < cd.segment_count and a < b < cd.element_count:
-        ok = True
-        if cd.element_organ[a] == cd.element_organ[b]:
+        ok = cd.element_live[b] != 0
+        if ok and cd.element_organ[a] == cd.element_organ[b]:
             arc_a, arc_b = cd.element_arc[a], cd.element_arc[b]
             arc_gap = ti.max(arc_b[0] - arc_a[1], arc_a[0] - arc_b[1])
             ok = arc_gap >= 0.5 * ti.math.pi * (cd.element_radius[a] + cd.element_radius[b])
@@ -324,7 +325,7 @@ def grow_contacts(cd: ti.template(), x: ti.template(), retest: ti.i32, skin: ti.
                 g = cd.contact_gap[c]
                 if retest:
                     g = gap(cd, x, a, b)
-                if g < skin:
+                if g < skin and cd.element_live[b] != 0:  # its triangle may have torn
                     out_a, out_b = a, b
             else:
                 a2 = around(cd, a, ti.select(j < 3, j, 0))

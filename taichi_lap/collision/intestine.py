@@ -20,6 +20,7 @@ import taichi as ti
 from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.geometry import arc_length
 from taichi_lap.core.mesh import edge_neighbours
+from taichi_lap.preprocess.sheets import torn_cells
 from taichi_lap.kernels.collision import intestine as kernels
 
 
@@ -69,7 +70,8 @@ def _organ_elements(data, local: np.ndarray, organ: int, record) -> dict:
         arc=np.stack([s[column.min(axis=1)], s[column.max(axis=1)]], 1),
         organ=np.full(len(corners), organ),
     )
-    return dict(stride=stride, segments=segments, triangles=triangles)
+    cell = row_of.min(axis=1) * (length - 1) + column.min(axis=1)  # the grid cell it lies in
+    return dict(stride=stride, segments=segments, triangles=triangles, cell=cell)
 
 
 def collision_elements(model) -> dict[str, np.ndarray]:
@@ -79,7 +81,8 @@ def collision_elements(model) -> dict[str, np.ndarray]:
     across its edges, -1 padded) then the far neighbours ``stride`` columns along
     the intestine either way (stride = intestine radius / segment length, rounded;
     none when it is 1); radius (E,) [m]; arc (E, 2) [m] (rest arc-length interval
-    along the organ's intestine); organ (E,); ``particles`` (local -> global)."""
+    along the organ's intestine); organ (E,); ``particles`` (local -> global); ``cells``:
+    per organ, the grid cell (row-major) each of its triangles lies in."""
     data = model.data
     records = [r for r in data.organs if r.row_length > 0]
     particles = (
@@ -100,6 +103,7 @@ def collision_elements(model) -> dict[str, np.ndarray]:
                 parts[key].append(t[key])
             base += len(t["radius"])
     out = {k: np.concatenate(v) for k, v in parts.items()} if tables else {}
+    out["cells"] = [table["cell"] for table in tables]
     out["particles"] = particles
     out["segment_count"] = sum(len(t["segments"]["radius"]) for t in tables)
     out["stride"] = max((t["stride"] for t in tables), default=1)
@@ -176,6 +180,8 @@ class IntestineCollision(FieldOwner):
         self.element_radius = group.field(f32, self.element_count, values=elements["radius"])
         self.element_arc = group.field(f32, self.element_count, vector=2, values=elements["arc"])
         self.element_organ = group.field(i32, self.element_count, values=elements["organ"])
+        self.element_live = group.field(i32, self.element_count)  # 0: in a torn cell
+        self._cells = elements["cells"]
         self.particle_global = group.field(i32, self.particle_count, values=elements["particles"])
         # pair lists (a, b, gap, count): active pairs, their candidates, contact
         # candidates, contacts
@@ -203,6 +209,23 @@ class IntestineCollision(FieldOwner):
         self.sorted_source = group.field(i32, max(candidates, areas))
         group.finalize()
         self._group = group
+        self.follow_tears()
+
+    def follow_tears(self):
+        """The mesentery's triangles in the cells its broken springs lay in or bordered
+        (:func:`~taichi_lap.preprocess.sheets.torn_cells`, a torn mesentery:
+        :mod:`~taichi_lap.dissection.spring_tear`) collide no more; all do again once
+        the model's springs are mended."""
+        data, live = self.model.data, [np.ones(self.segment_count, np.int32)]
+        pairs = np.asarray(data.spring_pair, np.int64).reshape(-1, 2)
+        broken = pairs[self.model.broken_springs]
+        records = [r for r in data.organs if r.row_length > 0]
+        for record, cells in zip(records, self._cells):
+            first, end = record.particles
+            inside = broken[((broken >= first) & (broken < end)).all(axis=1)] - first
+            rows = (end - first) // record.row_length
+            live.append(~torn_cells(inside, rows, record.row_length).ravel()[cells])
+        self.element_live.from_numpy(np.concatenate(live).astype(np.int32))
 
     @property
     def serial(self) -> bool:
@@ -211,10 +234,12 @@ class IntestineCollision(FieldOwner):
         return self.model.serial
 
     def reset(self):
-        """Forget the active pairs and contacts; restart the random sequence."""
+        """Forget the active pairs and contacts; restart the random sequence; the torn
+        cells as the model's springs are now (:meth:`follow_tears`)."""
         self.pair_count[None] = 0
         self.contact_count[None] = 0
         self.step_count = 0
+        self.follow_tears()
 
     def detect(self, state):
         """§4.1 at the predicted positions ``state.p`` [m]: update and merge the
