@@ -159,16 +159,41 @@ def shell_vertex_count(rows: int, cols: int) -> int:
     return 2 * rows * cols + 4 * (rows - 1) + 4 * (cols - 1)
 
 
+def border_samples(rows: int, cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (row, column) of each of the R = 2 (rows - 1) + 2 (cols - 1) samples around
+    the border of a (rows, cols) grid, in the rim's order
+    (:func:`~taichi_lap.kernels.membrane.rim_sample`): the first row forwards, the last
+    column, the last row backwards, the first column; each corner once."""
+    across, down = cols - 1, rows - 1
+    k = np.arange(2 * across + 2 * down)
+    i = np.select(
+        [k < across, k < across + down, k < 2 * across + down],
+        [0, k - across, down],
+        down - (k - 2 * across - down),
+    )
+    j = np.select(
+        [k < across, k < across + down, k < 2 * across + down],
+        [k, across, across - (k - across - down)],
+        0,
+    )
+    return i, j
+
+
 def shell_cells(rows: int, cols: int, across: int, along: int) -> np.ndarray:
     """For each triangle of :func:`shell_triangles` of a (rows, cols) fine grid that
     samples a coarse grid ``across`` times between its rows and ``along`` times between
-    its columns: the coarse cell it lies in (row-major), -1 for the rim's."""
-    coarse_cols = (cols - 1) // along
+    its columns: the coarse cell it lies in (row-major); a rim triangle's is that of
+    the border between its two samples (:func:`border_samples`)."""
+    coarse_rows, coarse_cols = (rows - 1) // across, (cols - 1) // along
     i, j = np.divmod(np.arange((rows - 1) * (cols - 1)), cols - 1)  # fine quads
     cell = (i // across) * coarse_cols + j // along
     face = np.concatenate([cell, cell])  # sheet_triangles: two per quad, in two runs
-    rim = np.full(4 * ((rows - 1) + (cols - 1)), -1)
-    return np.concatenate([face, face, rim])
+    i, j = border_samples(rows, cols)
+    low_i, low_j = np.minimum(i, np.roll(i, -1)), np.minimum(j, np.roll(j, -1))
+    rim = np.minimum(low_i // across, coarse_rows - 1) * coarse_cols + np.minimum(
+        low_j // along, coarse_cols - 1
+    )
+    return np.concatenate([face, face, rim, rim])  # rim: (a, b, c) then (a, c, d)
 
 
 def shell_triangles(rows: int, cols: int) -> np.ndarray:

@@ -485,8 +485,8 @@ class SceneMesh(ArrayMesh):
     def _leave_out_torn_cells(self):
         """Each membrane without the cells of its sheet that broken springs lay in or
         bordered (:func:`~taichi_lap.preprocess.sheets.torn_cells`; a torn mesentery,
-        :mod:`~taichi_lap.dissection.spring_tear`): their triangles, front and back,
-        made degenerate; all drawn again once the springs are mended."""
+        :mod:`~taichi_lap.dissection.spring_tear`): their triangles, front, back and
+        rim, made degenerate; all drawn again once the springs are mended."""
         broken = np.flatnonzero(self.model.broken_springs)
         if np.array_equal(broken, self._torn_drawn):
             return
@@ -495,7 +495,7 @@ class SceneMesh(ArrayMesh):
         for organ, rows, cols, start, triangles, cells in self._membrane_cells:
             first, end = self.model.data.organs[organ].particles
             inside = pairs[((pairs >= first) & (pairs < end)).all(axis=1)] - first
-            torn = np.append(torn_cells(inside, rows, cols).ravel(), False)[cells]
+            torn = torn_cells(inside, rows, cols).ravel()[cells]
             drawn = np.where(torn[:, None], triangles[:, :1], triangles)
             writes.add(3 * start + np.arange(drawn.size), {self.triangles: drawn.ravel()})
         writes.flush()
