@@ -155,9 +155,10 @@ def test_the_membrane_leaves_out_the_torn_cells_until_a_reset_mends_the_springs(
     organ = data.organs[0]
     mesh = SceneMesh(session.scene, model)
     mesh.update(session.state, session.control)
-    _, rows, cols, start, shell, cells = mesh._membrane_cells[0]
+    _, start, shell, cells = mesh._membrane_cells[0]
+    rows = (organ.particles[1] - organ.particles[0]) // organ.row_length
     pairs = np.asarray(data.spring_pair)[model.broken_springs] - organ.particles[0]
-    torn_cell = torn_cells(pairs, rows, cols).ravel()[cells]
+    torn_cell = torn_cells(pairs, rows, organ.row_length).ravel()[cells]
     assert torn_cell.any() and not torn_cell.all()
     drawn = mesh.triangles.to_numpy().reshape(-1, 3)[start : start + len(shell)]
     assert (drawn[torn_cell] == drawn[torn_cell][:, :1]).all()  # degenerate: not drawn

@@ -20,7 +20,6 @@ import taichi as ti
 from taichi_lap.core.fields import FieldGroup, FieldOwner
 from taichi_lap.core.geometry import arc_length
 from taichi_lap.core.mesh import edge_neighbours
-from taichi_lap.preprocess.sheets import torn_cells
 from taichi_lap.kernels.collision import intestine as kernels
 
 
@@ -213,18 +212,13 @@ class IntestineCollision(FieldOwner):
 
     def follow_tears(self):
         """The mesentery's triangles in the cells its broken springs lay in or bordered
-        (:func:`~taichi_lap.preprocess.sheets.torn_cells`, a torn mesentery:
+        (:meth:`~taichi_lap.sim.model.Model.torn_cells`, a torn mesentery:
         :mod:`~taichi_lap.dissection.spring_tear`) collide no more; all do again once
         the model's springs are mended."""
-        data, live = self.model.data, [np.ones(self.segment_count, np.int32)]
-        pairs = np.asarray(data.spring_pair, np.int64).reshape(-1, 2)
-        broken = pairs[self.model.broken_springs]
-        records = [r for r in data.organs if r.row_length > 0]
-        for record, cells in zip(records, self._cells):
-            first, end = record.particles
-            inside = broken[((broken >= first) & (broken < end)).all(axis=1)] - first
-            rows = (end - first) // record.row_length
-            live.append(~torn_cells(inside, rows, record.row_length).ravel()[cells])
+        live = [np.ones(self.segment_count, np.int32)]
+        organs = [k for k, r in enumerate(self.model.data.organs) if r.row_length > 0]
+        for organ, cells in zip(organs, self._cells):
+            live.append(~self.model.torn_cells(organ).ravel()[cells])
         self.element_live.from_numpy(np.concatenate(live).astype(np.int32))
 
     @property

@@ -160,7 +160,7 @@ class TissueCollision:
         self.triangle_count = model.surface_triangle_count
         self.vertex_count = model.surface_vertex_count
         self.rows_in_use = len(triangles)
-        rest = (data.surface_weight[..., None] * data.rest_position[data.surface_index]).sum(axis=1)
+        rest = data.rest_surface()
         rest_sphere, rest_normal = rest_tables(rest, triangles)
         self.pair_margin = float(
             np.median(rest_sphere[:, 3])

@@ -23,6 +23,7 @@ from taichi_lap.preprocess.sheets import spring_pieces
 @dataclass
 class _Sheet:
     organ: int  # index in the model's organs
+    members: np.ndarray  # (S,) bool: its rows of data.spring_pair
     springs: np.ndarray  # the rows of data.spring_pair that may break
     tear_strain: float
     pieces: int  # connected pieces of its unbroken springs
@@ -49,7 +50,7 @@ class SpringTearing:
             intestine = (pairs < first + organ.row_length).all(axis=1)  # both on row 0
             springs = np.flatnonzero(inside & ~intestine)
             pieces = spring_pieces(pairs[inside], first, end)
-            self.sheets.append(_Sheet(k, springs, tear_strain, pieces))
+            self.sheets.append(_Sheet(k, inside, springs, tear_strain, pieces))
 
     def tear(self, x: np.ndarray) -> list[tuple[str, int]]:
         """Break, in each sheet, its mesentery spring stretched most beyond its
@@ -70,9 +71,8 @@ class SpringTearing:
             self.model.break_springs([spring])
             name = data.organs[sheet.organ].name
             out.append((name, spring))
-            first, end = data.organs[sheet.organ].particles
-            inside = (pairs >= first).all(axis=1) & (pairs < end).all(axis=1)
-            pieces = spring_pieces(pairs[inside & ~self.model.broken_springs], first, end)
+            held = pairs[sheet.members & ~self.model.broken_springs]
+            pieces = spring_pieces(held, *data.organs[sheet.organ].particles)
             if pieces > sheet.pieces:
                 self.separations.append((name, pieces))
             sheet.pieces = pieces

@@ -75,6 +75,10 @@ class ModelData:
         """Sorted particles the surface vertices are bound to (weights > 0)."""
         return np.unique(self.surface_index[self.surface_weight > 0])
 
+    def rest_surface(self) -> np.ndarray:
+        """(V, 3) [m]: each surface vertex where its particles' rest positions put it."""
+        return (self.surface_weight[..., None] * self.rest_position[self.surface_index]).sum(axis=1)
+
     def contact_radius(self) -> np.ndarray:
         """(N,) how far [m] a tool stays from each particle: the drawn surface's
         distance from it. Surfaces are drawn through their particles (0), and so is

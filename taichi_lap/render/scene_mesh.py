@@ -39,7 +39,6 @@ from taichi_lap.preprocess.sheets import (
     shell_cells,
     shell_triangles,
     shell_vertex_count,
-    torn_cells,
 )
 from taichi_lap.render.instruments import instrument_arrays
 from taichi_lap.render.subsurface import TintGrid, vessel_tint_grid
@@ -147,7 +146,7 @@ def one_sided_objects(data, tool_count: int, tools: dict, environment: dict) -> 
     :func:`~taichi_lap.core.mesh.faces_out` as built, but an organ whose surface a cut
     opens (:data:`~taichi_lap.preprocess.organs.CUT_SURFACES` with a reserve: a cut
     vessel shows its inside; a volume cut closes its wound)."""
-    rest = (data.surface_weight[..., None] * data.rest_position[data.surface_index]).sum(axis=1)
+    rest = data.rest_surface()
     triangles = np.asarray(data.surface_triangles).reshape(-1, 3)
     flags = []
     for organ in data.organs:
@@ -335,7 +334,7 @@ class SceneMesh(ArrayMesh):
             or [np.zeros(0, np.int32)]
         )
         self.membranes = []  # per sheet: (first surface vertex, rows, columns, vertex offset)
-        # per sheet: (organ, rows, columns, first triangle, its shell's triangles, their cells)
+        # per sheet: (organ, first triangle, its shell's triangles, their cells)
         self._membrane_cells = []
         self._torn_drawn = np.zeros(0, np.int64)  # the broken springs the membranes show
         membrane_triangles, membrane_material = [], []
@@ -349,8 +348,6 @@ class SceneMesh(ArrayMesh):
             self._membrane_cells.append(
                 (
                     index,
-                    rows,
-                    cols,
                     first_triangle,
                     membrane_triangles[-1],
                     shell_cells(*fine, MEMBRANE_ACROSS, MEMBRANE_ALONG),
@@ -484,18 +481,15 @@ class SceneMesh(ArrayMesh):
 
     def _leave_out_torn_cells(self):
         """Each membrane without the cells of its sheet that broken springs lay in or
-        bordered (:func:`~taichi_lap.preprocess.sheets.torn_cells`; a torn mesentery,
+        bordered (:meth:`~taichi_lap.sim.model.Model.torn_cells`; a torn mesentery,
         :mod:`~taichi_lap.dissection.spring_tear`): their triangles, front, back and
         rim, made degenerate; all drawn again once the springs are mended."""
         broken = np.flatnonzero(self.model.broken_springs)
         if np.array_equal(broken, self._torn_drawn):
             return
-        pairs = np.asarray(self.model.data.spring_pair, np.int64).reshape(-1, 2)[broken]
         writes = RowWrites()
-        for organ, rows, cols, start, triangles, cells in self._membrane_cells:
-            first, end = self.model.data.organs[organ].particles
-            inside = pairs[((pairs >= first) & (pairs < end)).all(axis=1)] - first
-            torn = torn_cells(inside, rows, cols).ravel()[cells]
+        for organ, start, triangles, cells in self._membrane_cells:
+            torn = self.model.torn_cells(organ).ravel()[cells]
             drawn = np.where(torn[:, None], triangles[:, :1], triangles)
             writes.add(3 * start + np.arange(drawn.size), {self.triangles: drawn.ravel()})
         writes.flush()

@@ -23,6 +23,7 @@ from taichi_lap import runtime
 from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.kernels.scatter import RowWrites
 from taichi_lap.preprocess.model_data import ModelData
+from taichi_lap.preprocess.sheets import torn_cells
 
 CHUNK = 128
 """Cluster members summed by one thread in the cluster-matching reduction."""
@@ -680,6 +681,16 @@ class Model(FieldOwner):
         self.broken_springs[springs] = True
         self.topology_version += 1
         self.as_built = False
+
+    def torn_cells(self, organ: int) -> np.ndarray:
+        """(rows - 1, cols - 1) bool: the cells of spring-sheet ``organ``'s grid of
+        masses that its broken springs lay in or bordered
+        (:func:`~taichi_lap.preprocess.sheets.torn_cells`)."""
+        record = self.data.organs[organ]
+        first, end = record.particles
+        pairs = np.asarray(self.data.spring_pair, np.int64).reshape(-1, 2)[self.broken_springs]
+        inside = pairs[((pairs >= first) & (pairs < end)).all(axis=1)] - first
+        return torn_cells(inside, (end - first) // record.row_length, record.row_length)
 
     def _mend_springs(self):
         """Every spring as built (:meth:`reset_topology`)."""
