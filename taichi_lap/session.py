@@ -420,9 +420,10 @@ class Session:
         if not models:
             return
         start = time.perf_counter()
-        x, v = self._motion()
+        sheets = bool(models - {"mass_spring"})
+        x, v = self._motion(velocities=sheets)  # a spring sheet's tear needs no velocity
         torn = []
-        if models - {"mass_spring"}:
+        if sheets:
             cutter = self._sheet_cutter()
             torn = cutter.tear(x, v, self.state)
             for organ, change in torn:
@@ -454,9 +455,11 @@ class Session:
             event = {"kind": "separated", "organ": organ, "pieces": pieces}
             self.events.append(event if tool is None else dict(event, tool=tool))
 
-    def _motion(self) -> tuple[np.ndarray, np.ndarray]:
-        """The particles' positions and velocities (N, 3) [m, m/s] on the host."""
-        return tuple(field.to_numpy().astype(np.float64) for field in (self.state.x, self.state.v))
+    def _motion(self, velocities: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """The particles' positions and velocities (N, 3) [m, m/s] on the host (no
+        velocities, None, unless ``velocities``)."""
+        x = self.state.x.to_numpy().astype(np.float64)
+        return x, self.state.v.to_numpy().astype(np.float64) if velocities else None
 
     def _sheet_cutter(self) -> SheetCutter:
         """The session's sheet cutter, made at its first use."""
