@@ -420,12 +420,11 @@ class Session:
         if not models:
             return
         start = time.perf_counter()
-        sheets = bool(models - {"mass_spring"})
-        x, v = self._motion(velocities=sheets)  # a spring sheet's tear needs no velocity
+        x, _ = self._motion(velocities=False)  # a split reads its vertex's velocity
         torn = []
-        if sheets:
+        if models - {"mass_spring"}:
             cutter = self._sheet_cutter()
-            torn = cutter.tear(x, v, self.state)
+            torn = cutter.tear(x, self.state)
             for organ, change in torn:
                 self._follow(change)
                 self.events.append(

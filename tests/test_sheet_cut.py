@@ -382,6 +382,43 @@ def test_a_pulled_sheet_tears_round_the_grip_and_the_rest_lets_go():
         session.close()
 
 
+def test_the_rectum_fascia_tears_free_where_a_grasper_pulls_it():
+    """The rectum scene's fascia tears (its ``tear_strain``): hanging from its
+    attachment it does not; a grasper closing on its hanging part and pulling that
+    patch 8 cm away and 2 cm up tears it round the grip, split by split, until the
+    patch comes away in the jaws, hanging from no long-range attachment, and the
+    sheet's topology stays valid."""
+    from taichi_lap import scene as scene_mod
+
+    session = Session(scene_mod.load("rectum"), progress=False)
+    try:
+        grip, start = [0.0, -0.022, 0.027], [0.0, -0.022, 0.07]
+        script = [
+            {"time": 0.0, "tool": "grasper", "tip": start},
+            {"time": 0.5, "tool": "grasper", "tip": grip},
+            {"time": 0.6, "tool": "grasper", "tip": grip, "grasp": True},
+            {"time": 2.6, "tool": "grasper", "tip": [0.0, 0.0, 0.11], "grasp": True},
+        ]
+        events = run_script(session, script, 36)
+        assert not [e for e in events if e["kind"] == "tear"]
+        events = run_script(session, script[2:], 140)
+        tears = [e for e in events if e["kind"] == "tear"]
+        assert len(tears) >= 5 and all(e["organ"] == "fascia" for e in tears)
+        assert {"kind": "separated", "organ": "fascia", "pieces": 2} in events
+        session.check_topology()
+        k = [organ.name for organ in session.data.organs].index("fascia")
+        faces = session._dissection.topology.live_faces(k)
+        pieces = element_pieces(faces)
+        held = np.flatnonzero(session.state.grasp_tool.to_numpy() >= 0)
+        in_grip = np.isin(faces, held).any(axis=1)
+        assert in_grip.any() and len(np.unique(pieces[in_grip])) == 1
+        patch = faces[pieces == pieces[in_grip][0]]
+        assert len(patch) < 0.2 * len(faces)
+        assert not np.isin(model_lists(session.model, "lra")[0], patch).any()
+    finally:
+        session.close()
+
+
 def test_a_sheet_without_a_tear_strain_does_not_tear():
     session, events = pull(0.0)
     try:
