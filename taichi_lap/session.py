@@ -30,7 +30,7 @@ from taichi_lap.dissection.cautery import Cautery
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import FRAGMENT_PARTICLES, MutableTopology
 from taichi_lap.dissection.sheet_cut import SheetCutter
-from taichi_lap.dissection.spring_tear import SpringTearing
+from taichi_lap.dissection.spring_sheets import SpringSheets
 from taichi_lap.dissection.surface_cut import Sweep
 from taichi_lap.dissection.volume_cut import VolumeCutter, scissor_blade
 from taichi_lap.kernels.skinning import skin_surface, skin_surface_rows
@@ -181,7 +181,7 @@ class Session:
         self._cautery = None  # a Cautery once a hook was energised
         self._cutter = None  # a SheetCutter once a tool cut
         self._volume_cutter = None  # a VolumeCutter once scissors closed
-        self._spring_tearing = None  # a SpringTearing once a spring sheet could tear
+        self._springs = None  # a SpringSheets once a spring sheet tore or was cut
         self._loose: list[tuple[int, np.ndarray]] = []  # pieces cut free: (organ, particles)
         self.camera = EndoscopeCamera.from_scene(scene.camera)  # a window sets its own
         self._cut_poses: dict[int, tuple] = {}  # each cutting tool's tip and frame
@@ -336,8 +336,11 @@ class Session:
         whose GRASP_BUTTON is held and hooks whose CAUTERY_BUTTON is held cut the
         sheets their cutting shapes (:func:`cutting_geometry`) swept from their pose
         at the last step to the one the devices gave now, before the physics moves
-        the tissue; event ``cut`` with the tool, the organ and the triangles made."""
-        if not self.model.cuttable:
+        the tissue; event ``cut`` with the tool, the organ and the triangles made.
+        Scissors also cut the spring sheets (:meth:`_cut_springs`) and the tet organs
+        (:meth:`_cut_volumes`)."""
+        springs = any(organ.row_length for organ in self.data.organs)
+        if not (self.model.cuttable or springs):
             return
         control = self.control
         for k, tool in enumerate(self.scene.tools[:MAX_TOOLS]):
@@ -356,18 +359,42 @@ class Session:
             start = time.perf_counter()
             sweep = Sweep.between(geometry, *before, *pose)
             x, v = self._motion()
-            cutter = self._sheet_cutter()
-            for organ, change in cutter.cut(sweep, x, v, self.state):
-                self._follow(change)
-                made = len(change.new_triangles)
-                self.events.append(
-                    {"kind": "cut", "tool": tool["name"], "organ": organ, "triangles": made}
-                )
-            self._separated(cutter, tool["name"])
-            if scissors:
+            if self.model.cuttable:
+                cutter = self._sheet_cutter()
+                for organ, change in cutter.cut(sweep, x, v, self.state):
+                    self._follow(change)
+                    made = len(change.new_triangles)
+                    self.events.append(
+                        {"kind": "cut", "tool": tool["name"], "organ": organ, "triangles": made}
+                    )
+                self._separated(cutter, tool["name"])
+            if springs and scissors:
+                self._cut_springs(sweep, x, tool["name"])
+            if scissors and self.model.cuttable:
                 self._cut_volumes(k, tool, pose, pose[0] - before[0], x, v)
             spent = (time.perf_counter() - start) * 1e3
             self.timings["topology"] = self.timings.get("topology", 0.0) + spent
+
+    def _cut_springs(self, sweep: Sweep, x: np.ndarray, tool: str):
+        """Scissors cut the mesentery (:meth:`SpringSheets.cut`): the springs ``sweep``
+        passed through break, at ``x`` (the particles before the step); event
+        ``cut`` with the tool, the organ and the ``springs`` broken."""
+        sheets = self._spring_sheets()
+        cuts = sheets.cut(sweep, x)
+        for organ, springs in cuts:
+            self.events.append(
+                {"kind": "cut", "tool": tool, "organ": organ, "springs": len(springs)}
+            )
+        if cuts and self.solver.self_collision is not None:
+            self.solver.self_collision.follow_tears()
+        self._separated(sheets, tool)
+
+    def _spring_sheets(self) -> SpringSheets:
+        """The session's tearing and cutting of spring sheets, made at its first use."""
+        if self._springs is None:
+            materials = [organ.material for organ in self.scene.organs]
+            self._springs = SpringSheets(self.model, materials)
+        return self._springs
 
     def _cut_volumes(self, k: int, tool: dict, pose, motion, x: np.ndarray, v: np.ndarray):
         """Volumetric cutting (seed 000 §5.3, :mod:`taichi_lap.dissection.volume_cut`):
@@ -415,7 +442,7 @@ class Session:
         """Tearing of the tissue with a ``tear_strain``, after the physics stretched it:
         the sheets (:meth:`SheetCutter.tear`; event ``tear`` with the organ and the
         triangles made) and the spring sheets, the mesentery
-        (:meth:`SpringTearing.tear`; event ``tear`` with the organ and ``springs``: 1)."""
+        (:meth:`SpringSheets.tear`; event ``tear`` with the organ and ``springs``: 1)."""
         models = {o.model for o in self.scene.organs if o.material.get("tear_strain", 0.0) > 0.0}
         if not models:
             return
@@ -432,21 +459,19 @@ class Session:
                 )
             self._separated(cutter)
         if "mass_spring" in models:
-            if self._spring_tearing is None:
-                materials = [organ.material for organ in self.scene.organs]
-                self._spring_tearing = SpringTearing(self.model, materials)
-            broken = self._spring_tearing.tear(x)
+            sheets = self._spring_sheets()
+            broken = sheets.tear(x)
             torn += broken
             for organ, _ in broken:
                 self.events.append({"kind": "tear", "organ": organ, "springs": 1})
             if broken and self.solver.self_collision is not None:
                 self.solver.self_collision.follow_tears()
-            self._separated(self._spring_tearing)
+            self._separated(sheets)
         if torn:
             spent = (time.perf_counter() - start) * 1e3
             self.timings["topology"] = self.timings.get("topology", 0.0) + spent
 
-    def _separated(self, cutter: SheetCutter | SpringTearing, tool: str | None = None):
+    def _separated(self, cutter: SheetCutter | SpringSheets, tool: str | None = None):
         """Event ``separated`` (with the organ, its connected pieces now and the
         ``tool`` that cut, none for a tear) for each sheet, truss or spring sheet the
         cutter's last cut or tear parted (its ``separations``)."""
@@ -591,7 +616,7 @@ class Session:
         """Put the model back as built if tissue was removed or cut (through this
         session, or through a DeviceTopology of its own on the model:
         :attr:`~taichi_lap.sim.model.Model.as_built` tells either)."""
-        self._cutter = self._volume_cutter = self._spring_tearing = None
+        self._cutter = self._volume_cutter = self._springs = None
         self._loose = []
         self._dissection = None
         if not self.model.as_built:

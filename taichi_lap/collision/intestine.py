@@ -212,8 +212,8 @@ class IntestineCollision(FieldOwner):
 
     def follow_tears(self):
         """The mesentery's triangles in the cells its broken springs lay in or bordered
-        (:meth:`~taichi_lap.sim.model.Model.torn_cells`, a torn mesentery:
-        :mod:`~taichi_lap.dissection.spring_tear`) collide no more; all do again once
+        (:meth:`~taichi_lap.sim.model.Model.torn_cells`, a torn or cut mesentery:
+        :mod:`~taichi_lap.dissection.spring_sheets`) collide no more; all do again once
         the model's springs are mended."""
         live = [np.ones(self.segment_count, np.int32)]
         organs = [k for k, r in enumerate(self.model.data.organs) if r.row_length > 0]

@@ -482,7 +482,7 @@ class SceneMesh(ArrayMesh):
     def _leave_out_torn_cells(self):
         """Each membrane without the cells of its sheet that broken springs lay in or
         bordered (:meth:`~taichi_lap.sim.model.Model.torn_cells`; a torn mesentery,
-        :mod:`~taichi_lap.dissection.spring_tear`): their triangles, front, back and
+        :mod:`~taichi_lap.dissection.spring_sheets`): their triangles, front, back and
         rim, made degenerate; all drawn again once the springs are mended."""
         broken = np.flatnonzero(self.model.broken_springs)
         if np.array_equal(broken, self._torn_drawn):

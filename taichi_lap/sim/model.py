@@ -671,8 +671,8 @@ class Model(FieldOwner):
         self.spring_damping = self._floats(data.spring_damping[edge])
 
     def break_springs(self, springs: np.ndarray):
-        """Springs ``springs`` (rows of ``data.spring_pair``) break (a torn mesentery,
-        :mod:`taichi_lap.dissection.spring_tear`): their stiffness and damping become 0
+        """Springs ``springs`` (rows of ``data.spring_pair``) break (a torn or cut mesentery,
+        :mod:`taichi_lap.dissection.spring_sheets`): their stiffness and damping become 0
         at both ends, so they pull no more."""
         springs = np.asarray(springs, dtype=np.int64)
         for entry in np.flatnonzero(np.isin(self._spring_edge, springs)).tolist():

@@ -1,12 +1,15 @@
-"""Tearing of the mesentery (taichi_lap.dissection.spring_tear): a spring stretched
-beyond the tear strain breaks, one a frame, the intestine's own springs never; a
-broken spring pulls no more, the drawn membrane leaves out the cells it crossed, and a
-reset mends it all."""
+"""Tearing and cutting of the mesentery (taichi_lap.dissection.spring_sheets): a
+spring stretched beyond the tear strain breaks, one a frame, the intestine's own
+springs never; scissors break the springs their closed jaws sweep through; a broken
+spring pulls no more, the drawn membrane leaves out the cells it crossed, and a reset
+mends it all."""
 
 import numpy as np
 import pytest
 
 from taichi_lap import scene as scene_mod
+from taichi_lap.dissection.spring_sheets import SpringSheets
+from taichi_lap.preprocess.assemble import assemble
 from taichi_lap.preprocess.sheets import (
     shell_cells,
     shell_triangles,
@@ -17,6 +20,7 @@ from taichi_lap.render.scene_mesh import SceneMesh
 from taichi_lap.session import Session
 from tests.test_membrane import ALONG, ACROSS, membrane_shell
 from tests.archrun import assert_backend_matches_cpu
+from tests.helpers import instrument, run_script
 
 TEAR_STRAIN = 0.05
 """Low enough that the mesentery of a short intestine tears as it sags."""
@@ -95,7 +99,7 @@ def early_tears() -> dict[str, np.ndarray]:
 def test_tears_on_vulkan_match_cpu():
     """The same springs break, the masses within 1 mm."""
     cpu = assert_backend_matches_cpu(
-        "tests.test_spring_tear:early_tears", 1e-3, per_key={"broken": 0}
+        "tests.test_spring_sheets:early_tears", 1e-3, per_key={"broken": 0}
     )
     assert len(cpu["broken"]) > 5
 
@@ -171,3 +175,104 @@ def test_the_membrane_leaves_out_the_torn_cells_until_a_reset_mends_the_springs(
     drawn = mesh.triangles.to_numpy().reshape(-1, 3)[start : start + len(shell)]
     assert np.array_equal(drawn, shell)
     assert (session.solver.self_collision.element_live.to_numpy() == 1).all()
+
+
+CUT_COLUMN = 10
+"""The scissors cut the spring between rows 1 and 2 at this column."""
+
+
+def cutting(monkeypatch=None) -> tuple[Session, list[dict], list[tuple]]:
+    """A short intestine without gravity (it keeps its built shape) and scissors that
+    pierce the mesentery at the middle of the spring between rows 1 and 2 at
+    :data:`CUT_COLUMN`, the shaft across the sheet, and close and slide 6 cm along
+    the rows through it; the session after 25 frames, its events and (with
+    ``monkeypatch``) each :meth:`SpringSheets.cut`'s sweep, positions and result."""
+    overrides = {
+        "scene.detail": 0.05,
+        "scene.gravity": [0.0, 0.0, 0.0],
+        "organs.intestine.geometry.points_per_row": 20,
+    }
+    data = assemble(scene_mod.load("intestine", overrides), progress=False)
+    length = data.organs[0].row_length
+    x = np.asarray(data.rest_position, dtype=np.float64)
+    below, above = x[length + CUT_COLUMN], x[2 * length + CUT_COLUMN]
+    along = x[length + CUT_COLUMN + 1] - below
+    along /= np.linalg.norm(along)
+    normal = np.cross(above - below, along)
+    normal /= np.linalg.norm(normal)
+    start = 0.5 * (below + above) + 0.005 * normal - 0.03 * along  # the jaws across the sheet
+    end = start + 0.06 * along
+    tools = scene_mod.load("intestine").raw["tools"]
+    tools = tools + [instrument("scissors", start.tolist(), normal.tolist())]
+    session = Session(scene_mod.load("intestine", {**overrides, "tools": tools}), progress=False)
+    calls = []
+    if monkeypatch is not None:
+        cut = SpringSheets.cut
+
+        def recorded(self, sweep, x):
+            out = cut(self, sweep, x)
+            calls.append((sweep, x.copy(), out))
+            return out
+
+        monkeypatch.setattr(SpringSheets, "cut", recorded)
+    script = [
+        {"time": 0.0, "tool": "scissors", "tip": start.tolist(), "grasp": True},
+        {"time": 0.3, "tool": "scissors", "tip": end.tolist(), "grasp": True},
+    ]
+    return session, run_script(session, script, 25), calls
+
+
+def test_scissors_cut_the_mesentery_springs_their_closed_jaws_sweep_through(monkeypatch):
+    """Seed 000 §5.1's swept volume on a spring network: each frame the springs
+    broken are those a fine sampling of each spring finds inside the sweep (but for
+    ones that only graze it); the spring the scissors slid through is broken, the
+    intestine's own are not, and each cut event counts the springs it broke."""
+    session, events, calls = cutting(monkeypatch)
+    try:
+        data, model = session.data, session.model
+        first = data.organs[0].particles[0]
+        length = data.organs[0].row_length
+        pairs = np.asarray(data.spring_pair)
+        broken = np.zeros(len(pairs), dtype=bool)
+        s = np.linspace(0.0, 1.0, 400)[None, :, None]
+        for sweep, x, out in calls:
+            a, b = x[pairs[:, 0]], x[pairs[:, 1]]
+            depth = sweep.distance((a[:, None] + s * (b - a)[:, None]).reshape(-1, 3))
+            depth = depth.reshape(len(pairs), -1).min(axis=1)
+            cut = np.zeros(len(pairs), dtype=bool)
+            for _, springs in out:
+                cut[springs] = True
+            clear = np.abs(depth) > 1e-4  # not grazing
+            intestine = (pairs < first + length).all(axis=1)
+            expected = (depth < 0.0) & ~broken & ~intestine
+            assert np.array_equal(cut[clear], expected[clear])
+            broken |= cut
+        assert np.array_equal(broken, model.broken_springs)
+        target = [first + length + CUT_COLUMN, first + 2 * length + CUT_COLUMN]
+        assert model.broken_springs[(pairs == target).all(axis=1)].all()
+        assert not model.broken_springs[(pairs < first + length).all(axis=1)].any()
+        cuts = [e for e in events if e["kind"] == "cut"]
+        assert cuts and all(e["organ"] == "intestine" and e["tool"] == "scissors" for e in cuts)
+        assert sum(e["springs"] for e in cuts) == model.broken_springs.sum()
+    finally:
+        session.close()
+
+
+def scissor_cut() -> dict[str, np.ndarray]:
+    """The springs :func:`cutting`'s scissors broke, and where the masses are."""
+    session, _, _ = cutting()
+    out = {
+        "broken": np.flatnonzero(session.model.broken_springs),
+        "x": session.state.x.to_numpy(),
+    }
+    session.close()
+    return out
+
+
+@pytest.mark.vulkan
+def test_a_mesentery_cut_on_vulkan_matches_cpu():
+    """The same springs break, the masses within 1 mm."""
+    cpu = assert_backend_matches_cpu(
+        "tests.test_spring_sheets:scissor_cut", 1e-3, per_key={"broken": 0}
+    )
+    assert len(cpu["broken"]) >= 1
