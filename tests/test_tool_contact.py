@@ -191,3 +191,43 @@ def test_a_probe_shaft_swept_through_the_intestines_root_pushes_without_faulting
             last = x
         assert np.abs(last[root] - rest).max() < 1e-6
     assert fastest < 0.5 * scene.settings["speed_limit"], fastest
+
+
+def dragged(friction: float | None) -> float:
+    """How far [m] the block's top particle under the scissors' jaws moved along z when
+    the jaws, pressed 4 mm into it, slid 1 cm along z, with Coulomb coefficient
+    ``friction`` (None: the scene's own for scissors)."""
+    from taichi_lap.core.instruments import BLADE_FRICTION, tool_geometry
+    from taichi_lap.devices import Pose
+
+    session, target = contact.press_scene("tet_clusters", "off", kind="scissors")
+    try:
+        tool = session.scene.tools[0]
+        assert session.control.tool_friction[0] == pytest.approx(BLADE_FRICTION)
+        if friction is not None:
+            session.control.set_tool_shapes(0, tool_geometry(tool).shapes, friction)
+        tip, direction = np.asarray(tool["tip"], float), np.asarray(tool["direction"], float)
+        x = session.state.x.to_numpy()
+        under = np.hypot(x[:, 0] - target.x, x[:, 2] - target.z) < 0.002
+        top = np.flatnonzero(under)[np.argmax(x[under, 1])]
+        start = x[top].copy()
+        for frame in range(30):  # press 4 mm
+            depth = 0.004 * min(frame, 20) / 20
+            session.step({tool["name"]: Pose(tip - [0.0, depth, 0.0], direction)}, {})
+        for frame in range(40):  # slide 1 cm along z
+            along = 0.01 * min(frame, 30) / 30
+            session.step({tool["name"]: Pose(tip + [0.0, -0.004, along], direction)}, {})
+        return float(session.state.x.to_numpy()[top, 2] - start[2])
+    finally:
+        session.close()
+
+
+def test_tissue_slides_along_scissor_blades_and_moves_with_a_grasping_grip():
+    """Coulomb friction per instrument (:func:`taichi_lap.core.instruments.tool_friction`):
+    the jaws pressed into the block and slid along it drag the surface under them
+    with the graspers' coefficient at least three times as far as with the blades'
+    (the scissors' own)."""
+    from taichi_lap.core.instruments import TOOL_FRICTION
+
+    grip, blade = dragged(TOOL_FRICTION), dragged(None)
+    assert grip > 3.0 * blade > 0.0

@@ -61,7 +61,6 @@ from taichi_lap.kernels.collision.tool_shapes import (
     shape_distance,
     side_distance,
     tool_distance,
-    TOOL_FRICTION,
     TOUCH,
     coulomb_friction,
 )
@@ -341,7 +340,7 @@ def surface_tool(
             push = corner - begin
             depth = push.norm()
             if depth > 0.0 and appeared[j] == 0:
-                limit = TOOL_FRICTION * depth
+                limit = control.tool_friction[k] * depth
                 corner = coulomb_friction(corner, x[j], pose.tip - last.tip, push / depth, limit)
             acc, hits = add_corner(acc, hits, j, corner - begin)
     return count, acc, hits
