@@ -20,7 +20,6 @@ from taichi_lap.core.instruments import (
     GRASP_BUTTON,
     MAX_TOOLS,
     cutting_geometry,
-    tool_friction,
     tool_geometry,
 )
 from taichi_lap.core.mesh import tet_volumes
@@ -611,7 +610,7 @@ class Session:
     def _set_tool_shapes(self):
         """Each scene tool's union of implicit shapes into the control."""
         for index, tool in enumerate(self.scene.tools):
-            self.control.set_tool_shapes(index, tool_geometry(tool).shapes, tool_friction(tool))
+            self.control.set_tool_shapes(index, tool_geometry(tool).shapes)
 
     def _restore_topology(self):
         """Put the model back as built if tissue was removed or cut (through this

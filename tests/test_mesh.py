@@ -3,13 +3,7 @@
 import numpy as np
 import pytest
 
-from taichi_lap.core.mesh import (
-    edge_neighbours,
-    element_edges,
-    element_pieces,
-    floored_masses,
-    unique_edges,
-)
+from taichi_lap.core.mesh import edge_neighbours, element_edges, element_pieces, unique_edges
 
 
 def test_tet_edges_are_listed_once_each_sorted():
@@ -93,25 +87,3 @@ def test_masses_after_a_tet_split_keep_the_mass_and_follow_the_volumes():
     assert old == pytest.approx([0.25, 2 / 3 + 0.25, 2 / 3 + 0.5, 2 / 3 + 0.5, 1.0])
     assert new == pytest.approx([0.5])
     assert old.sum() + new.sum() == pytest.approx(5.0)
-
-
-def test_floored_masses_lift_the_light_ones_from_the_others_and_keep_the_total():
-    """Every mass ends at least at the floor; what the light ones gained the others
-    gave in proportion to their mass above the floor; the total is kept; masses all
-    above the floor stay; a total too small for the floor gives equal masses."""
-    rng = np.random.default_rng(3)
-    for _ in range(50):
-        mass = rng.uniform(0.0, 2.0, 12) ** 3
-        floor = 0.3
-        out = floored_masses(mass, floor)
-        assert out.sum() == pytest.approx(mass.sum(), rel=1e-12)
-        low = mass < floor
-        if mass.sum() > floor * len(mass):
-            assert (out >= floor - 1e-12).all()
-            excess = np.where(low, 0.0, mass - floor)
-            given = mass - out
-            assert np.allclose(given[~low], excess[~low] * given[~low].sum() / excess.sum())
-        else:
-            assert np.allclose(out, mass.mean())
-    above = np.array([1.0, 2.0, 3.0])
-    assert np.array_equal(floored_masses(above, 0.5), above)

@@ -61,6 +61,7 @@ from taichi_lap.kernels.collision.tool_shapes import (
     shape_distance,
     side_distance,
     tool_distance,
+    TOOL_FRICTION,
     TOUCH,
     coulomb_friction,
 )
@@ -340,7 +341,7 @@ def surface_tool(
             push = corner - begin
             depth = push.norm()
             if depth > 0.0 and appeared[j] == 0:
-                limit = control.tool_friction[k] * depth
+                limit = TOOL_FRICTION * depth
                 corner = coulomb_friction(corner, x[j], pose.tip - last.tip, push / depth, limit)
             acc, hits = add_corner(acc, hits, j, corner - begin)
     return count, acc, hits

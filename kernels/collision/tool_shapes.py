@@ -271,6 +271,11 @@ def side_distance(now, before, r, fallback):
     return dist, grad
 
 
+TOOL_FRICTION = 1.0
+"""Coulomb coefficient of tissue on an instrument (static and kinetic): a point
+pressed by a tip moves on with the tip instead of sliding round it."""
+
+
 @ti.func
 def coulomb_friction(p, x, obstacle_motion, n, limit):
     """A point pushed to ``p`` [m] along the contact normal ``n`` (at ``x`` at the
@@ -323,6 +328,6 @@ def push_out_of_tools(control: ti.template(), p, x, r):
                 push = p - entry
                 depth = push.norm()
                 if depth > 0.0:
-                    limit = control.tool_friction[k] * depth
+                    limit = TOOL_FRICTION * depth
                     p = coulomb_friction(p, x, pose.tip - last.tip, push / depth, limit)
     return p, hit

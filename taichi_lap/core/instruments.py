@@ -165,25 +165,6 @@ class ToolGeometry:
         return reach
 
 
-TOOL_FRICTION = 1.0
-"""Coulomb coefficient of tissue on an instrument (static and kinetic): a point
-pressed by a tip moves on with the tip instead of sliding round it (graspers'
-serrated jaws, probes, dissectors, and a hook, whose electrode holds the tissue it
-burns: at 0.2 the liver task's careless hook slid off the capsule without burning
-into it)."""
-
-BLADE_FRICTION = 0.2
-"""Coulomb coefficient of tissue on the smooth blades of scissors: tissue slides along
-them. With :data:`TOOL_FRICTION` the rectum script's closing scissors, sliding on
-through the kerf they had cut in the polyp's stalk, drew its cut faces out into
-spikes 2-10 cm long."""
-
-
-def tool_friction(tool) -> float:
-    """The Coulomb coefficient of tissue on a scene tool (its ``kind``)."""
-    return BLADE_FRICTION if tool["kind"] == "scissors" else TOOL_FRICTION
-
-
 def tool_geometry(tool) -> ToolGeometry:
     """The shapes of a scene tool (a ``[[tools]]`` table: ``kind``, shaft ``radius``
     and ``length`` [m]): the jaws of graspers and scissors, or the L-shaped electrode

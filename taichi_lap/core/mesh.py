@@ -230,25 +230,6 @@ def element_measures(points: np.ndarray, elements: np.ndarray) -> np.ndarray:
     return np.abs(tet_volumes(points, elements))
 
 
-def floored_masses(mass: np.ndarray, floor: float) -> np.ndarray:
-    """``mass`` [kg] (P,) with every entry raised to at least ``floor``, what they gain
-    taken from the others in proportion to their mass above it: the total is kept (all
-    equal where the total cannot give each the floor). A lumped mass shrinks with the
-    sliver elements a cut makes next to a vertex; a particle lighter by orders of
-    magnitude than its neighbours takes all of every impulse."""
-    mass = np.asarray(mass, dtype=np.float64).copy()
-    low = mass < floor
-    if not low.any():
-        return mass
-    if mass.sum() <= floor * len(mass):
-        return np.full(len(mass), mass.sum() / len(mass))
-    need = float((floor - mass[low]).sum())
-    spare = np.where(low, 0.0, mass - floor)
-    mass[low] = floor
-    mass -= need * spare / spare.sum()
-    return mass
-
-
 def masses_after_cut(
     rest: np.ndarray,
     elements: np.ndarray,

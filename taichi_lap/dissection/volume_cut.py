@@ -13,9 +13,8 @@ organ's topology (:meth:`~taichi_lap.dissection.removal.MutableTopology.split_te
   the particle on its side of the cut; clusters the cut parts split into their
   connected pieces, so the two sides move apart;
 * the mass the split tets held goes to their sub-tets by volume
-  (:func:`~taichi_lap.core.mesh.masses_after_cut`), no particle the cut touched left
-  lighter than :data:`MASS_FLOOR` of the organ's median: the organ keeps its mass, and
-  the clusters weigh their members anew;
+  (:func:`~taichi_lap.core.mesh.masses_after_cut`): the organ keeps its mass, and the
+  clusters weigh their members anew;
 * the sub-tets a stroke made are not cut again by the same stroke (their faces on
   the cut lie on its path), nor are tets beside a removal's wound;
 * a piece of an organ that the cut left holding no pinned particle and sharing no
@@ -32,7 +31,7 @@ import numpy as np
 
 from taichi_lap.core.instruments import CUT_REACH, JAW_LENGTH, JAW_RADIUS
 from taichi_lap.core.csr import rows_of
-from taichi_lap.core.mesh import element_pieces, floored_masses, in_box, masses_after_cut
+from taichi_lap.core.mesh import element_pieces, in_box, masses_after_cut
 from taichi_lap.dissection.device import DeviceTopology
 from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.tet_cut import BladePath, cut_tets
@@ -44,14 +43,6 @@ PATH_REACH = 0.01
 the current one (the path stays where it was drawn in space while the tissue moves;
 a piece falling through where the blade passed long ago is not cut), several tets
 long so a blade that moves slowly still passes through the tets it entered."""
-
-
-MASS_FLOOR = 0.25
-"""A particle a cut made or whose tets it split weighs at least this fraction of its
-organ's median particle mass as built (:func:`~taichi_lap.core.mesh.floored_masses`,
-taken from the others the cut touched): the sliver sub-tets next to a vertex gave new
-particles 1/600 of their neighbours' mass, and the rectum's closing scissors and the
-tissue contacts threw them centimetres out of the polyp's stalk."""
 
 
 def scissor_blade(tool: dict, tip: np.ndarray, frame: np.ndarray, motion=None) -> np.ndarray:
@@ -82,7 +73,6 @@ class _Organ:
 
     organ: int
     free: list[int]
-    mass_floor: float  # the least mass [kg] of a particle the cut made or changed
     spent: bool = False  # whether the reserve ran out (said once)
 
 
@@ -103,11 +93,8 @@ class VolumeCutter:
         self.organs = []
         for k, organ in enumerate(data.organs):
             if organ.volume_cuttable:
-                first, end = organ.particles
-                built = np.asarray(data.mass)[first : end - organ.reserve]
-                floor = MASS_FLOOR * float(np.median(built))
-                free = list(range(end - 1, end - organ.reserve - 1, -1))
-                self.organs.append(_Organ(k, free, floor))
+                end = organ.particles[1]
+                self.organs.append(_Organ(k, list(range(end - 1, end - organ.reserve - 1, -1))))
         self.strokes: dict[int, _Stroke] = {}
 
     def stroke(
@@ -192,8 +179,6 @@ class VolumeCutter:
             topology.tets[first_new:],
             mass,
         )
-        touched = np.concatenate([corners, rows])
-        mass[touched] = floored_masses(mass[touched], organ.mass_floor)
         self.dissection.set_particles(
             rows, topology.rest[rows], mass[rows], cut.new_values(x), cut.new_values(v), state
         )

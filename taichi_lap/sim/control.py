@@ -24,7 +24,6 @@ from taichi_lap.core.instruments import (
     MAX_TOOL_SHAPES,
     MAX_TOOLS,
     SHAPE_KINDS,
-    TOOL_FRICTION,
     ToolGeometry,
     ToolShape,
 )
@@ -81,9 +80,6 @@ class Control(FieldOwner):
                 self, f"shape_{name}", group.field(dtype, len(table), vector=vector, values=table)
             )
         self.tool_reach = group.field(ti.f32, MAX_TOOLS)
-        self.tool_friction = group.field(
-            ti.f32, MAX_TOOLS, values=np.full(MAX_TOOLS, TOOL_FRICTION, np.float32)
-        )
         self.tool_start = group.field(ToolPose, MAX_TOOLS)
         self.tool_goal = group.field(ToolPose, MAX_TOOLS)
         self.tool_last = group.field(ToolPose, MAX_TOOLS)
@@ -141,11 +137,10 @@ class Control(FieldOwner):
         self.grasp[index] = bool(grasp and active)
         self.jaw_length[index] = float(jaw_length)
 
-    def set_tool_shapes(self, index: int, shapes, friction: float = TOOL_FRICTION):
+    def set_tool_shapes(self, index: int, shapes):
         """Make tool ``index`` the union of ``shapes`` (at most :data:`MAX_TOOL_SHAPES`
-        :class:`~taichi_lap.core.instruments.ToolShape`, in its frame [m]) with Coulomb
-        coefficient ``friction`` against tissue; ``shaft`` and ``jaws`` follow
-        :meth:`set_tool`."""
+        :class:`~taichi_lap.core.instruments.ToolShape`, in its frame [m]); ``shaft``
+        and ``jaws`` follow :meth:`set_tool`."""
         if not 0 <= index < MAX_TOOLS:
             raise IndexError(f"tool index {index} outside 0..{MAX_TOOLS - 1}")
         geometry = ToolGeometry(tuple(shapes), length=0.0, radius=0.0)
@@ -156,7 +151,6 @@ class Control(FieldOwner):
             table[rows] = values
         fields.write(zip(targets, tables))
         self.tool_reach[index] = geometry.reach()
-        self.tool_friction[index] = float(friction)
 
     def advance(self, begin: float, end: float):
         """Place every tool for a substep from fraction ``begin`` to ``end`` of the way
