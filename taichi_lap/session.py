@@ -356,9 +356,11 @@ class Session:
                 if scissors and self._volume_cutter is not None:
                     self._volume_cutter.release(k)
                 continue
+            if not (self.model.cuttable or springs and scissors):
+                continue  # a hook where only spring sheets could be cut: nothing to cut
             start = time.perf_counter()
             sweep = Sweep.between(geometry, *before, *pose)
-            x, v = self._motion()
+            x, v = self._motion(velocities=self.model.cuttable)  # spring cuts need no v
             if self.model.cuttable:
                 cutter = self._sheet_cutter()
                 for organ, change in cutter.cut(sweep, x, v, self.state):

@@ -66,8 +66,10 @@ class SpringSheets:
         and the springs broken (rows of ``data.spring_pair``)."""
         out, self.separations = [], []
         for sheet in self.sheets:
+            if sheet.tear_strain <= 0.0:
+                continue
             live = self._live(sheet)
-            if sheet.tear_strain <= 0.0 or not len(live):
+            if not len(live):
                 continue
             rest = self.model.data.spring_rest[live]
             strain = pair_lengths(x, self.pairs[live]) / rest - 1.0
