@@ -33,7 +33,7 @@ import logging
 import numpy as np
 
 from taichi_lap.collision.surface_tables import SurfaceRows
-from taichi_lap.core.csr import owners_of, rows_of
+from taichi_lap.core.csr import owners_of, rows_of, rows_of_extents
 from taichi_lap.core.fields import padded_rows
 from taichi_lap.dissection.removal import MutableTopology, TopologyChange
 from taichi_lap.kernels.collision.particle_contact import FREE
@@ -198,6 +198,8 @@ class DeviceTopology:
             "triangles": int(change.new_triangles.max(initial=-1)) + 1,
             "vertices": int(change.new_vertices.max(initial=-1)) + 1,
         }
+        if need["chunks"] > model.capacity["chunks"]:
+            need["chunks"] -= self._pack_chunks()
         short = {k: n for k, n in need.items() if n > model.capacity[k]}
         if not short:
             return
@@ -217,6 +219,38 @@ class DeviceTopology:
         self.triangles = padded_rows(self.triangles, model.surface_triangle_count, 0)
         self.triangle_live = padded_rows(self.triangle_live, model.surface_triangle_count, False)
         self.incident = padded_rows(self.incident, model.surface_vertex_count, -1)
+
+    def _pack_chunks(self) -> int:
+        """List every cluster's chunks again from row 0, without the listings that
+        :meth:`_add_members` emptied (a wall cut gives clusters members every frame it
+        cuts, each time listing their chunks again): the spare chunk rows are found
+        there before the model grows. Returns the rows freed."""
+        model = self.model
+        self._pending.flush()  # its rows are those of the listing before
+        total = model.cluster_total
+        counts = np.diff(self.cluster_chunks[:total], axis=1).ravel()
+        listed = self.chunk_rows[rows_of_extents(self.cluster_chunks[:total, 0], counts)]
+        first = np.concatenate([[0], np.cumsum(counts)])
+        writes = RowWrites()
+        writes.add(
+            np.arange(len(listed)),
+            {
+                model.chunk_cluster: np.repeat(np.arange(total), counts),
+                model.chunk_begin: listed[:, 0],
+                model.chunk_end: listed[:, 1],
+            },
+        )
+        writes.add(
+            np.arange(total),
+            {model.cluster_chunk_begin: first[:-1], model.cluster_chunk_end: first[1:]},
+        )
+        writes.flush()
+        freed = model.chunk_total - len(listed)
+        self.cluster_chunks[:total] = np.stack([first[:-1], first[1:]], 1)
+        self.chunk_rows = listed
+        model.chunk_total = len(listed)
+        model.finalize_counts()
+        return freed
 
     def _drop_members(self, writes: RowWrites, clusters: np.ndarray, particles: np.ndarray):
         """Members ``particles`` leave ``clusters`` (pairs): their rows weigh 0
@@ -279,24 +313,29 @@ class DeviceTopology:
         """Members ``particles`` join ``clusters`` (pairs; a cut's new particles): each
         cluster's new members take rows at the end, its chunks are listed again at
         the end with chunks of those rows (the old listing is emptied), and its mass
-        and rest centre follow (offsets from its ``origin``, as for every member)."""
+        and rest centre follow (offsets from its ``origin``, as for every member). A
+        particle row a cut took again (a wall's reserve row, given back when a later
+        sweep removed its vertex) takes the row it left in the cluster, weighing 0,
+        listed still."""
         model = self.model
         n = len(self.topology.rest)
         order = np.argsort(clusters, kind="stable")
         clusters, particles = clusters[order], particles[order]
-        rows = np.arange(self.rows_used, self.rows_used + len(particles))
-        self.rows_used += len(particles)
-        keys = np.concatenate([self.row_key, clusters * n + particles])
-        by_key = np.argsort(keys, kind="stable")
-        self.row_key = keys[by_key]
-        self.row_of_key = np.concatenate([self.row_of_key, rows])[by_key]
+        keys = clusters * n + particles
+        at = np.minimum(np.searchsorted(self.row_key, keys), len(self.row_key) - 1)
+        fresh = self.row_key[at] != keys
+        rows = self.row_of_key[at]
+        rows[fresh] = np.arange(self.rows_used, self.rows_used + int(fresh.sum()))
+        self.rows_used += int(fresh.sum())
+        self._key_rows(keys[fresh], rows[fresh])
         mass = self.topology.mass[particles]
         rest = self.topology.rest[particles]
+        gained = mass - np.where(fresh, 0.0, self.row_mass[rows])
         self.row_mass[rows] = mass
-        changed, first, count = np.unique(clusters, return_index=True, return_counts=True)
-        total = self.mass[changed] + np.add.reduceat(mass, first)
+        changed, first = np.unique(clusters, return_index=True)
+        total = self.mass[changed] + np.add.reduceat(gained, first)
         moment = self.mass[changed, None] * self.center[changed] + np.add.reduceat(
-            mass[:, None] * rest, first
+            gained[:, None] * rest, first
         )
         self.center[changed] = moment / np.maximum(total, 1e-30)[:, None]
         self.mass[changed] = total
@@ -308,17 +347,22 @@ class DeviceTopology:
                 model.cluster_rest_offset: rest - self.origin[clusters],
             },
         )
-        chunk_cluster, chunk_rows, ranges = [], [], []
+        chunk_cluster, chunk_rows = [np.zeros(0, np.int64)], [np.zeros((0, 2), np.int64)]
         at = model.chunk_total
-        for c, a, k in zip(changed.tolist(), first.tolist(), count.tolist()):
+        ranges = self.cluster_chunks[changed].copy()
+        ends = np.append(first[1:], len(clusters))
+        for i, (c, a, b) in enumerate(zip(changed.tolist(), first.tolist(), ends.tolist())):
+            taken = rows[a:b][fresh[a:b]]  # in order, one after another
+            if not len(taken):
+                continue  # rows it had: listed already
             old = self.chunk_rows[slice(*self.cluster_chunks[c])]
-            added = member_chunks(np.array([rows[a], rows[a] + k]))
+            added = member_chunks(np.array([taken[0], taken[-1] + 1]))
             listed = np.concatenate([old, np.stack([added["begin"], added["end"]], 1)])
             writes.add(
                 np.arange(*self.cluster_chunks[c]),
                 {model.chunk_end: old[:, 0]},  # the old listing, emptied
             )
-            ranges.append((at, at + len(listed)))
+            ranges[i] = (at, at + len(listed))
             chunk_cluster.append(np.full(len(listed), c))
             chunk_rows.append(listed)
             at += len(listed)
@@ -335,7 +379,6 @@ class DeviceTopology:
                 model.chunk_end: chunk_rows[:, 1],
             },
         )
-        ranges = np.array(ranges, dtype=np.int64)
         writes.add(
             changed,
             {
@@ -346,6 +389,14 @@ class DeviceTopology:
                 model.cluster_chunk_end: ranges[:, 1],
             },
         )
+
+    def _key_rows(self, keys: np.ndarray, rows: np.ndarray):
+        """List member ``rows`` under their (cluster, particle) ``keys``, the listing
+        kept sorted by key (a split-off cluster's members need not be in order)."""
+        keys = np.concatenate([self.row_key, keys])
+        by_key = np.argsort(keys, kind="stable")
+        self.row_key = keys[by_key]
+        self.row_of_key = np.concatenate([self.row_of_key, rows])[by_key]
 
     def _write_memberships(self, writes: RowWrites):
         """Every particle's memberships again, as the topology lists them (a cut gave
@@ -375,8 +426,7 @@ class DeviceTopology:
         chunk_rows = np.arange(model.chunk_total, model.chunk_total + len(chunks["cluster"]))
         rows = np.arange(first, first + count)
         n = len(topology.rest)
-        self.row_key = np.concatenate([self.row_key, c * n + members])
-        self.row_of_key = np.concatenate([self.row_of_key, rows])
+        self._key_rows(c * n + members, rows)
         self.rows_used += count
         mass = topology.mass[members]
         rest = topology.rest[members]

@@ -222,11 +222,12 @@ class MutableTopology:
         self.tets = np.asarray(data.tets, dtype=np.int64).reshape(-1, 4)
         self.tet_alive = np.ones(len(self.tets), dtype=bool)
         self.tet_removed = np.zeros(len(self.tets), dtype=bool)  # by a removal, not a cut
-        self._index_tets()
+        self.wall_pairs = np.zeros((0, 2), dtype=np.int64)  # the cut walls' graph
         self._mask = np.zeros(n, dtype=bool)  # scratch, left all False
         self._reached = np.zeros(n, dtype=bool)  # scratch, left all False
         self._corner = np.zeros(n, dtype=bool)  # scratch, left all False
         self._slot = np.full(n, -1, dtype=np.int64)  # scratch, left all -1
+        self._index_tets()
 
         self._init_surface(data)
         self._init_clusters(data)
@@ -235,7 +236,9 @@ class MutableTopology:
 
     def _index_tets(self):
         """The tets' incidence (particle -> tets, edges, adjacency) and live counts:
-        as built, and again after a cut adds tets."""
+        as built, and again after a cut adds tets or changes a wall. The adjacency
+        (the graph clusters split over) holds the tets' edges, then the
+        :attr:`wall_pairs` (:meth:`link_walls`), live while listed."""
         n = len(self.rest)
         self.tet_start, rows = incidence(self.tets.ravel(), n)
         self.particle_tet = rows // 4
@@ -243,8 +246,15 @@ class MutableTopology:
         self.live_tets_of = np.bincount(live.ravel(), minlength=n)
         edges, inverse = unique_edges(self.tets, return_inverse=True)
         self.tet_edge = inverse.reshape(-1, 6)
-        self.edge_live = np.bincount(self.tet_edge[self.tet_alive].ravel(), minlength=len(edges))
-        self.adjacency_start, self.adjacency_edge, self.adjacency_other = both_ends(edges, n)
+        self.edge_live = np.concatenate(
+            [
+                np.bincount(self.tet_edge[self.tet_alive].ravel(), minlength=len(edges)),
+                np.ones(len(self.wall_pairs), dtype=np.int64),
+            ]
+        )
+        self.adjacency_start, self.adjacency_edge, self.adjacency_other = both_ends(
+            np.concatenate([edges.reshape(-1, 2), self.wall_pairs]), n
+        )
 
     def _index_memberships(self):
         """Particle -> its clusters (compressed rows, by particle then cluster, as the
@@ -439,7 +449,7 @@ class MutableTopology:
             )
         volume = float(tet_volumes(self.rest, self.tets[dead_tets]).sum())
         self.removed_volume += volume
-        clusters = self._split_clusters(removed, dead_tets)
+        clusters = self._split_clusters(removed, self._corners(dead_tets))
         surface = self._rebuild_surface(removed)
         capped = self._cap_embedded(removed)
         for kind in ("triangles", "vertices") if capped else ():  # a reused slot is new
@@ -488,7 +498,49 @@ class MutableTopology:
         self.tet_removed = np.concatenate([self.tet_removed, np.zeros(len(added), dtype=bool)])
         self._index_tets()
 
-        side = np.asarray(cut.vertex_side, dtype=np.int64)
+        joined = self._join_sides(rows, np.asarray(cut.vertex_side, dtype=np.int64))
+        clusters = self._split_clusters(np.zeros(0, dtype=np.int64), self._corners(dead_tets))
+        surface = self._surface_of_cut(dead_tets, np.arange(first_new, len(self.tets)))
+        rebound = self._rebind(set(clusters.tolist()))
+        return TopologyChange(
+            dead_tets=dead_tets,
+            clusters=clusters,
+            rebound_vertices=rebound,
+            joined=joined,
+            memberships_rebuilt=True,
+            split_tets=len(cut.split),
+            **surface,
+        )
+
+    def link_walls(self, pairs: np.ndarray, particles: np.ndarray):
+        """Make ``pairs`` (P, 2) the graph of the organs whose clusters are surface
+        particles (a wall, seed 000 §3.1: its surface edges and links through it),
+        as built, before any cut of it; their ``particles``' clusters learn their
+        parts as built over it (:meth:`_know_built_parts`)."""
+        self.wall_pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self._index_tets()
+        self._know_built_parts(self.clusters_of(particles).tolist())
+
+    def cut_wall(self, pairs, rows, side, removed, at) -> dict[str, np.ndarray]:
+        """The clusters after a surface cut of a wall (its triangles, particles and
+        rest positions already cut, :class:`~taichi_lap.dissection.sheet_cut.SheetCutter`):
+        each new particle ``rows`` joins the clusters of the particle ``side`` whose
+        side of the cut it is on, the ``removed`` particles leave theirs, the walls'
+        graph becomes ``pairs`` (their live edges and links), and the clusters of the
+        particles ``at`` the cut whose members it parted split into its connected
+        pieces, as after a removal (:meth:`_split_clusters`). Returns the change's
+        ``joined`` and ``clusters``."""
+        joined = self._join_sides(np.asarray(rows, np.int64), np.asarray(side, np.int64))
+        self.wall_pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self._index_tets()
+        at = np.asarray(at, dtype=np.int64)
+        clusters = self._split_clusters(np.asarray(removed, np.int64), at[self.particle_alive[at]])
+        return {"joined": joined, "clusters": clusters}
+
+    def _join_sides(self, rows: np.ndarray, side: np.ndarray) -> np.ndarray:
+        """New particles ``rows`` (a cut's) join every live cluster of the particle
+        ``side`` whose side of the cut each is on, in its built part; returns the
+        (cluster, particle) pairs joined."""
         which = rows_of(self.membership_start, side)
         owner = owners_of(self.membership_start, side)  # the new particle of each row
         joined_cluster = self.membership_cluster[which]
@@ -504,20 +556,13 @@ class MutableTopology:
             at = by_particle[np.searchsorted(members, side[group], sorter=by_particle)]
             self.cluster_members[c] = np.concatenate([members, rows[group]])
             self._built_parts[c] = np.concatenate([self._built_parts[c], self._built_parts[c][at]])
-        joined_particle = rows[owner]
         self._index_memberships()
-        clusters = self._split_clusters(np.zeros(0, dtype=np.int64), dead_tets)
-        surface = self._surface_of_cut(dead_tets, np.arange(first_new, len(self.tets)))
-        rebound = self._rebind(set(clusters.tolist()))
-        return TopologyChange(
-            dead_tets=dead_tets,
-            clusters=clusters,
-            rebound_vertices=rebound,
-            joined=np.stack([joined_cluster, joined_particle], 1).astype(np.int64),
-            memberships_rebuilt=True,
-            split_tets=len(cut.split),
-            **surface,
-        )
+        return np.stack([joined_cluster, rows[owner]], 1).astype(np.int64)
+
+    def _corners(self, tets: np.ndarray) -> np.ndarray:
+        """The live particles at the corners of ``tets``."""
+        corners = np.unique(self.tets[tets])
+        return corners[self.particle_alive[corners]]
 
     def _surface_of_cut(self, dead_tets: np.ndarray, new_tets: np.ndarray) -> dict:
         """Step 3 of :meth:`split_tets`: the triangles on the faces of ``dead_tets``
@@ -716,12 +761,11 @@ class MutableTopology:
             if len(piece) <= FRAGMENT_PARTICLES and not self.pinned[piece].any()
         ]
 
-    def _split_clusters(self, removed: np.ndarray, dead_tets: np.ndarray) -> np.ndarray:
+    def _split_clusters(self, removed: np.ndarray, corners: np.ndarray) -> np.ndarray:
         """Drop the ``removed`` members of their clusters and split the clusters whose
-        built parts came apart where ``dead_tets`` died (a cluster can lose an edge
-        without losing a member); returns the changed clusters, new ones included."""
-        corners = np.unique(self.tets[dead_tets])
-        corners = corners[self.particle_alive[corners]]
+        built parts came apart at the live particles ``corners`` (those of the tets
+        that died, or where a wall was cut: a cluster can lose an edge without
+        losing a member); returns the changed clusters, new ones included."""
         is_corner = self._corner
         is_corner[corners] = True
         candidates = self.clusters_of(np.concatenate([removed, corners]))

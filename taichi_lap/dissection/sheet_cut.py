@@ -1,6 +1,7 @@
-"""Cutting sheets and trusses in a session (seed 000 §5.1-5.2, Alg. 3): an
-instrument's cutting shapes swept between two frames cut the fascia and the surface
-of a vessel or gland (a truss structure, §3.3), and their physics follows the cut.
+"""Cutting sheets, trusses and walls in a session (seed 000 §5.1-5.2, Alg. 3): an
+instrument's cutting shapes swept between two frames cut the fascia, the surface of
+a vessel or gland (a truss structure, §3.3) and the rectum wall (surface particles in
+shape-matching clusters, §3.1), and their physics follows the cut.
 
 :func:`~taichi_lap.dissection.surface_cut.cut_surface` decides on the host, at the
 sheet's current positions, which faces go and which come; :class:`SheetCutter` makes
@@ -18,6 +19,12 @@ that the sheet's topology:
   lengths from the rest positions; a truss's are its edges again and the struts
   (Alg. 2) the cut left: a strut goes with either end, when the sweep passes through
   it, and when its ends are left in different pieces of the surface;
+* a wall's new particles join the clusters of the particles beside them on their side
+  of the cut, and the clusters the cut parts split into its connected pieces, as the
+  clusters of a tet organ do (:meth:`~taichi_lap.dissection.removal.MutableTopology.cut_wall`).
+  The graph they are split over is the wall's surface edges and its links through
+  the wall (:func:`~taichi_lap.preprocess.truss.through_links`), which go as struts
+  do: a cut through the outer skin alone parts no cluster;
 * its relaxed long-range attachments (Eq. 3) are found again on the cut sheet: each
   vertex keeps its geodesically nearest anchors that its piece still holds, so a
   piece cut free hangs from nothing and falls;
@@ -49,8 +56,9 @@ from taichi_lap.dissection.removal import TopologyChange
 from taichi_lap.dissection.surface_cut import Sweep, cut_surface
 from taichi_lap.kernels.collision.particle_contact import FREE
 from taichi_lap.kernels.scatter import gather
-from taichi_lap.preprocess.organs import CUT_SURFACES, CUTTABLE_SHEETS
+from taichi_lap.preprocess.organs import CUT_SURFACES, CUT_WALLS, CUTTABLE_SHEETS
 from taichi_lap.preprocess.sheets import bending_pairs, long_range_attachments
+from taichi_lap.preprocess.truss import through_links
 
 log = logging.getLogger("taichi_lap")
 
@@ -61,11 +69,24 @@ slightest push (in the rectum's script the closing scissors stretch 1 mm kerf ed
 threefold, 0.17 over the median edge)."""
 
 
-def built_edges(data, organ: int) -> np.ndarray:
-    """The edges (E, 2) of ``organ``'s surface as built, as particle pairs (its
-    surface vertices are its particles)."""
+def built_faces(data, organ: int) -> np.ndarray:
+    """The triangles (F, 3) of ``organ``'s surface as built, as particles (its surface
+    vertices are its particles)."""
     faces = np.asarray(data.surface_triangles).reshape(-1, 3)[slice(*data.organs[organ].triangles)]
-    return unique_edges(np.asarray(data.surface_index).reshape(-1, 4)[faces, 0])
+    return np.asarray(data.surface_index).reshape(-1, 4)[faces, 0]
+
+
+def built_edges(data, organ: int) -> np.ndarray:
+    """The edges (E, 2) of ``organ``'s surface as built, as particle pairs."""
+    return unique_edges(built_faces(data, organ))
+
+
+def wall_links(data, organ: int) -> np.ndarray:
+    """The links (L, 2) through ``organ``'s wall as built, as particle pairs
+    (:func:`~taichi_lap.preprocess.truss.through_links` at rest)."""
+    used, local = np.unique(built_faces(data, organ), return_inverse=True)
+    mesh = TriangleMesh(np.asarray(data.rest_position)[used], local.reshape(-1, 3))
+    return used[through_links(mesh)]
 
 
 def median_edge(data, organ: int) -> float:
@@ -129,7 +150,8 @@ class _Sheet:
     """One cuttable organ: its index, the particle rows its reserve still holds
     (taken from the end), the material of its constraints and its anchors (the
     pinned vertices; the LRA anchors of a sheet); a truss's struts left (particle
-    pairs, rest lengths [m], stiffness; none for a sheet)."""
+    pairs, rest lengths [m], stiffness; none for a sheet), or a wall's links through
+    it (pairs, rest lengths, stiffness 0: not constraints)."""
 
     organ: int
     free: list[int]
@@ -141,6 +163,7 @@ class _Sheet:
     edge: float  # the median edge length at rest as built [m]
     struts: tuple[np.ndarray, np.ndarray, np.ndarray]
     is_sheet: bool  # a sheet (bending pairs, LRAs), not a truss (struts)
+    is_wall: bool  # a wall (clusters, no constraints of its own)
     pieces: int  # its connected pieces of triangles now
     lra_reach: float = np.inf  # the guess at its LRAs' longest rest distance [m]
     spent: bool = False  # whether the reserve ran out (said once)
@@ -167,29 +190,44 @@ class SheetCutter:
             first, end = organ.particles
             built = np.arange(first, end - organ.reserve)
             material = materials[k]
-            is_sheet = organ.model in CUTTABLE_SHEETS
+            is_sheet, is_wall = organ.model in CUTTABLE_SHEETS, organ.model in CUT_WALLS
+            if is_sheet:  # a sheet's constraints that are not edges are its bending pairs
+                struts = _NO_STRUTS
+            elif is_wall:
+                links = wall_links(data, k)
+                rest = pair_lengths(np.asarray(data.rest_position), links)
+                struts = (links, rest, np.zeros(len(links)))
+            else:
+                struts = built_struts(data, k)
             sheet = _Sheet(
                 organ=k,
                 free=list(range(end - 1, end - organ.reserve - 1, -1)),
-                edge_stiffness=float(material["edge_stiffness"]),
+                edge_stiffness=float(material.get("edge_stiffness", 0.0)),
                 bending_stiffness=float(material.get("bending_stiffness", 0.0)),
                 anchors_per_vertex=int(material.get("lra_anchors", 0)),
                 anchors=built[np.asarray(data.pinned)[built]],
                 tear_strain=float(material.get("tear_strain", 0.0)),
                 edge=median_edge(data, k),
-                # a sheet's constraints that are not edges are its bending pairs
-                struts=_NO_STRUTS if is_sheet else built_struts(data, k),
+                struts=struts,
                 is_sheet=is_sheet,
+                is_wall=is_wall,
                 pieces=piece_count(dissection.topology.live_faces(k)),
             )
             self.sheets.append(sheet)
+        self.walls = [sheet for sheet in self.sheets if sheet.is_wall]
+        if self.walls:
+            particles = np.concatenate(
+                [np.unique(dissection.topology.live_faces(wall.organ)) for wall in self.walls]
+            )
+            dissection.topology.link_walls(self._wall_graph(), particles)
 
     def cut(
         self, sweep: Sweep, x: np.ndarray, v: np.ndarray, state
     ) -> list[tuple[str, TopologyChange]]:
-        """Cut every sheet and truss ``sweep`` reaches, with its particles at ``x``
-        moving at ``v`` (N, 3) [m, m/s]; write the changes to the model and ``state``;
-        returns the organs' names and changes (none where nothing was cut)."""
+        """Cut every sheet, truss and wall ``sweep`` reaches, with its particles at
+        ``x`` moving at ``v`` (N, 3) [m, m/s]; write the changes to the model and
+        ``state``; returns the organs' names and changes (none where nothing was
+        cut)."""
         changes, self.separations = [], []
         bounds = low, high = sweep.bounds
         for sheet in self.sheets:
@@ -197,15 +235,18 @@ class SheetCutter:
             if self.dissection.out_of_reach(sheet.organ, x, low, high):
                 continue
             crossed = struts_crossed(sheet.struts[0], sweep, bounds, x)
+            crossed_ends = np.unique(sheet.struts[0][crossed])
             sheet.struts = tuple(values[~crossed] for values in sheet.struts)
-            change = self._cut_sheet(sheet, sweep, x, v, state)
+            change = self._cut_sheet(sheet, sweep, x, v, state, crossed_ends)
             if change is not None:
                 changes.append((record.name, change))
-            if change is not None or crossed.any():
+            if (change is not None or crossed.any()) and not sheet.is_wall:
                 self._write_constraints(sheet)
         return changes
 
-    def _cut_sheet(self, sheet: _Sheet, sweep, x, v, state) -> TopologyChange | None:
+    def _cut_sheet(
+        self, sheet: _Sheet, sweep, x, v, state, crossed_ends: np.ndarray
+    ) -> TopologyChange | None:
         topology = self.dissection.topology
         vertices, triangles = topology.vertices, topology.triangles
         rows = self.dissection.topology.live_triangles(sheet.organ)
@@ -282,6 +323,23 @@ class SheetCutter:
             piece = np.full(len(topology.rest), -1)
             piece[particles] = piece_of[:count]
             sheet.struts = struts_in_one_piece(sheet.struts, piece)
+        clusters = {}
+        if sheet.is_wall:  # its clusters follow the cut
+            parents, weights = cut.vertex_parents[made], cut.vertex_weights[made]
+            kept_weights = np.where(in_use[:count][parents], weights, -1.0)
+            heaviest = parents[np.arange(len(made)), kept_weights.argmax(axis=1)]
+            side = cut.vertex_side[made]
+            beside = np.where(side >= 0, side, heaviest)
+            beside = np.where(in_use[:count][beside], beside, heaviest)
+            at = particles[np.unique(local.reshape(-1, 3)[cut.removed])]
+            clusters = topology.cut_wall(
+                self._wall_graph(),
+                new_particles,
+                particles[beside],
+                dead_particles,
+                np.concatenate([at, new_particles, crossed_ends]),
+            )
+            clusters["memberships_rebuilt"] = True
         change = TopologyChange(
             removed_particles=dead_particles,
             dead_triangles=dead_triangles,
@@ -289,6 +347,7 @@ class SheetCutter:
             dead_vertices=dead_vertices,
             new_vertices=new_vertices,
             fragments=fragments,
+            **clusters,
         )
         self.dissection.apply(change, state)
         sheet.free.extend(int(p) for p in dead_particles[::-1])
@@ -424,6 +483,15 @@ class SheetCutter:
             small &= ~anchored
         counts = [len(np.unique(faces[pieces == k])) for k in np.flatnonzero(small)]
         return small[pieces], counts, int((~small).sum())
+
+    def _wall_graph(self) -> np.ndarray:
+        """The walls' graph their clusters split over: the edges of their live
+        triangles and the links through them the cuts left (particle pairs)."""
+        live = self.dissection.topology.live_faces
+        return np.concatenate(
+            [unique_edges(live(wall.organ)) for wall in self.walls]
+            + [wall.struts[0] for wall in self.walls]
+        )
 
     def _write_constraints(self, sheet: _Sheet):
         """Make the sheet's constraints in the model those of its live triangles

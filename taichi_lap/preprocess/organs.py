@@ -179,14 +179,24 @@ def build_shape_matching(organ: OrganSpec, mesh: TriangleMesh) -> OrganParts:
 CUTTABLE_SHEETS = ("fascia_lra",)
 """Tissue models whose sheets instruments cut (seed 000 Alg. 3,
 :mod:`taichi_lap.dissection.sheet_cut`): their vertices are their particles."""
-CUT_SURFACES = CUTTABLE_SHEETS + ("truss",)
-"""Tissue models whose surface instruments cut (seed 000 Alg. 3): the sheets, and
-the truss structures of vessels and glands (§3.3), whose surface vertices are their
-particles too; a truss is cut where a scene holds an instrument that cuts."""
+CUT_WALLS = ("shape_matching",)
+"""Tissue models of surface particles in clusters (seed 000 §3.1: the rectum wall)
+whose surface instruments cut where the material makes it ``cuttable``, the clusters
+splitting where the cut parts them
+(:meth:`~taichi_lap.dissection.removal.MutableTopology.cut_wall`)."""
+CUT_SURFACES = CUTTABLE_SHEETS + ("truss",) + CUT_WALLS
+"""Tissue models whose surface instruments cut (seed 000 Alg. 3): the sheets, the
+truss structures of vessels and glands (§3.3) and the walls, whose surface vertices
+are their particles too; a truss or a wall is cut where a scene holds an instrument
+that cuts."""
 CUT_RESERVE = 1.0
 """Particle rows a cuttable surface keeps for the vertices cuts make, as a fraction of
 its vertices (a cut across the rectum's fascia makes about two per edge it crosses;
 the vertices a cut removes give their rows back)."""
+WALL_CUT_RESERVE = 0.5
+"""Particle rows a wall keeps for the vertices cuts make, as a fraction of its
+vertices (cutting an 8 mm tube of 12 by 32 vertices a skin through, pushed along by
+the jaws, held 145 at once)."""
 VOLUME_CUT_RESERVE = 0.5
 """Particle rows a tet organ whose surface is its particles keeps for the vertices
 volumetric cuts make (seed 000 §5.3, :mod:`taichi_lap.dissection.volume_cut`), as a
@@ -196,8 +206,9 @@ tet edge a cut crosses: a cut through the polyp's stalk takes about 10 %)."""
 
 def cut_reserve(organ: OrganSpec, parts: OrganParts, tools: list[dict]) -> float:
     """The fraction of reserve rows ``organ`` keeps for cuts: a sheet or a truss where
-    scissors or a hook can cut it, or a sheet that tears (:data:`CUT_RESERVE`), or a
-    directly bound tet organ where scissors can cut it (:data:`VOLUME_CUT_RESERVE`); 0
+    scissors or a hook can cut it, or a sheet that tears (:data:`CUT_RESERVE`), a wall
+    its material makes ``cuttable`` where they can cut it (:data:`WALL_CUT_RESERVE`),
+    or a directly bound tet organ where scissors can cut it (:data:`VOLUME_CUT_RESERVE`); 0
     for others (the solver's loops run over reserve rows too: a 128 x 128 sheet's step
     took 14.0 ms with them, 8.5 ms without)."""
     cutting = any(cutting_geometry(tool) is not None for tool in tools)
@@ -205,6 +216,8 @@ def cut_reserve(organ: OrganSpec, parts: OrganParts, tools: list[dict]) -> float
         return CUT_RESERVE
     if organ.model == "truss" and cutting:
         return CUT_RESERVE
+    if organ.model in CUT_WALLS and cutting and organ.material.get("cuttable", False):
+        return WALL_CUT_RESERVE
     direct = len(parts.tets) and bool(np.all(parts.surface_weight[:, 0] == 1.0))
     if direct and any(tool["kind"] == "scissors" for tool in tools):
         return VOLUME_CUT_RESERVE

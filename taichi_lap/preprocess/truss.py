@@ -108,3 +108,19 @@ def generate_truss(
     stiffness = np.array([found[tuple(p)] for p in pairs.tolist()], dtype=np.float64)
     rest = np.linalg.norm(v[pairs[:, 0]] - v[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
     return Truss(pairs=pairs, rest=rest, stiffness=stiffness)
+
+
+def through_links(mesh: TriangleMesh) -> np.ndarray:
+    """Pairs (L, 2), i < j, joining each vertex of a closed, outward-oriented surface
+    ``mesh`` to the corner nearest to it of the face its inward normal hits first
+    (Alg. 2 lines 3-9): across a wall's thickness, the links a cut must cross to part
+    what the surface alone would not join (the inner and outer skins of a tube)."""
+    v, f = mesh.vertices, mesh.triangles
+    normals, face_normals = vertex_normals(mesh)
+    hit = _nearest_opposite_hit(v, -normals, v, f, face_normals)
+    source = np.flatnonzero(hit >= 0)
+    corners = f[hit[source]]
+    nearest = np.linalg.norm(v[corners] - v[source, None], axis=2).argmin(axis=1)
+    pairs = np.sort(np.stack([source, corners[np.arange(len(source)), nearest]], 1), axis=1)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    return np.unique(pairs, axis=0).reshape(-1, 2)

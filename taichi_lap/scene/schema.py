@@ -306,7 +306,15 @@ _EDGES = {
     "edge_stiffness": Param("float", 1.0, "stiffness of the surface edges", lo=0.0, hi=1.0),
 }
 MATERIAL_PARAMS = {
-    "shape_matching": _SHAPE,
+    "shape_matching": {
+        **_SHAPE,
+        "cuttable": Param(
+            "bool",
+            False,
+            "scissors and an energised hook cut its surface, its clusters splitting where "
+            "the cut parts them (seed 000 Alg. 3)",
+        ),
+    },
     "tet_clusters": {
         **_SHAPE,
         **_HEAT,

@@ -23,6 +23,7 @@ from taichi_lap import runtime
 from taichi_lap.core.topology import MAX_ORGANS
 from taichi_lap.kernels.scatter import RowWrites
 from taichi_lap.preprocess.model_data import ModelData
+from taichi_lap.preprocess.organs import CUT_WALLS
 from taichi_lap.preprocess.sheets import torn_cells
 
 CHUNK = 128
@@ -168,19 +169,20 @@ def particle_organs(data: ModelData) -> np.ndarray:
 
 
 def volume_cut_rows(data) -> dict[str, int]:
-    """Member and chunk rows to add for the volume cuts of ``data``'s organs that can
-    be cut through (a cut reserve and tets, :mod:`taichi_lap.dissection.volume_cut`):
-    a cut appends the pieces of each cluster it parts and lists again the chunks of
-    each cluster it gives members, so twice the members and chunks of the clusters
-    holding a particle of such an organ. Without them the rectum script's polyp
-    excision outgrew the spare rows (members 33,973 to 50,959, chunks 820 to 1,230)
-    and stalled about 2 s while every kernel compiled again."""
+    """Member and chunk rows to add for the cuts of ``data``'s organs whose clusters a
+    cut parts (a cut reserve and tets, :mod:`taichi_lap.dissection.volume_cut`, or a
+    wall, :data:`~taichi_lap.preprocess.organs.CUT_WALLS`): a cut appends the pieces
+    of each cluster it parts and lists again the chunks of each cluster it gives
+    members, so twice the members and chunks of the clusters holding a particle of
+    such an organ. Without them the rectum script's polyp excision outgrew the spare
+    rows (members 33,973 to 50,959, chunks 820 to 1,230) and stalled about 2 s while
+    every kernel compiled again."""
     start = np.asarray(data.cluster_start, dtype=np.int64)
     member = np.asarray(data.cluster_member, dtype=np.int64)
     owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
     touched = np.zeros(len(start) - 1, dtype=bool)
     for organ in data.organs:
-        if organ.volume_cuttable:
+        if organ.volume_cuttable or organ.reserve and organ.model in CUT_WALLS:
             first, end = organ.particles
             touched[owner[(member >= first) & (member < end)]] = True
     sizes = np.diff(start)[touched]
