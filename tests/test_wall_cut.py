@@ -168,3 +168,36 @@ def test_a_wall_cut_on_vulkan_matches_cpu():
     """The tube in two halves alike and their heights within 1 mm (the cut's kerf
     differs in its slivers: the jaws push the tube along as they cut)."""
     assert_backend_matches_cpu("tests.test_wall_cut:tube_halves", 1e-3, per_key={"halves": 0})
+
+
+def test_a_slit_in_the_outer_skin_splits_no_cluster():
+    """Jaws drawn along the top of the tube 1.5 mm lower than they touch it cut its
+    outer skin only (the contact keeps them from going deeper): the tube stays one
+    piece and each cluster keeps the members it had on both sides of the slit, held
+    together by the links through the wall (a piece the kerf cut off, a sliver, may
+    leave as a cluster of its own and go with the next sweep)."""
+    session = tube_session()
+    x = session.state.x.to_numpy()[built_particles(session)]
+    top = float(x[np.abs(x[:, 0] - 0.012) < 0.003, 1].max())
+    script = [
+        {"time": 0.0, "tool": "scissors", "tip": [0.012, top + 0.006, 0.005], "grasp": True},
+        {"time": 0.3, "tool": "scissors", "tip": [0.012, top + 0.0015, 0.005]},
+        {"time": 0.6, "tool": "scissors", "tip": [-0.012, top + 0.0015, 0.005]},
+        {"time": 0.65, "tool": "scissors", "tip": [-0.012, top + 0.0015, 0.005], "grasp": False},
+        {"time": 0.8, "tool": "scissors", "tip": [-0.012, top + 0.02, 0.005]},
+    ]
+    events = run_script(session, script, 50)
+    assert sum(e["kind"] == "cut" for e in events) >= 10
+    assert not any(e["kind"] == "separated" for e in events)
+    session.check_topology()
+    topology = session._dissection.topology
+    built = len(session.data.cluster_start) - 1
+    for c in range(built):
+        members = topology.built_members(c)
+        # those the cut left (a row it removed may hold a new particle again)
+        same = (topology.rest[members] == session.data.rest_position[members]).all(axis=1)
+        left = members[topology.particle_alive[members] & same]
+        assert np.isin(left, topology.cluster_members[c]).all()
+    split_off = [c for c in topology.cluster_parent if topology.cluster_alive[c]]
+    assert all(len(topology.cluster_members[c]) <= 8 for c in split_off)
+    session.close()
