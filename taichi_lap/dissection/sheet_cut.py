@@ -1,7 +1,8 @@
 """Cutting sheets, trusses and walls in a session (seed 000 §5.1-5.2, Alg. 3): an
 instrument's cutting shapes swept between two frames cut the fascia, the surface of
-a vessel or gland (a truss structure, §3.3) and the rectum wall (surface particles in
-shape-matching clusters, §3.1), and their physics follows the cut.
+a vessel or gland (a truss structure, §3.3) and a wall whose material makes it
+``cuttable`` (surface particles in shape-matching clusters, §3.1, as the rectum's), and
+their physics follows the cut.
 
 :func:`~taichi_lap.dissection.surface_cut.cut_surface` decides on the host, at the
 sheet's current positions, which faces go and which come; :class:`SheetCutter` makes
@@ -24,7 +25,9 @@ that the sheet's topology:
   clusters of a tet organ do (:meth:`~taichi_lap.dissection.removal.MutableTopology.cut_wall`).
   The graph they are split over is the wall's surface edges and its links through
   the wall (:func:`~taichi_lap.preprocess.truss.through_links`), which go as struts
-  do: a cut through the outer skin alone parts no cluster;
+  do: a slit in the outer skin alone leaves each cluster whole (links a sweep crosses
+  without cutting the surface go, but clusters split only where a cut changes the
+  surface);
 * its relaxed long-range attachments (Eq. 3) are found again on the cut sheet: each
   vertex keeps its geodesically nearest anchors that its piece still holds, so a
   piece cut free hangs from nothing and falls;
