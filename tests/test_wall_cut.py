@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from taichi_lap.core.mesh import element_pieces
+from taichi_lap.core.mesh import element_pieces, triangle_areas
+from taichi_lap.dissection.sheet_cut import WALL_MIN_AREA
 from taichi_lap.preprocess.organs import WALL_CUT_RESERVE
 from taichi_lap.scene import from_tables
 from taichi_lap.session import Session
@@ -109,6 +110,10 @@ def test_scissors_cut_the_tube_in_two_and_no_cluster_holds_both_halves(cut_tube)
     assert spanning_clusters(session, piece) == 0
     topology = session._dissection.topology
     assert topology.cluster_alive.sum() > clusters_before  # they split
+    # no face the cut made is a sliver at rest (:data:`WALL_MIN_AREA`)
+    built = triangle_areas(session.data.rest_position, session.data.surface_triangles)
+    areas = triangle_areas(topology.rest, session.live_triangles())
+    assert areas.min() >= WALL_MIN_AREA * np.median(built)
 
 
 def test_the_cut_particles_join_the_clusters_on_their_side(cut_tube):

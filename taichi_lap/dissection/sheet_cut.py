@@ -52,6 +52,7 @@ from taichi_lap.core.mesh import (
     pair_lengths,
     piece_count,
     rows_in,
+    triangle_areas,
     unique_edges,
 )
 from taichi_lap.dissection.device import DeviceTopology
@@ -143,6 +144,13 @@ LRA_REACH_MARGIN = 1.25
 rest distance before it (:func:`~taichi_lap.preprocess.sheets.long_range_attachments`'s
 ``reach``; cuts lengthen the geodesics around them)."""
 
+WALL_MIN_AREA = 0.01
+"""A wall's cut makes no face smaller at rest than this fraction of its median triangle
+as built: the jaws pressing into a wall cut it again and again where they rest, and the
+sub-faces of sub-faces shrank to 1e-16 m^2 at rest, their particles' masses to 1e-14
+kg; stretched by the jaws they were drawn as shards centimetres long, and one vertex
+gathered more triangles than its row of incident triangles holds."""
+
 FRAGMENT_TRIANGLES = 8
 """A piece of a cut sheet of at most this many triangles holding no anchor is a
 fragment, removed with the cut (the slivers the kerf leaves between its edges)."""
@@ -171,6 +179,7 @@ class _Sheet:
     lra_reach: float = np.inf  # the guess at its LRAs' longest rest distance [m]
     spent: bool = False  # whether the reserve ran out (said once)
     gauges: tuple | None = None  # (model topology version, edges, gauge lengths [m])
+    min_area: float = 0.0  # [m^2] at rest: faces a cut would make smaller than this go
 
 
 class SheetCutter:
@@ -216,6 +225,9 @@ class SheetCutter:
                 is_wall=is_wall,
                 pieces=piece_count(dissection.topology.live_faces(k)),
             )
+            if is_wall:
+                areas = triangle_areas(np.asarray(data.rest_position), built_faces(data, k))
+                sheet.min_area = WALL_MIN_AREA * float(np.median(areas))
             self.sheets.append(sheet)
         self.walls = [sheet for sheet in self.sheets if sheet.is_wall]
         if self.walls:
@@ -261,8 +273,11 @@ class SheetCutter:
         count = len(used)
         kept = np.ones(len(rows), dtype=bool)
         kept[cut.removed] = False
-        faces = np.concatenate([local.reshape(-1, 3)[kept], cut.added])
-        row_of = np.concatenate([rows[kept], np.full(len(cut.added), -1)])  # -1: made
+        old_rest = topology.rest[particles]
+        every_rest = np.concatenate([old_rest, cut.new_values(old_rest)])
+        made_faces = cut.added[triangle_areas(every_rest, cut.added) >= sheet.min_area]
+        faces = np.concatenate([local.reshape(-1, 3)[kept], made_faces])
+        row_of = np.concatenate([rows[kept], np.full(len(made_faces), -1)])  # -1: made
         fragment, fragments, piece_count = self._fragments(sheet, faces, particles, state)
         dead_triangles = np.concatenate([rows[cut.removed], row_of[fragment & (row_of >= 0)]])
         added = faces[~fragment & (row_of < 0)]
@@ -276,8 +291,6 @@ class SheetCutter:
         def blend(values):  # at the new vertices in use, by the cut's weights
             return cut.new_values(values[particles])[made]
 
-        old_rest = topology.rest[particles]
-        every_rest = np.concatenate([old_rest, cut.new_values(old_rest)])
         dead = ~kept  # the triangles cut away, and the kept ones of a fragment
         dead[kept] = fragment[: int(kept.sum())]
         old_mass, new_mass = masses_after_cut(
