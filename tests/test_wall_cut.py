@@ -134,7 +134,7 @@ def test_the_cut_particles_join_the_clusters_on_their_side(cut_tube):
             assert (piece[others] == piece[p]).all()
 
 
-def tube_halves(frames: int = 100) -> dict[str, np.ndarray]:
+def tube_halves(frames: int = 70) -> dict[str, np.ndarray]:
     """The tube cut through (:func:`cut_through`, the tool gone after 0.65 s), run on to
     ``frames``: how many pieces of over 400 triangles (halves) the tube is in, and
     the mean height [m] of the built particles of the halves within 8 mm of the cut,
