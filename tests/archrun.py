@@ -50,14 +50,28 @@ def run_on_arch(arch: str, target: str, **kwargs) -> dict[str, np.ndarray]:
             return {key: data[key] for key in data.files}
 
 
+_cpu_results: dict[tuple[str, str], dict[str, np.ndarray]] = {}
+
+
+def cpu_result(target: str, **kwargs) -> dict[str, np.ndarray]:
+    """``target`` (``module:function``) called here, on the CPU, once per test process
+    for each ``kwargs``: a CPU test and the backend comparison of the same computation
+    share one run (a file's tests run in one process, ``--dist loadfile``). Callers
+    only read the arrays."""
+    key = (target, json.dumps(kwargs, sort_keys=True))
+    if key not in _cpu_results:
+        module_name, func_name = target.split(":")
+        _cpu_results[key] = getattr(importlib.import_module(module_name), func_name)(**kwargs)
+    return _cpu_results[key]
+
+
 def assert_backend_matches_cpu(
     target: str, tolerance: float, per_key: dict[str, float] | None = None, **kwargs
 ) -> dict[str, np.ndarray]:
     """Run ``target`` here (CPU) and on :data:`COMPARE_ARCH`; every array must agree
     within ``tolerance`` (max abs difference), or the tolerance ``per_key`` names for
     it. Returns the CPU arrays."""
-    module_name, func_name = target.split(":")
-    cpu = getattr(importlib.import_module(module_name), func_name)(**kwargs)
+    cpu = cpu_result(target, **kwargs)
     other = run_on_arch(COMPARE_ARCH, target, **kwargs)
     for key, value in cpu.items():
         difference = np.abs(np.asarray(value, dtype=np.float64) - other[key]).max()

@@ -13,7 +13,7 @@ from taichi_lap.collision.surface_tables import broad_spheres
 from taichi_lap.collision.tissue import TissueCollision
 from taichi_lap.core.instruments import ToolShape
 from taichi_lap.sim import Control, Solver
-from tests.archrun import assert_backend_matches_cpu
+from tests.archrun import assert_backend_matches_cpu, cpu_result
 from tests.helpers import BOX, simulation
 
 DT = 1.0 / 60.0
@@ -410,7 +410,7 @@ def compute_collision_case(method: str = "circumsphere") -> dict:
 
 
 def test_a_union_of_implicit_shapes_pushes_particles_and_triangles_out():
-    result = compute_collision_case()
+    result = cpu_result("tests.test_circumsphere:compute_collision_case")
     tip, tail = result["tool"][:3].astype(float), result["tool"][3:].astype(float)
     distance = union_distances(
         result["p"].astype(float), tip, tail, 0.005, result["frame"].astype(float)

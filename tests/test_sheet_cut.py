@@ -16,7 +16,7 @@ from taichi_lap.preprocess.organs import CUT_RESERVE
 from taichi_lap.scene import Scene, from_tables
 from taichi_lap.session import Session
 from taichi_lap.sim.model import LISTS
-from tests.archrun import assert_backend_matches_cpu
+from tests.archrun import assert_backend_matches_cpu, cpu_result
 from tests.helpers import assert_incident_rows_packed, instrument, run_script
 from tests.test_lra import fascia
 
@@ -307,7 +307,7 @@ def quick_cut(frames: int = 30) -> dict[str, np.ndarray]:
 
 
 def test_a_cut_while_the_sheet_sags_frees_the_part_beyond_it():
-    result = quick_cut()
+    result = cpu_result("tests.test_sheet_cut:quick_cut")
     assert len(result["pieces"]) == 2 and result["pieces"].min() > 20
     x = result["x"]
     beyond, before = x[:, 0] > -0.03, x[:, 0] < -0.04
