@@ -235,25 +235,31 @@ class MutableTopology:
     # -- set-up ---------------------------------------------------------------------
 
     def _index_tets(self):
-        """The tets' incidence (particle -> tets, edges, adjacency) and live counts:
-        as built, and again after a cut adds tets or changes a wall. The adjacency
-        (the graph clusters split over) holds the tets' edges, then the
-        :attr:`wall_pairs` (:meth:`link_walls`), live while listed."""
+        """The tets' incidence (particle -> tets, edges) and live counts, and the
+        graph over them (:meth:`_index_graph`): as built, and again after a cut adds
+        tets."""
         n = len(self.rest)
         self.tet_start, rows = incidence(self.tets.ravel(), n)
         self.particle_tet = rows // 4
         live = self.tets[self.tet_alive]
         self.live_tets_of = np.bincount(live.ravel(), minlength=n)
         edges, inverse = unique_edges(self.tets, return_inverse=True)
+        self.tet_edges = edges.reshape(-1, 2)
         self.tet_edge = inverse.reshape(-1, 6)
+        self._index_graph()
+
+    def _index_graph(self):
+        """The graph clusters split over (adjacency and live counts): the tets'
+        edges, then the :attr:`wall_pairs`, live while listed; again after a wall's
+        cut changes only these (:meth:`_link_walls`)."""
         self.edge_live = np.concatenate(
             [
-                np.bincount(self.tet_edge[self.tet_alive].ravel(), minlength=len(edges)),
+                np.bincount(self.tet_edge[self.tet_alive].ravel(), minlength=len(self.tet_edges)),
                 np.ones(len(self.wall_pairs), dtype=np.int64),
             ]
         )
         self.adjacency_start, self.adjacency_edge, self.adjacency_other = both_ends(
-            np.concatenate([edges.reshape(-1, 2), self.wall_pairs]), n
+            np.concatenate([self.tet_edges, self.wall_pairs]), len(self.rest)
         )
 
     def _index_memberships(self):
@@ -517,8 +523,7 @@ class MutableTopology:
         particles (a wall, seed 000 §3.1: its surface edges and links through it),
         as built, before any cut of it; their ``particles``' clusters learn their
         parts as built over it (:meth:`_know_built_parts`)."""
-        self.wall_pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        self._index_tets()
+        self._link_walls(pairs)
         self._know_built_parts(self.clusters_of(particles).tolist())
 
     def cut_wall(self, pairs, rows, side, removed, at) -> dict[str, np.ndarray]:
@@ -529,13 +534,17 @@ class MutableTopology:
         graph becomes ``pairs`` (their live edges and links), and the clusters of the
         particles ``at`` the cut whose members it parted split into its connected
         pieces, as after a removal (:meth:`_split_clusters`). Returns the change's
-        ``joined`` and ``clusters``."""
+        ``joined``, ``clusters`` and ``memberships_rebuilt``."""
         joined = self._join_sides(np.asarray(rows, np.int64), np.asarray(side, np.int64))
-        self.wall_pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        self._index_tets()
+        self._link_walls(pairs)
         at = np.asarray(at, dtype=np.int64)
         clusters = self._split_clusters(np.asarray(removed, np.int64), at[self.particle_alive[at]])
-        return {"joined": joined, "clusters": clusters}
+        return {"joined": joined, "clusters": clusters, "memberships_rebuilt": True}
+
+    def _link_walls(self, pairs):
+        """Make ``pairs`` the walls' graph (:attr:`wall_pairs`) and index it."""
+        self.wall_pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self._index_graph()
 
     def _join_sides(self, rows: np.ndarray, side: np.ndarray) -> np.ndarray:
         """New particles ``rows`` (a cut's) join every live cluster of the particle

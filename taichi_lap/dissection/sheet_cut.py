@@ -355,7 +355,6 @@ class SheetCutter:
                 dead_particles,
                 np.concatenate([at, new_particles, crossed_ends]),
             )
-            clusters["memberships_rebuilt"] = True
         change = TopologyChange(
             removed_particles=dead_particles,
             dead_triangles=dead_triangles,
