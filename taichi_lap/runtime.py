@@ -181,5 +181,9 @@ a CPU process that built 560 trees crashed, one of 506 did not)."""
 
 def snode_trees() -> int:
     """The SNode tree ids the Taichi program has handed out: the trees alive and those
-    freed (Taichi gives a freed id to the next tree before a new one)."""
-    return impl.get_runtime().prog.get_snode_tree_size()
+    freed (Taichi gives a freed id to the next tree before a new one), and the one its
+    root tree (fields made outside groups) will take at the next launch: at the first
+    launch, or when fields were made outside groups since the last."""
+    root = impl.root
+    root_to_come = not impl.get_runtime().materialized or not (root.finalized or root.empty)
+    return impl.get_runtime().prog.get_snode_tree_size() + int(root_to_come)
