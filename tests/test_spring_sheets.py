@@ -94,9 +94,9 @@ def broken_springs(session: Session) -> dict[str, np.ndarray]:
 
 
 def early_tears() -> dict[str, np.ndarray]:
-    """:func:`broken_springs` after the first 20 frames of :func:`sagging` (a spring a
-    frame breaks from the fourth: 17)."""
-    return broken_springs(sagging(20)[0])
+    """:func:`broken_springs` after the first 12 frames of :func:`sagging` (a spring a
+    frame breaks from the fourth: 9)."""
+    return broken_springs(sagging(12)[0])
 
 
 def test_a_sagging_mesentery_tears_spring_by_spring_and_the_intestine_stays_whole(torn):
