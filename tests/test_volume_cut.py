@@ -285,6 +285,35 @@ def test_scissors_cut_the_stalk_the_head_is_excised_and_they_cut_through_the_ves
     assert_vessel_in_two_hanging_pieces(session)
 
 
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="the head falls through the rectum wall (README: Not yet)",
+)
+def test_a_head_cut_free_and_let_go_comes_to_rest_on_the_rectum_wall():
+    """The middle of the stalk removed, no instrument near: the head falls onto the
+    rectum's top and stays on it. It does not yet: the tissue contacts slow it (moved
+    2 cm beside the stalk's foot, its mean speed after four frames was 0.31 m/s,
+    against 0.65 m/s in free fall), but it passes through both skins of the wall
+    and lands on the floor. Not found why; the contacts move the 474 of its 1056
+    particles bound to its surface, and the rest follow by shape matching only."""
+    session = Session(scene.load("rectum"), progress=False)
+    _, built = polyp(session.data)
+    x = session.state.x.to_numpy()
+    height = stalk_height(session)
+    session.remove_particles(built[np.abs(x[built, 1] - height) < 0.0012])
+    head = built[x[built, 1] > height + 0.0012]
+    rectum = x[slice(*session.data.organs[0].particles)]
+    centre = x[head].mean(axis=0)
+    under = np.hypot(rectum[:, 0] - centre[0], rectum[:, 2] - centre[2]) < 0.004
+    wall_top = rectum[under, 1].max()
+    for _ in range(20):
+        session.step()
+    lowest = session.state.x.to_numpy()[head, 1].min()
+    session.close()
+    assert lowest > wall_top - 0.003
+
+
 def quick_volume_cut(frames: int = 20) -> dict[str, np.ndarray]:
     """The test block of tet clusters, its lower part fixed, under gravity: scissors
     with 4 cm jaws, level, sweep through it 2 mm above its middle at 0.3 m/s (the
