@@ -3,8 +3,6 @@ surface follows a topology change; seed 000 §4): the wound surface a removal ma
 collides as the surface as built does, its tables are those of the cut surface built
 anew, and an instrument pressed on the wound indents it."""
 
-import functools
-
 import numpy as np
 import pytest
 
@@ -105,7 +103,6 @@ def test_the_collision_tables_after_cuts_are_those_of_the_cut_surface_built_anew
     fresh.close()
 
 
-@functools.cache  # the CPU test and the Vulkan comparison share the CPU run
 def pit_press(
     kind: str = "hook",
     wound_collides: bool = True,
