@@ -184,6 +184,6 @@ def snode_trees() -> int:
     freed (Taichi gives a freed id to the next tree before a new one), and the one its
     root tree (fields made outside groups) will take at the next launch: at the first
     launch, or when fields were made outside groups since the last."""
-    root = impl.root
-    root_to_come = not impl.get_runtime().materialized or not (root.finalized or root.empty)
-    return impl.get_runtime().prog.get_snode_tree_size() + int(root_to_come)
+    program, root = impl.get_runtime(), impl.root
+    root_to_come = not program.materialized or not (root.finalized or root.empty)
+    return program.prog.get_snode_tree_size() + int(root_to_come)
