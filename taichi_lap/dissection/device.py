@@ -66,7 +66,7 @@ class DeviceTopology:
         self.row_key, self.row_of_key = keys[order], order  # (cluster, particle) -> row
         self.rows_used = len(member)
         self.row_mass = np.zeros(model.member_capacity)
-        self.row_mass[: len(member)] = data.mass[member]
+        self.row_mass[: len(member)] = data.fit_mass()[member]
         self.mass = np.zeros(model.cluster_capacity)
         self.center = np.zeros((model.cluster_capacity, 3))
         self.mass[:c] = model.cluster_mass.to_numpy()[:c]
@@ -258,12 +258,13 @@ class DeviceTopology:
         self._set_member_weights(writes, clusters, particles, np.zeros(len(particles)))
 
     def _weigh_members(self, writes: RowWrites, particles: np.ndarray):
-        """Every cluster row of ``particles`` weighs the particle's mass now."""
+        """Every cluster row of ``particles`` weighs the particle's weight in the fits
+        now (its mass; a fixed particle's more: :meth:`MutableTopology.fit_mass`)."""
         topology = self.topology
         rows = rows_of(topology.membership_start, particles)
         owners = particles[owners_of(topology.membership_start, particles)]
         self._set_member_weights(
-            writes, topology.membership_cluster[rows], owners, topology.mass[owners]
+            writes, topology.membership_cluster[rows], owners, topology.fit_mass(owners)
         )
 
     def _set_member_weights(
@@ -328,7 +329,7 @@ class DeviceTopology:
         rows[fresh] = np.arange(self.rows_used, self.rows_used + int(fresh.sum()))
         self.rows_used += int(fresh.sum())
         self._key_rows(keys[fresh], rows[fresh])
-        mass = self.topology.mass[particles]
+        mass = self.topology.fit_mass(particles)
         rest = self.topology.rest[particles]
         gained = mass - np.where(fresh, 0.0, self.row_mass[rows])
         self.row_mass[rows] = mass
@@ -428,7 +429,7 @@ class DeviceTopology:
         n = len(topology.rest)
         self._key_rows(c * n + members, rows)
         self.rows_used += count
-        mass = topology.mass[members]
+        mass = topology.fit_mass(members)
         rest = topology.rest[members]
         self.row_mass[rows] = mass
         self.mass[c] = mass.sum()

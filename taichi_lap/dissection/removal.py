@@ -48,6 +48,7 @@ from taichi_lap.core.csr import both_ends, incidence, owners_of, rows_of
 from taichi_lap.core.mesh import TET_FACES, face_keys, tet_volumes, unique_edges
 from taichi_lap.core.topology import Topology
 from taichi_lap.dissection.marching import clipped_triangles, wound_triangles
+from taichi_lap.preprocess.model_data import fit_weights
 
 FRAGMENT_DEPTH = 8
 """Tet edges from a removal within which a piece cut off from its organ is looked for."""
@@ -1048,12 +1049,17 @@ class MutableTopology:
         v["cluster"][stale[owner[first]]] = candidate[first]
         return stale
 
+    def fit_mass(self, particles: np.ndarray) -> np.ndarray:
+        """``particles``' weights in their clusters' fits now [kg]
+        (:func:`~taichi_lap.preprocess.model_data.fit_weights`)."""
+        return fit_weights(self.mass[particles], self.pinned[particles])
+
     def rest_centers(self, clusters: np.ndarray) -> np.ndarray:
         """(C, 3) [m] rest mass centres of the live members of ``clusters``."""
         members = [self.cluster_members[c] for c in clusters.tolist()]
         which = np.repeat(np.arange(len(members)), [len(m) for m in members])
         members = np.concatenate(members)
-        mass = self.mass[members]
+        mass = self.fit_mass(members)
         total = np.bincount(which, weights=mass, minlength=len(clusters))
         moment = [
             np.bincount(which, weights=mass * self.rest[members, a], minlength=len(clusters))

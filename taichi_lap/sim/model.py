@@ -130,8 +130,10 @@ def cluster_tables(
     rest: np.ndarray, mass: np.ndarray, start: np.ndarray, member: np.ndarray
 ) -> dict:
     """Seed 000 Alg. 1 rest data of clusters ``start``/``member`` (compressed rows):
-    per member its mass and rest offset q = x0 - x0_cm, per cluster its mass and rest
-    mass centre x0_cm [m], and the particle-major memberships."""
+    per member its ``mass`` (its weight in the fits,
+    :func:`~taichi_lap.preprocess.model_data.fit_weights`) and rest offset
+    q = x0 - x0_cm, per cluster its mass and rest mass centre x0_cm [m], and the
+    particle-major memberships."""
     c = len(start) - 1
     owner = np.repeat(np.arange(c), np.diff(start))
     m = mass[member]
@@ -343,7 +345,7 @@ class Model(FieldOwner):
         size, a whole-organ cluster has ~10^5 members, still deterministic). Sets
         the counts as built and, at the first call, :attr:`capacity`."""
         tables = cluster_tables(
-            data.rest_position, data.mass, data.cluster_start, data.cluster_member
+            data.rest_position, data.fit_mass(), data.cluster_start, data.cluster_member
         )
         chunks = member_chunks(data.cluster_start)
         self.cluster_total = data.cluster_count

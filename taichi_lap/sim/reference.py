@@ -42,7 +42,8 @@ class ReferenceShapeMatching:
         start, member = data.cluster_start, data.cluster_member
         self.start, self.member = start[:-1], member
         self.owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
-        m = self.mass[member]
+        self.fit_mass = data.fit_mass()
+        m = self.fit_mass[member]
         self.cluster_mass = np.add.reduceat(m, self.start)
         rest = data.rest_position.astype(np.float64)
         self.rest_center = (
@@ -86,7 +87,7 @@ class ReferenceShapeMatching:
 
     def _match(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cluster mass centres and rotations (Alg. 1 lines 7-11)."""
-        m = self.mass[self.member]
+        m = self.fit_mass[self.member]
         d = p[self.member] - self.rest_center[self.owner]
         center = (
             self.rest_center
