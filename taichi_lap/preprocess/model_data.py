@@ -33,13 +33,13 @@ def fit_weights(mass: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     the mass centre p_cm and A = Σ m (p - p_cm) q^T): its mass, and
     :data:`FIXED_FIT_WEIGHT` times that where it is fixed. A fixed particle has
     infinite mass (inverse mass 0), and the least-squares rigid fit of a cluster
-    weighted by mass (Müller et al. 2005, §3: its translation is the mass centre) then
-    keeps a fixed member in place:
-    with the mass itself a cluster that holds fixed particles follows the free ones
-    instead, so a body fixed at its base sagged, goal after goal, until it folded
-    through the base (an 8 mm tet cube at 4 substeps: its top 18 mm lower, 0.4 mm with
-    this weight). A thousand times is infinite enough for f32 sums and leaves the
-    fits' arithmetic well conditioned."""
+    weighted by mass (Müller et al. 2005, "Meshless deformations based on shape
+    matching": its optimal translation is the mass centre) then keeps a fixed member
+    in place. With the mass itself a cluster that holds fixed particles follows the
+    free ones instead, so a body fixed at its base sagged, goal after goal, until it
+    folded through the base (an 8 mm tet cube at 4 substeps: its top 18 mm lower, 0.4
+    mm with this weight). A thousand times is infinite enough for f32 sums and leaves
+    the fits' arithmetic well conditioned."""
     return np.where(pinned, FIXED_FIT_WEIGHT, 1.0) * mass
 
 
