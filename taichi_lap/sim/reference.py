@@ -32,7 +32,6 @@ class ReferenceShapeMatching:
             for p, n, f in planes
         ]
         self.tools = [(np.asarray(a, float), np.asarray(b, float), float(r)) for a, b, r in tools]
-        self.mass = data.mass.astype(np.float64)
         self.free = ~data.pinned
         self.radius = data.radius.astype(np.float64)
         self.contact_radius = data.contact_radius()
@@ -42,8 +41,8 @@ class ReferenceShapeMatching:
         start, member = data.cluster_start, data.cluster_member
         self.start, self.member = start[:-1], member
         self.owner = np.repeat(np.arange(len(start) - 1), np.diff(start))
-        self.fit_mass = data.fit_mass()
-        m = self.fit_mass[member]
+        self.member_weight = data.fit_mass()[member]  # its weight in the fits
+        m = self.member_weight
         self.cluster_mass = np.add.reduceat(m, self.start)
         rest = data.rest_position.astype(np.float64)
         self.rest_center = (
@@ -87,7 +86,7 @@ class ReferenceShapeMatching:
 
     def _match(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cluster mass centres and rotations (Alg. 1 lines 7-11)."""
-        m = self.fit_mass[self.member]
+        m = self.member_weight
         d = p[self.member] - self.rest_center[self.owner]
         center = (
             self.rest_center
