@@ -66,14 +66,14 @@ def test_the_rectum_expert_does_every_phase_and_the_careless_scissors_close_on_t
 
 
 @pytest.mark.scene_task
-@pytest.mark.xfail(strict=True, reason="the stalk cut's shards reach 9 cm (README: Not yet)")
+@pytest.mark.xfail(strict=True, reason="the stalk cut's shards reach 10-18 cm (README: Not yet)")
 def test_the_stalk_cut_leaves_no_shard_across_the_view():
     """While the script's scissors cut the stalk under the grasped head (7.9-9.2 s),
     no tet of the polyp stretches into a shard: its longest live edge stays under
     2 cm (the rest lattice's are about 3 mm; the head is grasped and lifted, the
     stalk's foot crushed by the jaws). The cut leaves sliver corners 10^-3 to 10^-5 as
     heavy as their neighbours, a tool's push spread by λ w b goes nearly all to them
-    and the contact holds their goals where the push put them: edges reach 9 cm."""
+    and the contact holds their goals where the push put them: edges reach 10-18 cm."""
     scene = scene_mod.load("rectum")
     device = scene_script(scene)
     longest = 0.0
